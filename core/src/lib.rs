@@ -1,0 +1,28 @@
+//! # sieve-core
+//!
+//! Size segregation in bi-disperse granular flows (see `shared/model.md`): finite volumes on
+//! static structured grids, generic over `f32`/`f64`, with no standard library, no allocator
+//! and no `unsafe`. Memory is fixed at compile time by const generics (`D` dimensions, `N`
+//! cells of capacity) and a step allocates nothing, so the same code runs in the desktop CLI,
+//! in tests and in Cortex-M4F firmware, with bit-identical results.
+//!
+//! Data flows one way: grid + boundaries + configuration ([`segregation::Segregation::setup`])
+//! -> fields -> [`segregation::Segregation::prepare`] -> [`segregation::Segregation::step`]
+//! -> [`diagnostics`].
+#![no_std]
+#![forbid(unsafe_code)]
+
+pub mod boundary;
+pub mod diagnostics;
+pub mod grid;
+pub mod hash;
+pub mod real;
+pub mod segregation;
+
+pub use boundary::{Boundaries, Boundary};
+pub use diagnostics::{diagnose, state_hash, Diagnostics, SegregationClock};
+pub use grid::Grid;
+pub use real::Real;
+pub use segregation::{
+    DirectionMode, Phase, Scheme, Segregation, SegregationConfig, SetupError, TemperatureMode,
+};

@@ -1,0 +1,549 @@
+//! The segregation equation (model.md section 3) on a static grid, for a given (prescribed or
+//! measured) velocity field, volume fraction and granular temperature.
+//!
+//! Data flow: [`Segregation::setup`] fixes grid, boundaries and configuration; the caller fills
+//! the cells ([`Segregation::set_cell`], [`Segregation::set_inflow`]); [`Segregation::prepare`]
+//! validates them and derives the static face coefficients (T from shear, segregation
+//! direction, `k = S.n / c`, the stable time step); [`Segregation::step`] advances.
+//! Memory is fixed by the capacity `N` and the dimension `D`; nothing allocates.
+
+pub mod direction;
+pub mod flux;
+mod step;
+
+pub use flux::Scheme;
+
+use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};
+use crate::grid::Grid;
+use crate::real::Real;
+use serde::{Deserialize, Serialize};
+
+/// Which phase the solver tracks. Its fraction `q` is phi (small) or `psi = c - phi` (large).
+/// The small phase has a convex flux, the large phase a concave one. For the modified flux
+/// both give the same phi to round-off; for the naive fluxes they differ (model.md 5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Phase {
+    /// Track phi, the small grains.
+    #[default]
+    Small,
+    /// Track psi = c - phi, the large grains.
+    Large,
+}
+
+/// How the segregation direction `d_s` is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum DirectionMode<R: Real, const D: usize> {
+    /// A fixed unit vector (normalised on prepare).
+    Fixed([R; D]),
+    /// Parallel to gravity.
+    Gravity,
+    /// From the velocity gradient (model.md 3); parallel to gravity where the shear vanishes.
+    Flow,
+}
+
+/// Where the granular temperature comes from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TemperatureMode<R: Real> {
+    /// The T set per cell is used as is.
+    Given,
+    /// `T = a eta0 / eps0 * kappa:kappa` from the velocity gradient (steady uniform shear
+    /// balance, model.md 2): `a` heating prefactor, `eta0` [m], `eps0` [1/m].
+    FromShear {
+        /// heating prefactor a (3/2 in the source model)
+        heating: R,
+        /// eta0 [m]
+        eta0: R,
+        /// eps0 [1/m]
+        eps0: R,
+    },
+}
+
+/// Everything about the segregation equation that is not a field.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SegregationConfig<R: Real, const D: usize> {
+    /// Numerical segregation flux.
+    pub scheme: Scheme,
+    /// Tracked phase.
+    pub phase: Phase,
+    /// Segregation rate S0 [s^2/m]: `S = -S0 sqrt(T) P g`.
+    pub s0: R,
+    /// Gravity vector [m/s^2].
+    pub gravity: [R; D],
+    /// Segregation direction.
+    pub direction: DirectionMode<R, D>,
+    /// Source of T.
+    pub temperature: TemperatureMode<R>,
+    /// Remixing diffusivity D >= 0 [m^2/s] (Gray & Chugunov 2006), written in phihat.
+    pub diffusion: R,
+    /// Courant number in (0, 1).
+    pub courant: R,
+    /// Volume fraction below which a cell counts as empty: no segregation or diffusion flux.
+    pub vacuum: R,
+}
+
+impl<R: Real, const D: usize> SegregationConfig<R, D> {
+    /// Defaults: modified flux, small phase, S0 = 1, gravity -1 along the last axis, direction
+    /// parallel to gravity, T given, no diffusion, Courant 0.5, vacuum below 1e-6.
+    pub const fn new() -> Self {
+        let mut gravity = [R::ZERO; D];
+        if D > 0 {
+            gravity[D - 1] = R::NEG_ONE;
+        }
+        Self {
+            scheme: Scheme::Modified,
+            phase: Phase::Small,
+            s0: R::ONE,
+            gravity,
+            direction: DirectionMode::Gravity,
+            temperature: TemperatureMode::Given,
+            diffusion: R::ZERO,
+            courant: R::HALF,
+            vacuum: R::VACUUM,
+        }
+    }
+}
+
+impl<R: Real, const D: usize> Default for SegregationConfig<R, D> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Why a configuration or a field cannot be used. Field errors name the first bad cell.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SetupError {
+    /// The grid needs more cells than the compiled capacity.
+    Capacity {
+        /// cells needed
+        cells: usize,
+        /// compiled capacity
+        capacity: usize,
+    },
+    /// Periodic on one side of an axis only.
+    UnpairedPeriodic {
+        /// axis
+        axis: usize,
+    },
+    /// Courant number outside (0, 1).
+    Courant,
+    /// A configuration number is NaN, infinite, or negative where it must not be.
+    Parameter(&'static str),
+    /// A field value is NaN or infinite.
+    NonFinite {
+        /// field name
+        field: &'static str,
+        /// cell index
+        cell: usize,
+    },
+    /// c < 0.
+    NegativeVolumeFraction {
+        /// cell index
+        cell: usize,
+    },
+    /// T < 0.
+    NegativeTemperature {
+        /// cell index
+        cell: usize,
+    },
+    /// phi outside [0, c].
+    PhiOutOfRange {
+        /// cell index
+        cell: usize,
+    },
+}
+
+/// The segregation solver: phase fraction, static coefficients and scratch, for up to `N`
+/// cells of a `D`-dimensional grid.
+#[derive(Clone, Debug)]
+pub struct Segregation<R: Real, const D: usize, const N: usize> {
+    grid: Grid<R, D>,
+    bc: Boundaries<D>,
+    cfg: SegregationConfig<R, D>,
+    /// Tracked phase fraction (phi or psi).
+    q: [R; N],
+    /// Total volume fraction c.
+    c: [R; N],
+    /// Granular temperature T.
+    temp: [R; N],
+    /// Velocity components.
+    u: [[R; N]; D],
+    /// `k_a = (S . e_a) / c` per axis, signed for the tracked phase; 0 in empty cells.
+    k: [[R; N]; D],
+    /// Dirichlet value of q for inflow faces of a boundary cell.
+    ghost: [R; N],
+    /// Scratch: increment of q in the current step.
+    rhs: [R; N],
+    /// Scratch: face fluxes along the current axis, indexed by the left cell.
+    flux: [R; N],
+    /// `max_i sum_a (|u_a| + |S_a|)/h_a + 2 D sum_a 1/h_a^2`, so that `dt = C / rate`.
+    rate: R,
+    prepared: bool,
+    time: R,
+    steps: u64,
+}
+
+impl<R: Real, const D: usize, const N: usize> Default for Segregation<R, D, N> {
+    fn default() -> Self {
+        Self::zeroed()
+    }
+}
+
+impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
+    /// Capacity in cells.
+    pub const CAPACITY: usize = N;
+
+    /// An empty solver on a one-cell grid; `const` so it can live in a `static`.
+    pub const fn zeroed() -> Self {
+        Self {
+            grid: Grid::unit(),
+            bc: [[Boundary::Wall; 2]; D],
+            cfg: SegregationConfig::new(),
+            q: [R::ZERO; N],
+            c: [R::ZERO; N],
+            temp: [R::ZERO; N],
+            u: [[R::ZERO; N]; D],
+            k: [[R::ZERO; N]; D],
+            ghost: [R::ZERO; N],
+            rhs: [R::ZERO; N],
+            flux: [R::ZERO; N],
+            rate: R::ZERO,
+            prepared: false,
+            time: R::ZERO,
+            steps: 0,
+        }
+    }
+
+    /// Fixes grid, boundaries and configuration; clears all fields and the clock.
+    pub fn setup(
+        &mut self,
+        grid: Grid<R, D>,
+        bc: Boundaries<D>,
+        cfg: SegregationConfig<R, D>,
+    ) -> Result<(), SetupError> {
+        if grid.len() > N {
+            return Err(SetupError::Capacity {
+                cells: grid.len(),
+                capacity: N,
+            });
+        }
+        check_periodic_pairs(&bc).map_err(|axis| SetupError::UnpairedPeriodic { axis })?;
+        if !(cfg.courant > R::ZERO && cfg.courant < R::ONE) {
+            return Err(SetupError::Courant);
+        }
+        let finite_nonneg = |x: R| x.is_finite() && x >= R::ZERO;
+        if !finite_nonneg(cfg.s0) {
+            return Err(SetupError::Parameter("s0"));
+        }
+        if !finite_nonneg(cfg.diffusion) {
+            return Err(SetupError::Parameter("diffusion"));
+        }
+        if !finite_nonneg(cfg.vacuum) {
+            return Err(SetupError::Parameter("vacuum"));
+        }
+        if cfg.gravity.iter().any(|g| !g.is_finite()) {
+            return Err(SetupError::Parameter("gravity"));
+        }
+        if let DirectionMode::Fixed(d) = cfg.direction {
+            if d.iter().any(|x| !x.is_finite()) || d.iter().all(|&x| x == R::ZERO) {
+                return Err(SetupError::Parameter("direction"));
+            }
+        }
+        if let TemperatureMode::FromShear {
+            heating,
+            eta0,
+            eps0,
+        } = cfg.temperature
+        {
+            if !(finite_nonneg(heating)
+                && finite_nonneg(eta0)
+                && eps0.is_finite()
+                && eps0 > R::ZERO)
+            {
+                return Err(SetupError::Parameter("temperature"));
+            }
+        }
+        self.grid = grid;
+        self.bc = bc;
+        self.cfg = cfg;
+        let n = grid.len();
+        for a in [
+            &mut self.q,
+            &mut self.c,
+            &mut self.temp,
+            &mut self.ghost,
+            &mut self.rhs,
+            &mut self.flux,
+        ] {
+            a[..n].fill(R::ZERO);
+        }
+        for a in 0..D {
+            self.u[a][..n].fill(R::ZERO);
+            self.k[a][..n].fill(R::ZERO);
+        }
+        self.rate = R::ZERO;
+        self.prepared = false;
+        self.time = R::ZERO;
+        self.steps = 0;
+        Ok(())
+    }
+
+    /// Sets the state of cell `i`: volume fraction `c`, temperature `t` (ignored if derived
+    /// from shear), velocity `u`, and small-phase fraction `phi`.
+    pub fn set_cell(&mut self, i: usize, c: R, t: R, u: [R; D], phi: R) {
+        self.c[i] = c;
+        self.temp[i] = t;
+        for (a, ua) in u.iter().enumerate() {
+            self.u[a][i] = *ua;
+        }
+        self.q[i] = self.tracked(phi, c);
+        self.prepared = false;
+    }
+
+    /// Sets only the velocity of cell `i` (a new measured frame); call [`Self::prepare`] after.
+    pub fn set_velocity(&mut self, i: usize, u: [R; D]) {
+        for (a, ua) in u.iter().enumerate() {
+            self.u[a][i] = *ua;
+        }
+        self.prepared = false;
+    }
+
+    /// Sets the small-phase fraction of cell `i` (for restoring a snapshot).
+    pub fn set_phi(&mut self, i: usize, phi: R) {
+        self.q[i] = self.tracked(phi, self.c[i]);
+    }
+
+    /// Sets the inflow (Dirichlet) small-phase fraction seen by inflow faces of boundary cell `i`.
+    pub fn set_inflow(&mut self, i: usize, phi: R) {
+        self.ghost[i] = self.tracked(phi, self.c[i]);
+    }
+
+    /// Restores the clock (for snapshots).
+    pub fn set_clock(&mut self, time: R, steps: u64) {
+        self.time = time;
+        self.steps = steps;
+    }
+
+    #[inline]
+    fn tracked(&self, phi: R, c: R) -> R {
+        match self.cfg.phase {
+            Phase::Small => phi,
+            Phase::Large => c - phi,
+        }
+    }
+
+    /// Validates the fields and derives T (if from shear), the segregation direction, the face
+    /// coefficients `k` and the stable rate. Needed after any change of u, c or T.
+    pub fn prepare(&mut self) -> Result<(), SetupError> {
+        let n = self.grid.len();
+        for i in 0..n {
+            let phi = self.phi(i);
+            for (field, v) in [("c", self.c[i]), ("T", self.temp[i]), ("phi", phi)] {
+                if !v.is_finite() {
+                    return Err(SetupError::NonFinite { field, cell: i });
+                }
+            }
+            for a in 0..D {
+                if !self.u[a][i].is_finite() {
+                    return Err(SetupError::NonFinite {
+                        field: "u",
+                        cell: i,
+                    });
+                }
+            }
+            if self.c[i] < R::ZERO {
+                return Err(SetupError::NegativeVolumeFraction { cell: i });
+            }
+            if self.temp[i] < R::ZERO {
+                return Err(SetupError::NegativeTemperature { cell: i });
+            }
+            if phi < R::ZERO || phi > self.c[i] {
+                return Err(SetupError::PhiOutOfRange { cell: i });
+            }
+        }
+        self.derive_coefficients();
+        self.prepared = true;
+        Ok(())
+    }
+
+    fn derive_coefficients(&mut self) {
+        let n = self.grid.len();
+        let cfg = self.cfg;
+        let h = self.grid.spacing();
+        let g = cfg.gravity;
+        let gnorm = norm(&g);
+        let gravity_dir = if gnorm > R::ZERO {
+            let mut d = g;
+            d.iter_mut().for_each(|x| *x = *x / gnorm);
+            d
+        } else {
+            let mut d = [R::ZERO; D];
+            d[D - 1] = R::ONE;
+            d
+        };
+        let sign = match cfg.phase {
+            Phase::Small => R::ONE,
+            Phase::Large => -R::ONE,
+        };
+        let mut diffusion_rate = R::ZERO;
+        for &ha in h.iter() {
+            diffusion_rate += R::TWO * cfg.diffusion / (ha * ha);
+        }
+        let mut rate = R::ZERO;
+        for i in 0..n {
+            let needs_gradient = matches!(cfg.direction, DirectionMode::Flow)
+                || matches!(cfg.temperature, TemperatureMode::FromShear { .. });
+            let grad = if needs_gradient {
+                direction::velocity_gradient(&self.grid, &self.bc, &self.u, i)
+            } else {
+                [[R::ZERO; D]; D]
+            };
+            if let TemperatureMode::FromShear {
+                heating,
+                eta0,
+                eps0,
+            } = cfg.temperature
+            {
+                self.temp[i] = heating * eta0 / eps0 * direction::shear_rate_squared(&grad);
+            }
+            let mut ui = [R::ZERO; D];
+            for a in 0..D {
+                ui[a] = self.u[a][i];
+            }
+            let d = match cfg.direction {
+                DirectionMode::Fixed(d) => {
+                    let dn = norm(&d);
+                    let mut out = d;
+                    out.iter_mut().for_each(|x| *x = *x / dn);
+                    out
+                }
+                DirectionMode::Gravity => gravity_dir,
+                DirectionMode::Flow => direction::segregation_direction(&grad, &ui, gravity_dir),
+            };
+            // S = -S0 sqrt(T) (g . d) d   (model.md 3), signed for the tracked phase.
+            let g_dot_d = dot(&g, &d);
+            let s_mag = -(cfg.s0 * self.temp[i].sqrt() * g_dot_d) * sign;
+            let ci = self.c[i];
+            let mut cell_rate = diffusion_rate;
+            for a in 0..D {
+                let s_a = s_mag * d[a];
+                self.k[a][i] = if ci > cfg.vacuum { s_a / ci } else { R::ZERO };
+                cell_rate += (ui[a].abs() + s_a.abs()) / h[a];
+            }
+            rate = rate.max(cell_rate);
+        }
+        self.rate = rate;
+    }
+
+    /// The largest time step the Courant condition allows (`R::MAX` if nothing moves).
+    pub fn stable_dt(&self) -> R {
+        if self.rate > R::ZERO {
+            self.cfg.courant / self.rate
+        } else {
+            R::MAX
+        }
+    }
+
+    /// Advances to time `t_end` with the stable step (the last one shortened to land exactly),
+    /// at most `max_steps` steps; returns the number of steps taken.
+    pub fn advance_to(&mut self, t_end: R, max_steps: u64) -> u64 {
+        let dt = self.stable_dt();
+        let mut taken = 0;
+        while self.time < t_end && taken < max_steps {
+            let remaining = t_end - self.time;
+            if remaining <= dt {
+                self.step(remaining);
+                self.time = t_end;
+            } else {
+                self.step(dt);
+            }
+            taken += 1;
+        }
+        taken
+    }
+
+    /// Number of steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+    /// Simulated time.
+    pub fn time(&self) -> R {
+        self.time
+    }
+    /// The grid.
+    pub fn grid(&self) -> &Grid<R, D> {
+        &self.grid
+    }
+    /// The boundaries.
+    pub fn boundaries(&self) -> &Boundaries<D> {
+        &self.bc
+    }
+    /// The configuration.
+    pub fn config(&self) -> &SegregationConfig<R, D> {
+        &self.cfg
+    }
+    /// Number of active cells.
+    pub fn len(&self) -> usize {
+        self.grid.len()
+    }
+    /// Never empty.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+    /// Small-phase fraction phi of cell `i`.
+    #[inline]
+    pub fn phi(&self, i: usize) -> R {
+        match self.cfg.phase {
+            Phase::Small => self.q[i],
+            Phase::Large => self.c[i] - self.q[i],
+        }
+    }
+    /// Tracked phase fraction of cell `i` (phi or psi).
+    #[inline]
+    pub fn tracked_fraction(&self, i: usize) -> R {
+        self.q[i]
+    }
+    /// Volume fraction c of cell `i`.
+    #[inline]
+    pub fn c(&self, i: usize) -> R {
+        self.c[i]
+    }
+    /// Temperature of cell `i` (derived once prepared, if from shear).
+    #[inline]
+    pub fn temperature(&self, i: usize) -> R {
+        self.temp[i]
+    }
+    /// Velocity of cell `i`.
+    #[inline]
+    pub fn velocity(&self, i: usize) -> [R; D] {
+        let mut u = [R::ZERO; D];
+        for (a, ua) in u.iter_mut().enumerate() {
+            *ua = self.u[a][i];
+        }
+        u
+    }
+    /// Segregation velocity `S` of cell `i` for the small phase (model.md 3); zero if empty.
+    pub fn segregation_velocity(&self, i: usize) -> [R; D] {
+        let sign = match self.cfg.phase {
+            Phase::Small => R::ONE,
+            Phase::Large => -R::ONE,
+        };
+        let mut s = [R::ZERO; D];
+        for (a, sa) in s.iter_mut().enumerate() {
+            *sa = self.k[a][i] * self.c[i] * sign;
+        }
+        s
+    }
+}
+
+fn dot<R: Real, const D: usize>(a: &[R; D], b: &[R; D]) -> R {
+    let mut s = R::ZERO;
+    for i in 0..D {
+        s += a[i] * b[i];
+    }
+    s
+}
+
+fn norm<R: Real, const D: usize>(a: &[R; D]) -> R {
+    dot(a, a).sqrt()
+}

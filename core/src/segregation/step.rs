@@ -1,0 +1,307 @@
+//! The explicit finite-volume update of the tracked phase (model.md section 5).
+//!
+//! Per axis: face fluxes of the interior faces in contiguous blocks (vectorisable), the
+//! boundary faces of the high side, then the flux difference into the increment. Every face
+//! flux is added to one cell and subtracted from the other with the same value, so the total
+//! mass changes only by the rounding of those additions.
+
+use super::flux::{self, Scheme};
+use super::Segregation;
+use crate::boundary::Boundary;
+use crate::real::Real;
+
+/// One side of a face: tracked fraction, volume fraction, segregation coefficient, temperature,
+/// normal velocity.
+#[derive(Clone, Copy)]
+struct Side<R> {
+    q: R,
+    c: R,
+    k: R,
+    t: R,
+    u: R,
+}
+
+/// A numerical segregation flux as a zero-sized type, so the face loop is monomorphised.
+trait Kernel<R: Real> {
+    fn segregation(l: Side<R>, r: Side<R>, vacuum: R) -> R;
+}
+
+struct Modified;
+struct Godunov;
+struct Upwind;
+
+impl<R: Real> Kernel<R> for Modified {
+    #[inline(always)]
+    fn segregation(l: Side<R>, r: Side<R>, _vacuum: R) -> R {
+        flux::modified(l.q, l.c, l.k, r.q, r.c, r.k)
+    }
+}
+
+/// Face-averaged coefficients of the naive fluxes: c = (c_L + c_R)/2, T = (T_L + T_R)/2 and
+/// the direction factor `b = S.n / sqrt(T)` averaged, so `k = b sqrt(T) / c` (model.md 5).
+#[inline(always)]
+fn averaged<R: Real>(l: Side<R>, r: Side<R>, vacuum: R) -> (R, R) {
+    let b = |s: Side<R>| {
+        if s.t > R::ZERO {
+            s.k * s.c / s.t.sqrt()
+        } else {
+            R::ZERO
+        }
+    };
+    let c = (l.c + r.c) * R::HALF;
+    let t = (l.t + r.t) * R::HALF;
+    let k = if c > vacuum {
+        (b(l) + b(r)) * R::HALF * t.sqrt() / c
+    } else {
+        R::ZERO
+    };
+    (c, k)
+}
+
+impl<R: Real> Kernel<R> for Godunov {
+    #[inline(always)]
+    fn segregation(l: Side<R>, r: Side<R>, vacuum: R) -> R {
+        let (c, k) = averaged(l, r, vacuum);
+        flux::godunov(l.q, r.q, c, k)
+    }
+}
+
+impl<R: Real> Kernel<R> for Upwind {
+    #[inline(always)]
+    fn segregation(l: Side<R>, r: Side<R>, vacuum: R) -> R {
+        let (c, k) = averaged(l, r, vacuum);
+        flux::upwind(l.q, r.q, c, k)
+    }
+}
+
+/// Coefficients of the face loop that do not vary between faces of one axis.
+#[derive(Clone, Copy)]
+struct AxisConst<R> {
+    /// dt / h
+    lambda: R,
+    /// D / h (the diffusive flux is `-(D/h) c_face (qhat_R - qhat_L)`)
+    diffusion: R,
+    vacuum: R,
+}
+
+/// Total normal flux through one face times dt/h: transport + segregation (+ diffusion).
+#[inline(always)]
+fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(l: Side<R>, r: Side<R>, ax: AxisConst<R>) -> R {
+    let un = (l.u + r.u) * R::HALF;
+    let mut f = flux::transport(l.q, r.q, un) + K::segregation(l, r, ax.vacuum);
+    if DIFFUSE && l.c > ax.vacuum && r.c > ax.vacuum {
+        let c_face = (l.c + r.c) * R::HALF;
+        f -= ax.diffusion * c_face * (r.q / r.c - l.q / l.c);
+    }
+    f * ax.lambda
+}
+
+impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
+    /// One explicit step of length `dt` (at most [`Self::stable_dt`]); the caller owns the clock
+    /// only through [`Self::advance_to`]: this adds `dt` to the time itself.
+    pub fn step(&mut self, dt: R) {
+        debug_assert!(
+            self.prepared,
+            "prepare() must follow any change of u, c or T"
+        );
+        match (self.cfg.scheme, self.cfg.diffusion > R::ZERO) {
+            (Scheme::Modified, false) => self.step_with::<Modified, false>(dt),
+            (Scheme::Modified, true) => self.step_with::<Modified, true>(dt),
+            (Scheme::Godunov, false) => self.step_with::<Godunov, false>(dt),
+            (Scheme::Godunov, true) => self.step_with::<Godunov, true>(dt),
+            (Scheme::Upwind, false) => self.step_with::<Upwind, false>(dt),
+            (Scheme::Upwind, true) => self.step_with::<Upwind, true>(dt),
+        }
+        self.time += dt;
+        self.steps += 1;
+    }
+
+    fn step_with<K: Kernel<R>, const DIFFUSE: bool>(&mut self, dt: R) {
+        let n = self.grid.len();
+        self.rhs[..n].fill(R::ZERO);
+        let h = self.grid.spacing();
+        for axis in 0..D {
+            let ax = AxisConst {
+                lambda: dt / h[axis],
+                diffusion: self.cfg.diffusion / h[axis],
+                vacuum: self.cfg.vacuum,
+            };
+            self.axis_increment::<K, DIFFUSE>(axis, ax);
+        }
+        for (q, dq) in self.q[..n].iter_mut().zip(self.rhs[..n].iter()) {
+            *q += *dq;
+        }
+    }
+
+    #[inline(always)]
+    fn side(&self, axis: usize, i: usize) -> Side<R> {
+        Side {
+            q: self.q[i],
+            c: self.c[i],
+            k: self.k[axis][i],
+            t: self.temp[i],
+            u: self.u[axis][i],
+        }
+    }
+
+    /// The ghost side of boundary cell `i`: its own coefficients, with the Dirichlet value for
+    /// inflow or its own value (zero gradient) for outflow.
+    #[inline(always)]
+    fn ghost_side(&self, axis: usize, i: usize, kind: Boundary) -> Side<R> {
+        let mut s = self.side(axis, i);
+        if kind == Boundary::Inflow {
+            s.q = self.ghost[i];
+        }
+        s
+    }
+
+    fn axis_increment<K: Kernel<R>, const DIFFUSE: bool>(&mut self, axis: usize, ax: AxisConst<R>) {
+        let n = self.grid.len();
+        let fb = self.grid.face_blocks(axis);
+        let s = fb.stride;
+        // Interior faces, block by block: left cells l0..l0+len, right cells shifted by s.
+        for b in 0..fb.blocks {
+            let l0 = b * fb.block_stride;
+            let len = fb.block_len;
+            interior_block::<R, K, DIFFUSE>(
+                &mut self.flux[l0..l0 + len],
+                Slices::new(
+                    &self.q,
+                    &self.c,
+                    &self.k[axis],
+                    &self.temp,
+                    &self.u[axis],
+                    l0,
+                    len,
+                ),
+                Slices::new(
+                    &self.q,
+                    &self.c,
+                    &self.k[axis],
+                    &self.temp,
+                    &self.u[axis],
+                    l0 + s,
+                    len,
+                ),
+                ax,
+            );
+        }
+        // High boundary faces, stored at the last cell of each line.
+        let high = self.bc[axis][1];
+        let low = self.bc[axis][0];
+        let grid = self.grid;
+        grid.for_each_boundary_cell(axis, true, |last, first| {
+            let f = match high {
+                Boundary::Wall => R::ZERO,
+                Boundary::Periodic => {
+                    face::<R, K, DIFFUSE>(self.side(axis, last), self.side(axis, first), ax)
+                }
+                kind => face::<R, K, DIFFUSE>(
+                    self.side(axis, last),
+                    self.ghost_side(axis, last, kind),
+                    ax,
+                ),
+            };
+            self.flux[last] = f;
+        });
+        // Each cell loses its high-face flux ...
+        for (dq, f) in self.rhs[..n].iter_mut().zip(self.flux[..n].iter()) {
+            *dq -= *f;
+        }
+        // ... and gains the flux of the face below it.
+        for b in 0..fb.blocks {
+            let l0 = b * fb.block_stride;
+            let len = fb.block_len;
+            let (src, dst) = (
+                &self.flux[l0..l0 + len],
+                &mut self.rhs[l0 + s..l0 + s + len],
+            );
+            for (dq, f) in dst.iter_mut().zip(src.iter()) {
+                *dq += *f;
+            }
+        }
+        if low != Boundary::Wall {
+            grid.for_each_boundary_cell(axis, false, |first, last| {
+                let f = match low {
+                    Boundary::Periodic => self.flux[last],
+                    kind => face::<R, K, DIFFUSE>(
+                        self.ghost_side(axis, first, kind),
+                        self.side(axis, first),
+                        ax,
+                    ),
+                };
+                self.rhs[first] += f;
+            });
+        }
+    }
+}
+
+/// Equal-length views of the cell arrays starting at one offset.
+#[derive(Clone, Copy)]
+struct Slices<'a, R> {
+    q: &'a [R],
+    c: &'a [R],
+    k: &'a [R],
+    t: &'a [R],
+    u: &'a [R],
+}
+
+impl<'a, R: Real> Slices<'a, R> {
+    #[inline(always)]
+    fn new(
+        q: &'a [R],
+        c: &'a [R],
+        k: &'a [R],
+        t: &'a [R],
+        u: &'a [R],
+        at: usize,
+        len: usize,
+    ) -> Self {
+        let r = at..at + len;
+        Self {
+            q: &q[r.clone()],
+            c: &c[r.clone()],
+            k: &k[r.clone()],
+            t: &t[r.clone()],
+            u: &u[r],
+        }
+    }
+    #[inline(always)]
+    fn get(&self, j: usize) -> Side<R> {
+        Side {
+            q: self.q[j],
+            c: self.c[j],
+            k: self.k[j],
+            t: self.t[j],
+            u: self.u[j],
+        }
+    }
+}
+
+/// The hot loop: all slices have the length of `out`, so bounds checks vanish.
+#[inline(never)]
+fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
+    out: &mut [R],
+    left: Slices<'_, R>,
+    right: Slices<'_, R>,
+    ax: AxisConst<R>,
+) {
+    let len = out.len();
+    let (left, right) = (left.truncated(len), right.truncated(len));
+    for (j, o) in out.iter_mut().enumerate() {
+        *o = face::<R, K, DIFFUSE>(left.get(j), right.get(j), ax);
+    }
+}
+
+impl<'a, R: Real> Slices<'a, R> {
+    #[inline(always)]
+    fn truncated(self, len: usize) -> Self {
+        Self {
+            q: &self.q[..len],
+            c: &self.c[..len],
+            k: &self.k[..len],
+            t: &self.t[..len],
+            u: &self.u[..len],
+        }
+    }
+}

@@ -1,0 +1,1 @@
+//! sieve: the desktop command-line front end of `sieve-core`.

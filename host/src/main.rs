@@ -1,0 +1,2 @@
+//! The `sieve` binary.
+fn main() {}

@@ -1,0 +1,1 @@
+//! Integration tests of sieve live in `tests/tests/*.rs`; this library is empty.
