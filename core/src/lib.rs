@@ -14,6 +14,7 @@
 
 pub mod boundary;
 pub mod diagnostics;
+pub mod exact;
 pub mod grid;
 pub mod hash;
 pub mod real;
