@@ -156,7 +156,6 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     }
 
     fn axis_increment<K: Kernel<R>, const DIFFUSE: bool>(&mut self, axis: usize, ax: AxisConst<R>) {
-        let n = self.grid.len();
         let fb = self.grid.face_blocks(axis);
         let s = fb.stride;
         // Interior faces, block by block: left cells l0..l0+len, right cells shifted by s.
@@ -165,6 +164,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             let len = fb.block_len;
             interior_block::<R, K, DIFFUSE>(
                 &mut self.flux[l0..l0 + len],
+                &mut self.rhs[l0..l0 + len],
                 Slices::new(
                     &self.q,
                     &self.c,
@@ -186,7 +186,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 ax,
             );
         }
-        // High boundary faces, stored at the last cell of each line.
+        // High boundary faces, stored at the last cell of each line (periodic low faces reuse them).
         let high = self.bc[axis][1];
         let low = self.bc[axis][0];
         let grid = self.grid;
@@ -203,12 +203,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 ),
             };
             self.flux[last] = f;
+            self.rhs[last] -= f;
         });
-        // Each cell loses its high-face flux ...
-        for (dq, f) in self.rhs[..n].iter_mut().zip(self.flux[..n].iter()) {
-            *dq -= *f;
-        }
-        // ... and gains the flux of the face below it.
+        // Each cell has lost its high-face flux (above); it gains the flux of the face below.
         for b in 0..fb.blocks {
             let l0 = b * fb.block_stride;
             let len = fb.block_len;
@@ -278,18 +275,24 @@ impl<'a, R: Real> Slices<'a, R> {
     }
 }
 
-/// The hot loop: all slices have the length of `out`, so bounds checks vanish.
+/// The hot loop: stores each face flux and subtracts it from its left cell at once (the
+/// right cell gains it in a separate pass: doing both here would chain iterations along x and
+/// stop vectorisation). All slices have the length of `out`, so bounds checks vanish.
 #[inline(never)]
 fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
     out: &mut [R],
+    rhs: &mut [R],
     left: Slices<'_, R>,
     right: Slices<'_, R>,
     ax: AxisConst<R>,
 ) {
     let len = out.len();
+    let rhs = &mut rhs[..len];
     let (left, right) = (left.truncated(len), right.truncated(len));
-    for (j, o) in out.iter_mut().enumerate() {
-        *o = face::<R, K, DIFFUSE>(left.get(j), right.get(j), ax);
+    for j in 0..len {
+        let f = face::<R, K, DIFFUSE>(left.get(j), right.get(j), ax);
+        out[j] = f;
+        rhs[j] -= f;
     }
 }
 
