@@ -19,6 +19,7 @@ pub mod grid;
 pub mod hash;
 pub mod real;
 pub mod segregation;
+pub mod sensor;
 
 pub use boundary::{Boundaries, Boundary};
 pub use diagnostics::{diagnose, state_hash, Diagnostics, SegregationClock};

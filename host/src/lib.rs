@@ -1,1 +1,16 @@
 //! sieve: the desktop command-line front end of `sieve-core`.
+//!
+//! Data flows one way: [`scene`] (TOML file or built-in, `--set` overrides, validation,
+//! analytic fields) -> [`run`] (the core solver on its own thread, the time loop) ->
+//! diagnostics -> [`output`] (summary.json, series.csv, final.csv, VTK fields, PNG plots,
+//! written atomically). [`converge`] runs a scene on several grids; [`cli`] parses the command
+//! line; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
+
+pub mod cli;
+pub mod converge;
+pub mod error;
+pub mod output;
+pub mod run;
+pub mod scene;
+
+pub use error::{Error, Result};

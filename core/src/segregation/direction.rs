@@ -56,7 +56,9 @@ pub fn shear_rate_squared<R: Real, const D: usize>(g: &[[R; D]; D]) -> R {
 
 /// Unit segregation direction `d_s` from the velocity gradient `g` at velocity `u`
 /// (model.md 3): the normal of the plane of largest shear, `(e_max +- e_min)/sqrt 2`, the one
-/// more nearly orthogonal to `u`. Where the shear vanishes, `fallback` is returned.
+/// more nearly orthogonal to `u`. Where the shear vanishes, `fallback` (the gravity direction)
+/// is returned; where both normals are equally orthogonal to `u` (u = 0 in a shear band), the
+/// one closer to `fallback` is taken, so the choice does not depend on the sign of the shear.
 pub fn segregation_direction<R: Real, const D: usize>(
     g: &[[R; D]; D],
     u: &[R; D],
@@ -73,7 +75,7 @@ pub fn segregation_direction<R: Real, const D: usize>(
                 [g[0][0] + g[0][0], g[0][1] + g[1][0]],
                 [g[1][0] + g[0][1], g[1][1] + g[1][1]],
             ];
-            match direction_2d(k, [u[0], u[1]]) {
+            match direction_2d(k, [u[0], u[1]], [fallback[0], fallback[1]]) {
                 Some(d) => {
                     let mut out = [R::ZERO; D];
                     out[0] = d[0];
@@ -86,7 +88,12 @@ pub fn segregation_direction<R: Real, const D: usize>(
         _ => {
             let m = Matrix3::from_fn(|r, c| (g[r][c] + g[c][r]).to_f64());
             let u3 = [u[0].to_f64(), u[1].to_f64(), u[2].to_f64()];
-            match direction_3d(m, u3) {
+            let f3 = [
+                fallback[0].to_f64(),
+                fallback[1].to_f64(),
+                fallback[2].to_f64(),
+            ];
+            match direction_3d(m, u3, f3) {
                 Some(d) => {
                     let mut out = [R::ZERO; D];
                     for a in 0..3 {
@@ -103,7 +110,7 @@ pub fn segregation_direction<R: Real, const D: usize>(
 /// 2D closed form. For `k = [[a, b], [b, d]]` the principal axes are at angle theta with
 /// `tan 2 theta = 2b / (a - d)`; the planes of largest shear are at `theta +- pi/4`. Their
 /// normals follow from the half-angle formulas, so only square roots are needed.
-fn direction_2d<R: Real>(k: [[R; 2]; 2], u: [R; 2]) -> Option<[R; 2]> {
+fn direction_2d<R: Real>(k: [[R; 2]; 2], u: [R; 2], fallback: [R; 2]) -> Option<[R; 2]> {
     let (a, b, d) = (k[0][0], k[0][1], k[1][1]);
     let half_diff = (a - d) * R::HALF;
     let r = (half_diff * half_diff + b * b).sqrt();
@@ -120,13 +127,24 @@ fn direction_2d<R: Real>(k: [[R; 2]; 2], u: [R; 2]) -> Option<[R; 2]> {
     }
     let n1 = [cos1, sin1];
     let n2 = [-sin1, cos1];
-    let dot1 = (n1[0] * u[0] + n1[1] * u[1]).abs();
-    let dot2 = (n2[0] * u[0] + n2[1] * u[1]).abs();
-    Some(if dot2 < dot1 { n2 } else { n1 })
+    let dot = |n: [R; 2], v: [R; 2]| (n[0] * v[0] + n[1] * v[1]).abs();
+    let speed = (u[0] * u[0] + u[1] * u[1]).sqrt();
+    let (dot1, dot2) = (dot(n1, u), dot(n2, u));
+    Some(if (dot1 - dot2).abs() <= R::EPSILON * speed {
+        if dot(n2, fallback) > dot(n1, fallback) {
+            n2
+        } else {
+            n1
+        }
+    } else if dot2 < dot1 {
+        n2
+    } else {
+        n1
+    })
 }
 
 /// 3D: a bounded symmetric eigen-solve (nalgebra, at most 64 sweeps).
-fn direction_3d(k: Matrix3<f64>, u: [f64; 3]) -> Option<[f64; 3]> {
+fn direction_3d(k: Matrix3<f64>, u: [f64; 3], fallback: [f64; 3]) -> Option<[f64; 3]> {
     let scale = k.amax();
     if !(scale > 0.0) {
         return None;
@@ -148,8 +166,17 @@ fn direction_3d(k: Matrix3<f64>, u: [f64; 3]) -> Option<[f64; 3]> {
     let emin = eig.eigenvectors.column(imin);
     let plus = (emax + emin).normalize();
     let minus = (emax - emin).normalize();
-    let dot = |v: &nalgebra::Vector3<f64>| (v[0] * u[0] + v[1] * u[1] + v[2] * u[2]).abs();
-    let best = if dot(&minus) < dot(&plus) {
+    let dot =
+        |v: &nalgebra::Vector3<f64>, w: [f64; 3]| (v[0] * w[0] + v[1] * w[1] + v[2] * w[2]).abs();
+    let speed = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+    let (dp, dm) = (dot(&plus, u), dot(&minus, u));
+    let best = if (dp - dm).abs() <= f64::EPSILON * speed {
+        if dot(&minus, fallback) > dot(&plus, fallback) {
+            minus
+        } else {
+            plus
+        }
+    } else if dm < dp {
         minus
     } else {
         plus

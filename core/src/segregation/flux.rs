@@ -75,7 +75,8 @@ pub fn godunov<R: Real>(ql: R, qr: R, c: R, k: R) -> R {
 /// exactly `f'((q_L + q_R)/2) = -k (c - q_L - q_R)`.
 #[inline(always)]
 pub fn upwind<R: Real>(ql: R, qr: R, c: R, k: R) -> R {
-    let speed = -(k * (c - ql - qr));
+    // Written with (q_L + q_R) so that mirroring L and R gives the same bits.
+    let speed = -(k * (c - (ql + qr)));
     if speed >= R::ZERO {
         physical(ql, c, k)
     } else {

@@ -151,6 +151,11 @@ pub enum SetupError {
         /// cell index
         cell: usize,
     },
+    /// Inflow phi outside [0, c] of its boundary cell.
+    InflowOutOfRange {
+        /// cell index
+        cell: usize,
+    },
 }
 
 /// The segregation solver: phase fraction, static coefficients and scratch, for up to `N`
@@ -170,7 +175,8 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     u: [[R; N]; D],
     /// `k_a = (S . e_a) / c` per axis, signed for the tracked phase; 0 in empty cells.
     k: [[R; N]; D],
-    /// Dirichlet value of q for inflow faces of a boundary cell.
+    /// Dirichlet small-phase fraction phi for inflow faces of a boundary cell (converted to the
+    /// tracked phase when used, so it may be set before or after the cell's c).
     ghost: [R; N],
     /// Scratch: increment of q in the current step.
     rhs: [R; N],
@@ -315,7 +321,14 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// Sets the inflow (Dirichlet) small-phase fraction seen by inflow faces of boundary cell `i`.
     pub fn set_inflow(&mut self, i: usize, phi: R) {
-        self.ghost[i] = self.tracked(phi, self.c[i]);
+        self.ghost[i] = phi;
+        self.prepared = false;
+    }
+
+    /// The inflow value of boundary cell `i` as a tracked-phase fraction.
+    #[inline]
+    pub(crate) fn inflow_tracked(&self, i: usize) -> R {
+        self.tracked(self.ghost[i], self.c[i])
     }
 
     /// Restores the clock (for snapshots).
@@ -359,6 +372,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
             if phi < R::ZERO || phi > self.c[i] {
                 return Err(SetupError::PhiOutOfRange { cell: i });
+            }
+            let inflow = self.ghost[i];
+            if !inflow.is_finite() {
+                return Err(SetupError::NonFinite {
+                    field: "inflow phi",
+                    cell: i,
+                });
+            }
+            if inflow < R::ZERO || inflow > self.c[i] {
+                return Err(SetupError::InflowOutOfRange { cell: i });
             }
         }
         self.derive_coefficients();
@@ -447,6 +470,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// Advances to time `t_end` with the stable step (the last one shortened to land exactly),
     /// at most `max_steps` steps; returns the number of steps taken.
     pub fn advance_to(&mut self, t_end: R, max_steps: u64) -> u64 {
+        if !t_end.is_finite() {
+            return 0;
+        }
         let dt = self.stable_dt();
         let mut taken = 0;
         while self.time < t_end && taken < max_steps {

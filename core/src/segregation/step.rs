@@ -150,7 +150,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     fn ghost_side(&self, axis: usize, i: usize, kind: Boundary) -> Side<R> {
         let mut s = self.side(axis, i);
         if kind == Boundary::Inflow {
-            s.q = self.ghost[i];
+            s.q = self.inflow_tracked(i);
         }
         s
     }

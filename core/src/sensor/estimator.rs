@@ -1,0 +1,657 @@
+//! The soft-sensor estimator: input handling, the budgeted tick, and the estimate.
+
+use super::config::{ConfigError, SensorConfig};
+use super::frame::{bump, Estimate, Reject, VelocityFrame};
+use super::{alarm, health, SensorReal, MAX_FRAME_VALUES};
+use crate::boundary::{Boundaries, Boundary};
+use crate::diagnostics::{diagnose, state_hash};
+use crate::grid::Grid;
+use crate::hash::Fnv64;
+use crate::segregation::{
+    DirectionMode, Phase, Scheme, Segregation, SegregationConfig, TemperatureMode,
+};
+use serde::{Deserialize, Serialize};
+
+/// Counters of the estimator (frame-level rejection causes and tick outcomes). Byte-level
+/// causes are in [`super::WireCounters`] of the decoder.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Counters {
+    /// Frames accepted.
+    pub accepted: u32,
+    /// [`Reject::Dims`]
+    pub dims: u32,
+    /// [`Reject::NonFinite`]
+    pub non_finite: u32,
+    /// [`Reject::Range`]
+    pub range: u32,
+    /// [`Reject::Seq`]
+    pub seq: u32,
+    /// Sensor values replaced by their neighbourhood median.
+    pub outliers: u32,
+    /// Ticks that held the last good velocity.
+    pub stale_ticks: u32,
+    /// Ticks that froze (hold limit exceeded, or no input yet).
+    pub frozen_ticks: u32,
+    /// Ticks limited by the substep budget.
+    pub budget_limited: u32,
+    /// Frame periods that were never simulated (lost while frozen, or a sequence gap).
+    pub lost_periods: u32,
+    /// Cells whose phi had left [0, c] and was put back before a new frame (see
+    /// `map_velocity`): by round-off, or by the compression of a measured velocity that is not
+    /// divergence-free (c is held fixed, so such a flow would pile phi above c).
+    pub phi_clamps: u32,
+}
+
+/// The soft sensor: a [`Segregation`] solver on the estimator grid plus the input filter
+/// state. `N` is the estimator capacity in cells (1024 for 32 x 32).
+///
+/// # Tick rules
+/// * [`Self::submit`] validates a frame and, if it is good, feeds it to the input filter and
+///   books the frame's `period` for this tick. Checks, in order: dimensions ([`Reject::Dims`]), finiteness of the
+///   period and every value ([`Reject::NonFinite`]), `0 < period <= max_period_factor *
+///   tick_period` and `|u| <= reject_speed` ([`Reject::Range`]), `seq` greater than the last
+///   accepted one ([`Reject::Seq`]). A rejected frame changes nothing but the counters and
+///   the tick's health flags.
+/// * Input handling of a good frame: each value is compared with the median of its 3x3
+///   sensor neighbourhood (fewer at the edges) and replaced by it if they differ by more
+///   than `outlier_tol` (spikes); the result enters an exponential moving average with
+///   weight `smoothing` (temporal noise); the averaged sensor field is interpolated
+///   bilinearly onto the estimator cell centres (wrapped on periodic axes, linearly
+///   extrapolated towards walls so a uniform shear stays uniform).
+/// * Time: frame `k` covers period `k`. If periods between the last covered one and `k`
+///   were neither received nor held, they are lost: they go to `lag` and
+///   `Counters::lost_periods`. A late frame whose period a held tick already covered only
+///   updates the velocity.
+/// * Budget: the advance of `dt` takes `ceil(dt / stable_dt)` equal substeps; if that
+///   exceeds what is left of `max_substeps` this tick, it takes the remaining budget of
+///   full stable substeps (Courant-limited, so bounded and conservative), adds the shortfall
+///   to `lag` and sets [`health::BUDGET_LIMITED`].
+/// * [`Self::finish_tick`] ends a tick: if frames were accepted, it maps the filtered
+///   velocity onto the estimator grid once (`prepare`) and advances by the booked time, so
+///   the work of a tick is one `prepare` plus at most `max_substeps` substeps however many
+///   frames arrived. If no frame was accepted during the tick, the last good velocity is held for one `tick_period` ([`health::STALE_INPUT`]) up to `hold_ticks`
+///   consecutive ticks, after which the estimate freezes ([`health::FROZEN`]) until a good
+///   frame arrives. It returns the [`Estimate`].
+#[derive(Clone, Debug)]
+pub struct SoftSensor<R: SensorReal, const N: usize> {
+    pub(super) seg: Segregation<R, 2, N>,
+    pub(super) cfg: SensorConfig<R>,
+    /// Smoothed sensor velocities, interleaved (u_x, u_z), x fastest.
+    pub(super) vel: [R; MAX_FRAME_VALUES],
+    /// Scratch: the cleaned frame being smoothed (not state).
+    work: [R; MAX_FRAME_VALUES],
+    pub(super) have_velocity: bool,
+    pub(super) last_seq: u32,
+    /// Last frame period simulated (or held, or given up as lost).
+    pub(super) covered: u32,
+    /// Consecutive ticks without a good frame.
+    pub(super) stale: u32,
+    pub(super) lag: R,
+    pub(super) tick: u32,
+    pub(super) counters: Counters,
+    /// Health bits of the current tick.
+    flags: u8,
+    /// Substeps taken in the current tick.
+    substeps: u16,
+    accepted_this_tick: bool,
+    /// Time of the frames accepted this tick, advanced by `finish_tick` (0 between ticks).
+    pending: R,
+}
+
+impl<R: SensorReal, const N: usize> Default for SoftSensor<R, N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+const fn empty_config<R: SensorReal>() -> SensorConfig<R> {
+    let bc: Boundaries<2> = [[Boundary::Wall; 2]; 2];
+    SensorConfig {
+        cells: [1, 1],
+        extent: [R::ONE, R::ONE],
+        bc,
+        sensor: [1, 1],
+        s0: R::ZERO,
+        eta0: R::ZERO,
+        eps0: R::ONE,
+        heating: R::ZERO,
+        gravity: [R::ZERO, R::NEG_ONE],
+        c: R::ZERO,
+        initial_phihat: R::ZERO,
+        inflow_phihat: R::ZERO,
+        diffusion: R::ZERO,
+        courant: R::HALF,
+        tick_period: R::ONE,
+        max_period_factor: R::TWO,
+        max_substeps: 1,
+        hold_ticks: 0,
+        reject_speed: R::ONE,
+        outlier_tol: R::ONE,
+        smoothing: R::ONE,
+        spatial_passes: 0,
+        regions: heapless::Vec::new(),
+        outlet: None,
+        psi_alarm: R::ZERO,
+        fines_band: [R::ZERO, R::ONE],
+    }
+}
+
+impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
+    /// An unconfigured sensor; `const` so that it can be placed in a `static` (firmware).
+    pub const fn new() -> Self {
+        Self {
+            seg: Segregation::zeroed(),
+            cfg: empty_config(),
+            vel: [R::ZERO; MAX_FRAME_VALUES],
+            work: [R::ZERO; MAX_FRAME_VALUES],
+            have_velocity: false,
+            last_seq: 0,
+            covered: 0,
+            stale: 0,
+            lag: R::ZERO,
+            tick: 0,
+            counters: Counters {
+                accepted: 0,
+                dims: 0,
+                non_finite: 0,
+                range: 0,
+                seq: 0,
+                outliers: 0,
+                stale_ticks: 0,
+                frozen_ticks: 0,
+                budget_limited: 0,
+                lost_periods: 0,
+                phi_clamps: 0,
+            },
+            flags: 0,
+            substeps: 0,
+            accepted_this_tick: false,
+            pending: R::ZERO,
+        }
+    }
+
+    /// Validates and applies a configuration and resets the state: phihat =
+    /// `initial_phihat` in every cell, constant c, no velocity yet, clock at zero.
+    pub fn configure(&mut self, cfg: &SensorConfig<R>) -> Result<(), ConfigError> {
+        cfg.validate(N)?;
+        let cells = [cfg.cells[0] as usize, cfg.cells[1] as usize];
+        let grid = Grid::new(cells, [R::ZERO; 2], cfg.extent, N).map_err(|_| ConfigError::Cells)?;
+        let scfg = SegregationConfig {
+            scheme: Scheme::Modified,
+            // The small phase is tracked so that phi round-trips bit-exactly through
+            // `phi()` / `set_phi()` (snapshots).
+            phase: Phase::Small,
+            s0: cfg.s0,
+            gravity: cfg.gravity,
+            direction: DirectionMode::Flow,
+            temperature: TemperatureMode::FromShear {
+                heating: cfg.heating,
+                eta0: cfg.eta0,
+                eps0: cfg.eps0,
+            },
+            diffusion: cfg.diffusion,
+            courant: cfg.courant,
+            vacuum: R::VACUUM,
+        };
+        self.seg
+            .setup(grid, cfg.bc, scfg)
+            .map_err(|_| ConfigError::Parameter("segregation"))?;
+        let phi = cfg.initial_phihat * cfg.c;
+        for i in 0..grid.len() {
+            self.seg.set_cell(i, cfg.c, R::ZERO, [R::ZERO; 2], phi);
+            self.seg.set_inflow(i, cfg.inflow_phihat * cfg.c);
+        }
+        self.cfg = cfg.clone();
+        self.vel = [R::ZERO; MAX_FRAME_VALUES];
+        self.have_velocity = false;
+        self.last_seq = 0;
+        self.covered = 0;
+        self.stale = 0;
+        self.lag = R::ZERO;
+        self.tick = 0;
+        self.counters = Counters::default();
+        self.flags = 0;
+        self.substeps = 0;
+        self.accepted_this_tick = false;
+        self.pending = R::ZERO;
+        self.seg
+            .prepare()
+            .map_err(|_| ConfigError::Parameter("initial state"))
+    }
+
+    /// Replaces the constant c by a field (one value per estimator cell, x fastest), keeping
+    /// the initial phihat. Call right after [`Self::configure`].
+    pub fn set_c_field(&mut self, c: &[R]) -> Result<(), ConfigError> {
+        let n = self.seg.len();
+        if c.len() != n
+            || c.iter()
+                .any(|&x| !(x.is_finite() && x >= R::ZERO && x <= R::ONE))
+        {
+            return Err(ConfigError::Parameter("c field"));
+        }
+        for (i, &ci) in c.iter().enumerate() {
+            let u = self.seg.velocity(i);
+            self.seg
+                .set_cell(i, ci, R::ZERO, u, self.cfg.initial_phihat * ci);
+            self.seg.set_inflow(i, self.cfg.inflow_phihat * ci);
+        }
+        self.seg
+            .prepare()
+            .map_err(|_| ConfigError::Parameter("c field"))
+    }
+
+    /// Sets the relative small fraction of cell `i` (clamped to [0, 1]), e.g. an inversely
+    /// graded initial state. Call before the first frame.
+    pub fn set_phihat(&mut self, i: usize, phihat: R) {
+        let ph = phihat.max(R::ZERO).min(R::ONE);
+        self.seg.set_phi(i, ph * self.seg.c(i));
+    }
+
+    fn validate(&self, f: &VelocityFrame) -> Result<(), Reject> {
+        let cfg = &self.cfg;
+        if f.nx != cfg.sensor[0] || f.nz != cfg.sensor[1] || f.u.len() != 2 * cfg.sensor_points() {
+            return Err(Reject::Dims);
+        }
+        if !f.period.is_finite() || f.u.iter().any(|v| !v.is_finite()) {
+            return Err(Reject::NonFinite);
+        }
+        let period = R::from_f32(f.period);
+        if !(period > R::ZERO && period <= cfg.tick_period * cfg.max_period_factor) {
+            return Err(Reject::Range);
+        }
+        let limit = cfg.reject_speed;
+        if f.u.iter().any(|&v| R::from_f32(v).abs() > limit) {
+            return Err(Reject::Range);
+        }
+        if self.have_velocity && f.seq <= self.last_seq {
+            return Err(Reject::Seq);
+        }
+        Ok(())
+    }
+
+    /// Offers one decoded frame. On success it enters the filter and its period (unless a held
+    /// tick already covered it) is advanced at the end of the tick; on rejection nothing but
+    /// the counters and the tick's health flags changed.
+    pub fn submit(&mut self, f: &VelocityFrame) -> Result<(), Reject> {
+        if let Err(r) = self.validate(f) {
+            self.count_reject(r);
+            return Err(r);
+        }
+        bump(&mut self.counters.accepted);
+        if self.have_velocity {
+            let next = self.covered.wrapping_add(1);
+            if f.seq > next {
+                let gap = f.seq - next;
+                self.counters.lost_periods = self.counters.lost_periods.wrapping_add(gap);
+                self.lag += self.cfg.tick_period * R::from_f64(gap as f64);
+                self.covered = f.seq - 1;
+            }
+        } else {
+            self.covered = f.seq.wrapping_sub(1);
+        }
+        self.update_filter(f);
+        if f.seq > self.covered || !self.have_velocity {
+            self.pending += R::from_f32(f.period);
+            self.covered = f.seq;
+        }
+        self.have_velocity = true;
+        self.last_seq = f.seq;
+        self.stale = 0;
+        self.accepted_this_tick = true;
+        Ok(())
+    }
+
+    /// Counts a rejection by cause (also used for byte-level causes so the tick's health
+    /// flags show them).
+    pub fn count_reject(&mut self, r: Reject) {
+        self.flags |= health::FRAME_REJECTED;
+        let c = &mut self.counters;
+        match r {
+            Reject::Dims => bump(&mut c.dims),
+            Reject::NonFinite => bump(&mut c.non_finite),
+            Reject::Range => bump(&mut c.range),
+            Reject::Seq => bump(&mut c.seq),
+            // Counted by the decoder; only the health flag is set here.
+            Reject::Overflow | Reject::Framing | Reject::Crc | Reject::Decode => {}
+        }
+    }
+
+    /// Median clean-up, spatial and temporal smoothing of a validated frame into `vel`.
+    fn update_filter(&mut self, f: &VelocityFrame) {
+        let (nx, nz) = (f.nx as usize, f.nz as usize);
+        let tol = self.cfg.outlier_tol.to_f64() as f32;
+        let mut replaced = 0u32;
+        for z in 0..nz {
+            for x in 0..nx {
+                for comp in 0..2 {
+                    let at = 2 * (x + nx * z) + comp;
+                    let v = f.u[at];
+                    let mut nb = [0.0f32; 9];
+                    let mut k = 0;
+                    for zz in z.saturating_sub(1)..(z + 2).min(nz) {
+                        for xx in x.saturating_sub(1)..(x + 2).min(nx) {
+                            nb[k] = f.u[2 * (xx + nx * zz) + comp];
+                            k += 1;
+                        }
+                    }
+                    let med = median(&mut nb[..k]);
+                    let clean = if (v - med).abs() > tol {
+                        replaced += 1;
+                        med
+                    } else {
+                        v
+                    };
+                    self.work[at] = R::from_f32(clean);
+                }
+            }
+        }
+        if replaced > 0 {
+            self.flags |= health::OUTLIERS_REPLACED;
+            self.counters.outliers = self.counters.outliers.wrapping_add(replaced);
+        }
+        let periodic = [
+            self.cfg.bc[0][0] == Boundary::Periodic,
+            self.cfg.bc[1][0] == Boundary::Periodic,
+        ];
+        for _ in 0..self.cfg.spatial_passes {
+            smooth_121(&mut self.work, [nx, nz], 0, periodic[0]);
+            smooth_121(&mut self.work, [nx, nz], 1, periodic[1]);
+        }
+        // Running mean of the first frames, then an EMA: the weight of the k-th accepted frame
+        // is max(1/k, smoothing), so the start is not left with one frame's full noise.
+        let k = self.counters.accepted.max(1);
+        let alpha = (R::ONE / R::from_f64(k as f64)).max(self.cfg.smoothing);
+        for (p, &w) in self.vel[..2 * nx * nz]
+            .iter_mut()
+            .zip(self.work[..2 * nx * nz].iter())
+        {
+            *p += alpha * (w - *p);
+        }
+    }
+
+    /// Bilinear interpolation of the smoothed sensor field onto the estimator cell centres,
+    /// then `prepare` (T from shear, direction from the gradient, stable time step).
+    pub(super) fn map_velocity(&mut self) {
+        let ne = [self.cfg.cells[0] as usize, self.cfg.cells[1] as usize];
+        let ns = [self.cfg.sensor[0] as usize, self.cfg.sensor[1] as usize];
+        let periodic = [
+            self.cfg.bc[0][0] == Boundary::Periodic,
+            self.cfg.bc[1][0] == Boundary::Periodic,
+        ];
+        for iz in 0..ne[1] {
+            let (z0, z1, wz) = axis_weights::<R>(iz, ne[1], ns[1], periodic[1]);
+            for ix in 0..ne[0] {
+                let (x0, x1, wx) = axis_weights::<R>(ix, ne[0], ns[0], periodic[0]);
+                let mut u = [R::ZERO; 2];
+                for (comp, uc) in u.iter_mut().enumerate() {
+                    let v = |x: usize, z: usize| self.vel[2 * (x + ns[0] * z) + comp];
+                    let lo = v(x0, z0) + wx * (v(x1, z0) - v(x0, z0));
+                    let hi = v(x0, z1) + wx * (v(x1, z1) - v(x0, z1));
+                    *uc = lo + wz * (hi - lo);
+                }
+                self.seg.set_velocity(ix + ne[0] * iz, u);
+            }
+        }
+        // `prepare` insists on 0 <= phi <= c. The modified Godunov flux keeps phi in range up
+        // to round-off, but the transport term does not when the measured velocity is not
+        // divergence-free (noise): with c held fixed, a converging measured flow piles phi
+        // above c. Such cells are put back into range and counted; this is the one place the
+        // estimator is not conservative (the change is tiny for a divergence-free flow and of
+        // the order of dt |div u| c per cell otherwise).
+        for i in 0..self.seg.len() {
+            let (phi, c) = (self.seg.phi(i), self.seg.c(i));
+            if phi > c || phi < R::ZERO {
+                self.seg.set_phi(i, phi.min(c).max(R::ZERO));
+                bump(&mut self.counters.phi_clamps);
+            }
+        }
+        // Cannot fail now: c and phi are in range and the velocities finite by validation.
+        let res = self.seg.prepare();
+        debug_assert!(res.is_ok(), "validated input must prepare: {res:?}");
+    }
+
+    /// Advances by `dt` within what is left of this tick's substep budget.
+    fn advance(&mut self, dt: R) {
+        let left = self.cfg.max_substeps.saturating_sub(self.substeps);
+        let sdt = self.seg.stable_dt();
+        let ratio = dt.to_f64() / sdt.to_f64();
+        let need = libm::ceil(ratio).max(1.0);
+        if need <= left as f64 {
+            let n = need as u16;
+            let sub = dt / R::from_usize(n as usize);
+            for _ in 0..n {
+                self.seg.step(sub);
+            }
+            self.substeps += n;
+        } else {
+            for _ in 0..left {
+                self.seg.step(sdt);
+            }
+            self.substeps += left;
+            self.lag += dt - sdt * R::from_usize(left as usize);
+            if self.flags & health::BUDGET_LIMITED == 0 {
+                bump(&mut self.counters.budget_limited);
+            }
+            self.flags |= health::BUDGET_LIMITED;
+        }
+    }
+
+    /// Ends the tick: holds or freezes if no frame was accepted during it, then returns the
+    /// estimate and clears the tick's health flags.
+    pub fn finish_tick(&mut self) -> Estimate {
+        if self.accepted_this_tick {
+            // One velocity update per tick however many frames arrived (a burst after a
+            // stall costs one `prepare`, not one per frame), then their total time.
+            self.map_velocity();
+            let dt = core::mem::replace(&mut self.pending, R::ZERO);
+            if dt > R::ZERO {
+                self.advance(dt);
+            }
+        } else {
+            self.stale = self.stale.saturating_add(1);
+            if self.have_velocity && self.stale <= self.cfg.hold_ticks as u32 {
+                self.flags |= health::STALE_INPUT;
+                bump(&mut self.counters.stale_ticks);
+                self.advance(self.cfg.tick_period);
+                self.covered = self.covered.wrapping_add(1);
+            } else {
+                self.flags |= health::FROZEN;
+                bump(&mut self.counters.frozen_ticks);
+            }
+        }
+        let e = self.estimate();
+        self.flags = 0;
+        self.substeps = 0;
+        self.accepted_this_tick = false;
+        self.tick = self.tick.wrapping_add(1);
+        e
+    }
+
+    /// One tick with at most one frame (a rejected frame counts as a missing one).
+    pub fn tick(&mut self, frame: Option<&VelocityFrame>) -> Estimate {
+        if let Some(f) = frame {
+            let _ = self.submit(f);
+        }
+        self.finish_tick()
+    }
+
+    /// The estimate of the current state with the current tick's flags.
+    pub fn estimate(&self) -> Estimate {
+        let d = diagnose(&self.seg);
+        let cfg = &self.cfg;
+        let nx = cfg.cells[0] as usize;
+        let mut regions = heapless::Vec::new();
+        for r in &cfg.regions {
+            let (mut sp, mut sc) = (R::ZERO, R::ZERO);
+            for iz in r.lo[1] as usize..r.hi[1] as usize {
+                for ix in r.lo[0] as usize..r.hi[0] as usize {
+                    let i = ix + nx * iz;
+                    sp += self.seg.phi(i);
+                    sc += self.seg.c(i);
+                }
+            }
+            let mean = if sc > R::ZERO { sp / sc } else { R::ZERO };
+            // Cannot overflow: the configuration holds at most as many regions.
+            let _ = regions.push(mean.to_f64() as f32);
+        }
+        let mut alarms = 0;
+        if d.psi < cfg.psi_alarm {
+            alarms |= alarm::PSI_LOW;
+        }
+        if let Some(&fines) = cfg.outlet.and_then(|o| regions.get(o as usize)) {
+            if (fines as f64) < cfg.fines_band[0].to_f64() {
+                alarms |= alarm::FINES_LOW;
+            }
+            if (fines as f64) > cfg.fines_band[1].to_f64() {
+                alarms |= alarm::FINES_HIGH;
+            }
+        }
+        let mut h = self.flags;
+        if !self.have_velocity {
+            h |= health::NO_INPUT;
+        }
+        let f = |x: R| x.to_f64() as f32;
+        Estimate {
+            seq: self.last_seq,
+            tick: self.tick,
+            time: f(self.seg.time()),
+            psi: f(d.psi),
+            phihat_min: f(d.phihat_min),
+            phihat_max: f(d.phihat_max),
+            regions,
+            alarms,
+            health: h,
+            substeps: self.substeps,
+            lag: f(self.lag),
+        }
+    }
+
+    /// Hash of the whole estimator state: the core state hash (time, phi, c, T, u) then the
+    /// smoothed sensor field, the sequence bookkeeping and the lag.
+    pub fn state_hash(&self) -> u64 {
+        let mut h = Fnv64::new();
+        h.write(&state_hash(&self.seg).to_le_bytes());
+        for v in &self.vel[..2 * self.cfg.sensor_points()] {
+            v.hash_into(&mut h);
+        }
+        h.write_u32(self.have_velocity as u32);
+        h.write_u32(self.last_seq);
+        h.write_u32(self.covered);
+        h.write_u32(self.stale);
+        self.lag.hash_into(&mut h);
+        h.finish()
+    }
+
+    /// The segregation solver (phi, c, T, u on the estimator grid).
+    pub fn segregation(&self) -> &Segregation<R, 2, N> {
+        &self.seg
+    }
+    /// The configuration.
+    pub fn config(&self) -> &SensorConfig<R> {
+        &self.cfg
+    }
+    /// The counters.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+    /// Accumulated simulated-time shortfall [s].
+    pub fn lag(&self) -> R {
+        self.lag
+    }
+    /// phihat of estimator cell `i` (0 in empty cells).
+    pub fn phihat(&self, i: usize) -> R {
+        let c = self.seg.c(i);
+        if c > R::VACUUM {
+            self.seg.phi(i) / c
+        } else {
+            R::ZERO
+        }
+    }
+}
+
+/// One pass of the 1-2-1 filter along `axis` of an interleaved two-component sensor field,
+/// in place. Points without two neighbours along the axis (the ends of a non-periodic axis)
+/// are left alone, so a linear profile stays exactly linear up to the walls.
+fn smooth_121<R: SensorReal>(v: &mut [R], n: [usize; 2], axis: usize, periodic: bool) {
+    let len = n[axis];
+    if len < 3 {
+        return;
+    }
+    let stride = if axis == 0 { 1 } else { n[0] };
+    let lines = n[1 - axis];
+    let line_stride = if axis == 0 { n[0] } else { 1 };
+    let quarter = R::HALF * R::HALF;
+    for l in 0..lines {
+        for comp in 0..2 {
+            let at = |j: usize| 2 * (l * line_stride + j * stride) + comp;
+            // Original values of the ends and of the second point (overwritten in the loop).
+            let first = v[at(0)];
+            let second = v[at(1)];
+            let last = v[at(len - 1)];
+            let mut prev = first;
+            for j in 1..len - 1 {
+                let cur = v[at(j)];
+                v[at(j)] = (prev + cur + cur + v[at(j + 1)]) * quarter;
+                prev = cur;
+            }
+            if periodic {
+                // `prev` is now the original v[len - 2].
+                v[at(len - 1)] = (prev + last + last + first) * quarter;
+                v[at(0)] = (last + first + first + second) * quarter;
+            }
+        }
+    }
+}
+
+/// Median of a short slice (insertion sort in place; the mean of the middle pair for an
+/// even count). Comparisons only, so NaN-free input gives a deterministic result.
+fn median(a: &mut [f32]) -> f32 {
+    for i in 1..a.len() {
+        let mut j = i;
+        while j > 0 && a[j - 1] > a[j] {
+            a.swap(j - 1, j);
+            j -= 1;
+        }
+    }
+    let k = a.len();
+    if k % 2 == 1 {
+        a[k / 2]
+    } else {
+        (a[k / 2 - 1] + a[k / 2]) * 0.5
+    }
+}
+
+/// The two sensor points bracketing estimator cell `i` along one axis and the weight of the
+/// second: sensor point `j` sits at `(j + 1/2) / ns` of the box, cell `i` at `(i + 1/2) / ne`,
+/// so the cell is at sensor coordinate `t = ((2i + 1) ns - ne) / (2 ne)`. Its floor is taken
+/// in integers: exact, and no soft-float f64 on the Cortex-M4F.
+fn axis_weights<R: SensorReal>(
+    i: usize,
+    ne: usize,
+    ns: usize,
+    periodic: bool,
+) -> (usize, usize, R) {
+    if ns == 1 {
+        return (0, 0, R::ZERO);
+    }
+    // i32, not i64: 64-bit division is a library call on the Cortex-M4F. Grid sides are
+    // bounded by u16 and 16, so every term fits.
+    let num = ((2 * i + 1) * ns) as i32 - ne as i32;
+    let den = 2 * ne as i32;
+    let fl = num.div_euclid(den);
+    let frac = |base: i32| R::from_u32((num - base * den) as u32) / R::from_u32(den as u32);
+    if periodic {
+        let i0 = fl.rem_euclid(ns as i32) as usize;
+        (i0, (i0 + 1) % ns, frac(fl))
+    } else {
+        // Clamping the segment (not the weight) extrapolates linearly beyond the outermost
+        // sensor points, so a linear profile is reproduced up to the walls.
+        let i0 = fl.clamp(0, ns as i32 - 2);
+        let w = if num >= i0 * den {
+            frac(i0)
+        } else {
+            -(R::from_u32((i0 * den - num) as u32) / R::from_u32(den as u32))
+        };
+        (i0 as usize, i0 as usize + 1, w)
+    }
+}

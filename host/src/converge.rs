@@ -1,0 +1,381 @@
+//! `sieve converge`: runs a scene on a sequence of grids and tabulates the errors of phihat at
+//! `t_end` (L1, L2, Linf) with observed orders and wall times, a work-precision table.
+//!
+//! A level `L` is the number of cells along the vertical (last) axis; the other axes keep the
+//! scene's cell aspect (`cells_a = L * cells_a / cells_last`). The reference is the exact
+//! solution where the scene names one (`run.exact = "column-a"`: exact cell averages at
+//! `t_end`), else the finest level restricted to each coarser grid by mass-weighted averaging
+//! (`phihat = sum phi / sum c` over the fine cells of a coarse cell), which needs nested grids.
+//! Norms: `L1 = sum |e| |C|`, `L2 = sqrt(sum e^2 |C|)`, `Linf = max |e|`.
+
+use crate::error::{Error, Result};
+use crate::output::{num, write_file, Staging};
+use crate::run::{load, time_loop, with_solver, SolverJob};
+use crate::scene::{self, Fields, Scene};
+use serde::Serialize;
+use sieve_core::{Real, Segregation};
+use std::fmt::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Options of `sieve converge`.
+#[derive(Debug, Clone)]
+pub struct ConvergeOptions {
+    /// Cells along the vertical axis, one run per level.
+    pub levels: Vec<usize>,
+    /// Output directory for converge.csv / converge.json.
+    pub out: Option<PathBuf>,
+    /// No progress bars.
+    pub quiet: bool,
+}
+
+/// One row of the table.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct LevelRow {
+    /// Cells along the vertical axis.
+    pub level: usize,
+    /// Cells per axis.
+    pub cells: Vec<usize>,
+    /// L1 error (None for the finest level when it is the reference).
+    pub l1: Option<f64>,
+    /// L2 error.
+    pub l2: Option<f64>,
+    /// Linf error.
+    pub linf: Option<f64>,
+    /// Observed L1 order against the previous level.
+    pub order_l1: Option<f64>,
+    /// Observed L2 order.
+    pub order_l2: Option<f64>,
+    /// Observed Linf order.
+    pub order_linf: Option<f64>,
+    /// Steps taken.
+    pub steps: u64,
+    /// Wall time of the level (set-up and time stepping, no output) [s].
+    pub wall_seconds: f64,
+}
+
+/// The whole study.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Study {
+    /// Scene name.
+    pub scene: String,
+    /// Face flux.
+    pub scheme: String,
+    /// Quantity compared.
+    pub quantity: String,
+    /// What the errors are measured against.
+    pub reference: String,
+    /// End time.
+    pub t_end: f64,
+    /// One row per level, coarse to fine.
+    pub levels: Vec<LevelRow>,
+}
+
+struct LevelRun {
+    phi: Vec<f64>,
+    c: Vec<f64>,
+    steps: u64,
+}
+
+struct ConvergeJob<'a> {
+    scene: &'a Scene,
+    fields: &'a Fields,
+}
+
+impl SolverJob for ConvergeJob<'_> {
+    type Output = LevelRun;
+    fn run<R: Real, const D: usize, const N: usize>(
+        self,
+        s: &mut Segregation<R, D, N>,
+    ) -> Result<LevelRun> {
+        load(s, self.scene, self.fields)?;
+        let bar = indicatif::ProgressBar::hidden();
+        // Same output stops as `sieve run`, so a level reproduces the run of that grid.
+        let stats = time_loop(s, self.scene, &bar, |_, _, _| Ok(()))?;
+        let n = s.len();
+        Ok(LevelRun {
+            phi: (0..n).map(|i| s.phi(i).to_f64()).collect(),
+            c: (0..n).map(|i| s.c(i).to_f64()).collect(),
+            steps: stats.steps,
+        })
+    }
+}
+
+fn cells_for(level: usize, base: &[usize], label: &str) -> Result<Vec<usize>> {
+    let last = *base.last().unwrap_or(&1);
+    base.iter()
+        .map(|&b| {
+            if (level * b) % last != 0 {
+                Err(Error::at(
+                    label,
+                    "--levels",
+                    format!(
+                        "level {level} does not keep the cell aspect {base:?}: allowed multiples of {}",
+                        last / gcd(last, b)
+                    ),
+                ))
+            } else {
+                Ok(level * b / last)
+            }
+        })
+        .collect()
+}
+
+fn gcd(a: usize, b: usize) -> usize {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
+    }
+}
+
+fn norms(err: &[f64], vol: f64) -> (f64, f64, f64) {
+    let l1 = err.iter().map(|e| e.abs()).sum::<f64>() * vol;
+    let l2 = (err.iter().map(|e| e * e).sum::<f64>() * vol).sqrt();
+    let linf = err.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+    (l1, l2, linf)
+}
+
+/// Mass-weighted restriction of a fine solution to a coarse grid: phihat of each coarse cell.
+fn restrict(fine: &LevelRun, fine_cells: &[usize], coarse_cells: &[usize]) -> Vec<f64> {
+    let dim = fine_cells.len();
+    let n: usize = coarse_cells.iter().product();
+    let mut phi = vec![0.0; n];
+    let mut c = vec![0.0; n];
+    for i in 0..fine.phi.len() {
+        let mut rest = i;
+        let mut j = 0;
+        let mut stride = 1;
+        for a in 0..dim {
+            let k = rest % fine_cells[a];
+            rest /= fine_cells[a];
+            j += (k / (fine_cells[a] / coarse_cells[a])) * stride;
+            stride *= coarse_cells[a];
+        }
+        phi[j] += fine.phi[i];
+        c[j] += fine.c[i];
+    }
+    phi.iter()
+        .zip(&c)
+        .map(|(&p, &c)| if c > 0.0 { p / c } else { 0.0 })
+        .collect()
+}
+
+fn phihat(r: &LevelRun) -> Vec<f64> {
+    r.phi
+        .iter()
+        .zip(&r.c)
+        .map(|(&p, &c)| if c > 1e-6 { p / c } else { 0.0 })
+        .collect()
+}
+
+/// Runs the study and writes `converge.csv` and `converge.json` to the output directory.
+pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(Study, PathBuf)> {
+    let (base, _) = scene::load(spec, sets)?;
+    let mut levels = opts.levels.clone();
+    levels.sort_unstable();
+    levels.dedup();
+    if levels.is_empty() || levels[0] == 0 {
+        return Err(Error::at(
+            &base.label,
+            "--levels",
+            "allowed: a list of positive integers",
+        ));
+    }
+    let grids: Vec<Vec<usize>> = levels
+        .iter()
+        .map(|&l| cells_for(l, &base.cells, &base.label))
+        .collect::<Result<_>>()?;
+    let exact = base.exact.is_some();
+    let finest = grids.last().cloned().unwrap_or_default();
+    if !exact {
+        if levels.len() < 2 {
+            return Err(Error::at(
+                &base.label,
+                "--levels",
+                "without an exact solution the finest level is the reference: give at least 2 levels",
+            ));
+        }
+        for (l, g) in levels.iter().zip(&grids) {
+            if g.iter().zip(&finest).any(|(c, f)| f % c != 0) {
+                return Err(Error::at(
+                    &base.label,
+                    "--levels",
+                    format!(
+                        "level {l} is not nested in the finest level {}: allowed divisors of it",
+                        levels.last().copied().unwrap_or(0)
+                    ),
+                ));
+            }
+        }
+    }
+    // Validate every level before running any, so bad input fails fast with code 2.
+    let mut scenes = Vec::with_capacity(levels.len());
+    for g in &grids {
+        let mut s = sets.to_vec();
+        s.push(format!(
+            "grid.cells=[{}]",
+            g.iter()
+                .map(|c| c.to_string())
+                .collect::<Vec<_>>()
+                .join(",")
+        ));
+        scenes.push(s);
+    }
+    let mut loaded = Vec::with_capacity(levels.len());
+    for s in &scenes {
+        loaded.push(scene::load(spec, s)?);
+    }
+    let out_dir = opts
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("runs").join(format!("{}-converge", base.name)));
+    let staging = Staging::new(&out_dir)?;
+    let mut runs = Vec::with_capacity(levels.len());
+    for (scene, fields) in &loaded {
+        let start = Instant::now();
+        let r = with_solver(scene.precision, scene.dim, ConvergeJob { scene, fields })?;
+        let secs = start.elapsed().as_secs_f64();
+        if !opts.quiet {
+            eprintln!("level {:?}: {} steps, {:.3} s", scene.cells, r.steps, secs);
+        }
+        runs.push((r, secs));
+    }
+    let mut rows: Vec<LevelRow> = Vec::with_capacity(levels.len());
+    for (idx, ((scene, fields), (run, secs))) in loaded.iter().zip(&runs).enumerate() {
+        let vol: f64 = scene.spacing().iter().product();
+        let computed = phihat(run);
+        let reference: Option<Vec<f64>> = if let Some(ex) = scene.column_a(fields) {
+            let h = scene.spacing()[0];
+            Some(
+                (0..scene.len())
+                    .map(|i| ex.phihat_cell_average(i as f64 * h, (i + 1) as f64 * h, scene.t_end))
+                    .collect(),
+            )
+        } else if idx + 1 < levels.len() {
+            Some(restrict(&runs[levels.len() - 1].0, &finest, &scene.cells))
+        } else {
+            None
+        };
+        let errs = reference.map(|r| {
+            let e: Vec<f64> = computed.iter().zip(&r).map(|(a, b)| a - b).collect();
+            norms(&e, vol)
+        });
+        let order = |prev: Option<f64>, cur: Option<f64>| -> Option<f64> {
+            let prev_level = rows.last()?.level as f64;
+            match (prev, cur) {
+                (Some(p), Some(c)) if p > 0.0 && c > 0.0 => {
+                    Some((p / c).ln() / (levels[idx] as f64 / prev_level).ln())
+                }
+                _ => None,
+            }
+        };
+        let prev = rows.last().map(|r| (r.l1, r.l2, r.linf));
+        let (l1, l2, linf) = match errs {
+            Some((a, b, c)) => (Some(a), Some(b), Some(c)),
+            None => (None, None, None),
+        };
+        let row = LevelRow {
+            level: levels[idx],
+            cells: scene.cells.clone(),
+            l1,
+            l2,
+            linf,
+            order_l1: order(prev.and_then(|p| p.0), l1),
+            order_l2: order(prev.and_then(|p| p.1), l2),
+            order_linf: order(prev.and_then(|p| p.2), linf),
+            steps: run.steps,
+            wall_seconds: *secs,
+        };
+        rows.push(row);
+    }
+    let study = Study {
+        scene: base.name.clone(),
+        scheme: base.scheme.name().into(),
+        quantity: "phihat at t_end".into(),
+        reference: if exact {
+            "exact solution column-a (cell averages)".into()
+        } else {
+            format!(
+                "finest level {} (mass-weighted restriction)",
+                levels[levels.len() - 1]
+            )
+        },
+        t_end: base.t_end,
+        levels: rows,
+    };
+    write_file(&staging.path().join("converge.csv"), csv(&study).as_bytes())?;
+    let mut json = serde_json::to_string_pretty(&study).map_err(Error::failure)?;
+    json.push('\n');
+    write_file(&staging.path().join("converge.json"), json.as_bytes())?;
+    let dir = staging.commit()?;
+    Ok((study, dir))
+}
+
+fn opt(x: Option<f64>) -> String {
+    x.map_or_else(String::new, num)
+}
+
+fn cells_text(c: &[usize]) -> String {
+    c.iter()
+        .map(|n| n.to_string())
+        .collect::<Vec<_>>()
+        .join("x")
+}
+
+/// converge.csv: header `level,cells,l1,l2,linf,order_l1,order_l2,order_linf,steps,wall_seconds`.
+pub fn csv(study: &Study) -> String {
+    let mut s =
+        String::from("level,cells,l1,l2,linf,order_l1,order_l2,order_linf,steps,wall_seconds\n");
+    for r in &study.levels {
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{},{},{},{}",
+            r.level,
+            cells_text(&r.cells),
+            opt(r.l1),
+            opt(r.l2),
+            opt(r.linf),
+            opt(r.order_l1),
+            opt(r.order_l2),
+            opt(r.order_linf),
+            r.steps,
+            num(r.wall_seconds)
+        );
+    }
+    s
+}
+
+/// The table printed on stdout.
+pub fn table(study: &Study) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# {} scheme={} error of {} against {}",
+        study.scene, study.scheme, study.quantity, study.reference
+    );
+    let _ = writeln!(
+        s,
+        "{:>7} {:>11} {:>11} {:>11} {:>11} {:>6} {:>6} {:>6} {:>8} {:>9}",
+        "level", "cells", "L1", "L2", "Linf", "p_L1", "p_L2", "p_Linf", "steps", "wall_s"
+    );
+    let e = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.4e}"));
+    let o = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.2}"));
+    for r in &study.levels {
+        let _ = writeln!(
+            s,
+            "{:>7} {:>11} {:>11} {:>11} {:>11} {:>6} {:>6} {:>6} {:>8} {:>9.4}",
+            r.level,
+            cells_text(&r.cells),
+            e(r.l1),
+            e(r.l2),
+            e(r.linf),
+            o(r.order_l1),
+            o(r.order_l2),
+            o(r.order_linf),
+            r.steps,
+            r.wall_seconds
+        );
+    }
+    s
+}

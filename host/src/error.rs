@@ -1,0 +1,69 @@
+//! The one error type of the host crate and its exit codes.
+//!
+//! Bad input (a scene the user can fix) exits with code 2 and one line naming the file, the key
+//! and the allowed range; anything else (I/O, a failed thread) exits with code 1.
+
+use std::fmt;
+
+/// Why a command failed.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Error {
+    /// The input is wrong (exit code 2). The text is one line without the `error: ` prefix.
+    Input(String),
+    /// Anything else: I/O, plotting, an internal failure (exit code 1).
+    Failure(String),
+}
+
+/// Result alias of the host crate.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    /// Bad input in `file` at `key`: `file: key: message`.
+    pub fn at(file: &str, key: &str, message: impl fmt::Display) -> Self {
+        if key.is_empty() {
+            Error::Input(one_line(&format!("{file}: {message}")))
+        } else {
+            Error::Input(one_line(&format!("{file}: {key}: {message}")))
+        }
+    }
+
+    /// A value outside its allowed range: `file: key = value is out of range: allowed range`.
+    pub fn range(file: &str, key: &str, value: impl fmt::Display, allowed: &str) -> Self {
+        Error::Input(one_line(&format!(
+            "{file}: {key} = {value} is out of range: allowed {allowed}"
+        )))
+    }
+
+    /// A failure that is not the user's input (exit code 1).
+    pub fn failure(message: impl fmt::Display) -> Self {
+        Error::Failure(one_line(&message.to_string()))
+    }
+
+    /// An I/O failure on `path`.
+    pub fn io(path: &std::path::Path, e: std::io::Error) -> Self {
+        Error::failure(format!("{}: {e}", path.display()))
+    }
+
+    /// The process exit code: 2 for bad input, 1 otherwise.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            Error::Input(_) => 2,
+            Error::Failure(_) => 1,
+        }
+    }
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Error::Input(m) | Error::Failure(m) => f.write_str(m),
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
+/// Scripts parse the message as one line: fold any line breaks a library put in.
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}

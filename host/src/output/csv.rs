@@ -1,0 +1,59 @@
+//! `series.csv` (diagnostics per output time) and `final.csv` (the final state per cell).
+
+use super::{num, write_file};
+use crate::error::Result;
+use crate::run::{SeriesRow, Snapshot};
+use crate::scene::Scene;
+use std::fmt::Write;
+use std::path::Path;
+
+/// Header of `series.csv` (a contract: scripts rely on it).
+pub const SERIES_HEADER: &str = "t,psi,mass,overshoot_max,undershoot_max";
+/// Header of `final.csv` (a contract: scripts rely on it).
+pub const FINAL_HEADER: &str = "x,y,z,c,phi,phihat,T,ux,uy,uz";
+
+/// Writes one row per output time.
+pub fn write_series(path: &Path, rows: &[SeriesRow]) -> Result<()> {
+    let mut s = String::with_capacity(64 * (rows.len() + 1));
+    s.push_str(SERIES_HEADER);
+    s.push('\n');
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{}",
+            num(r.t),
+            num(r.psi),
+            num(r.mass),
+            num(r.overshoot_max),
+            num(r.undershoot_max)
+        );
+    }
+    write_file(path, s.as_bytes())
+}
+
+/// Writes one row per cell (solver cell order, x fastest); absent axes are 0.
+pub fn write_final(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
+    let phihat = snap.phihat();
+    let mut s = String::with_capacity(120 * (snap.c.len() + 1));
+    s.push_str(FINAL_HEADER);
+    s.push('\n');
+    for i in 0..snap.c.len() {
+        let p = scene.center(i);
+        let u = snap.u[i];
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{},{},{},{}",
+            num(p[0]),
+            num(p[1]),
+            num(p[2]),
+            num(snap.c[i]),
+            num(snap.phi[i]),
+            num(phihat[i]),
+            num(snap.temp[i]),
+            num(u[0]),
+            num(u[1]),
+            num(u[2])
+        );
+    }
+    write_file(path, s.as_bytes())
+}

@@ -1,0 +1,455 @@
+//! Scene files: the TOML schema, loading (built-in name or path), `--set` overrides, and
+//! deserialisation with the path of any offending key.
+//!
+//! Axis names: a 1D scene has the single, vertical axis `z`; 2D scenes have `x` (horizontal)
+//! and `z` (vertical); 3D scenes `x`, `y`, `z`. Array keys (`grid.cells`, `gravity`,
+//! `initial.u`, ...) list one entry per axis in that order. Expressions see `x`, `y`, `z`
+//! (axes a scene does not have are 0).
+
+pub mod builtin;
+pub mod expr;
+pub mod validate;
+
+use crate::error::{Error, Result};
+use serde::Deserialize;
+use sieve_core::{Boundary, Phase, Scheme};
+
+pub use validate::{Fields, Scene};
+
+/// A scene file as written, before validation. Unknown keys are errors.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    /// Scene name (also the default output directory `runs/<name>`).
+    pub name: String,
+    /// One-line description (shown by `sieve scenes`).
+    #[serde(default)]
+    pub description: String,
+    /// Number of space dimensions, 1, 2 or 3.
+    pub dim: i64,
+    /// Which equations run and in which precision.
+    #[serde(default)]
+    pub model: ModelSpec,
+    /// The box and its cells.
+    pub grid: GridSpec,
+    /// Numerical scheme.
+    #[serde(default)]
+    pub numerics: NumericsSpec,
+    /// Material constants.
+    pub material: MaterialSpec,
+    /// Gravity, segregation direction, source of T.
+    pub physics: PhysicsSpec,
+    /// Initial (and, for prescribed scenes, fixed) fields.
+    pub initial: InitialSpec,
+    /// Boundary kinds per axis and inflow state.
+    #[serde(default)]
+    pub boundary: BoundarySpec,
+    /// End time, output interval, diagnostics.
+    pub run: RunSpec,
+}
+
+/// `[model]`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSpec {
+    /// Which equations run.
+    #[serde(default)]
+    pub equations: Equations,
+    /// Floating-point type of the solver.
+    #[serde(default)]
+    pub precision: Precision,
+}
+
+/// Which equations a scene runs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Equations {
+    /// Only the segregation equation; u, c and T are prescribed by the scene.
+    #[default]
+    Prescribed,
+}
+
+/// Floating-point type of the solver.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// 64-bit.
+    #[default]
+    F64,
+    /// 32-bit.
+    F32,
+}
+
+impl Precision {
+    /// "f64" or "f32".
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F64 => "f64",
+            Precision::F32 => "f32",
+        }
+    }
+}
+
+/// `[grid]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridSpec {
+    /// Cells per axis.
+    pub cells: Vec<i64>,
+    /// Lower corner of the box [m].
+    pub lower: Vec<f64>,
+    /// Upper corner of the box [m].
+    pub upper: Vec<f64>,
+}
+
+/// `[numerics]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NumericsSpec {
+    /// Face flux: modified (default), godunov, upwind.
+    #[serde(default)]
+    pub scheme: Scheme,
+    /// Tracked phase: small (default) or large.
+    #[serde(default)]
+    pub phase: Phase,
+    /// Courant number, 0 < C < 1.
+    #[serde(default = "default_courant")]
+    pub courant: f64,
+}
+
+impl Default for NumericsSpec {
+    fn default() -> Self {
+        Self {
+            scheme: Scheme::default(),
+            phase: Phase::default(),
+            courant: default_courant(),
+        }
+    }
+}
+
+fn default_courant() -> f64 {
+    0.5
+}
+
+/// `[material]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    /// Segregation rate S0 [s^2/m].
+    pub s0: f64,
+    /// Remixing diffusivity D >= 0 [m^2/s].
+    #[serde(default)]
+    pub diffusion: f64,
+    /// Random close packing of one grain size: upper bound of c.
+    #[serde(default = "default_phi_rcp")]
+    pub phi_rcp: f64,
+    /// Heating prefactor a (for `temperature = "shear"`).
+    #[serde(default = "default_heating")]
+    pub heating: f64,
+    /// eta0 [m] (for `temperature = "shear"`).
+    pub eta0: Option<f64>,
+    /// eps0 [1/m] (for `temperature = "shear"`).
+    pub eps0: Option<f64>,
+}
+
+fn default_phi_rcp() -> f64 {
+    0.64
+}
+fn default_heating() -> f64 {
+    1.5
+}
+
+/// `[physics]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhysicsSpec {
+    /// Gravity vector [m/s^2], one entry per axis.
+    pub gravity: Vec<f64>,
+    /// Segregation direction: "gravity", "flow" or a vector.
+    #[serde(default)]
+    pub direction: DirectionSpec,
+    /// Source of T: "given" (initial.T) or "shear" (from the velocity gradient).
+    #[serde(default)]
+    pub temperature: TemperatureSpec,
+}
+
+/// Segregation direction as written.
+#[derive(Debug, Clone)]
+pub enum DirectionSpec {
+    /// "gravity" or "flow".
+    Name(String),
+    /// A fixed vector, one entry per axis.
+    Vector(Vec<f64>),
+}
+
+impl Default for DirectionSpec {
+    fn default() -> Self {
+        DirectionSpec::Name("gravity".into())
+    }
+}
+
+/// Source of the granular temperature.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TemperatureSpec {
+    /// T from `initial.T`.
+    #[default]
+    Given,
+    /// `T = heating eta0 / eps0 kappa:kappa` from the prescribed velocity.
+    Shear,
+}
+
+/// An analytic expression, written as a TOML string or a plain number.
+#[derive(Debug, Clone)]
+pub enum ExprSrc {
+    /// A constant.
+    Number(f64),
+    /// An expression in x, y, z (and c where allowed).
+    Text(String),
+}
+
+// Hand-written visitors instead of `#[serde(untagged)]`: a wrong type then says what is
+// allowed instead of "data did not match any variant".
+impl<'de> Deserialize<'de> for ExprSrc {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = ExprSrc;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a number or an expression string such as \"0.5 * c\"")
+            }
+            fn visit_f64<E>(self, v: f64) -> Result<ExprSrc, E> {
+                Ok(ExprSrc::Number(v))
+            }
+            fn visit_i64<E>(self, v: i64) -> Result<ExprSrc, E> {
+                Ok(ExprSrc::Number(v as f64))
+            }
+            fn visit_u64<E>(self, v: u64) -> Result<ExprSrc, E> {
+                Ok(ExprSrc::Number(v as f64))
+            }
+            fn visit_str<E>(self, v: &str) -> Result<ExprSrc, E> {
+                Ok(ExprSrc::Text(v.to_string()))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+impl<'de> Deserialize<'de> for DirectionSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = DirectionSpec;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("\"gravity\", \"flow\" or a vector of one number per axis")
+            }
+            fn visit_str<E>(self, v: &str) -> Result<DirectionSpec, E> {
+                Ok(DirectionSpec::Name(v.to_string()))
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<DirectionSpec, A::Error> {
+                let mut v = Vec::new();
+                while let Some(x) = seq.next_element::<f64>()? {
+                    v.push(x);
+                }
+                Ok(DirectionSpec::Vector(v))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// `[initial]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InitialSpec {
+    /// Volume fraction c(x, y, z).
+    pub c: ExprSrc,
+    /// Granular temperature T(x, y, z) [m^2/s^2]; required unless `temperature = "shear"`.
+    #[serde(rename = "T")]
+    pub t: Option<ExprSrc>,
+    /// Velocity components [m/s], one per axis; default 0.
+    pub u: Option<Vec<ExprSrc>>,
+    /// Small-phase fraction phi(x, y, z, c).
+    pub phi: ExprSrc,
+}
+
+/// `[boundary]`: `[low, high]` kinds per axis (default wall), inflow state.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundarySpec {
+    /// Axis x.
+    pub x: Option<[Boundary; 2]>,
+    /// Axis y.
+    pub y: Option<[Boundary; 2]>,
+    /// Axis z.
+    pub z: Option<[Boundary; 2]>,
+    /// Dirichlet state at inflow sides.
+    pub inflow: Option<InflowSpec>,
+}
+
+/// `[boundary.inflow]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InflowSpec {
+    /// phi(x, y, z, c) of the inflowing material (c is the boundary cell's).
+    pub phi: ExprSrc,
+}
+
+/// `[run]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSpec {
+    /// End time [s].
+    pub t_end: f64,
+    /// Time between outputs [s].
+    pub output_interval: f64,
+    /// Segregation time = first time Psi < threshold (after Psi was >= threshold).
+    #[serde(default = "default_psi_threshold")]
+    pub psi_threshold: f64,
+    /// A closed-form solution of this scene.
+    pub exact: Option<ExactKind>,
+}
+
+fn default_psi_threshold() -> f64 {
+    0.05
+}
+
+/// Closed-form solutions a scene can name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExactKind {
+    /// `sieve_core::exact::ColumnA`.
+    ColumnA,
+}
+
+/// The source of a scene: its label in messages (file path) and its text.
+#[derive(Debug, Clone)]
+pub struct Source {
+    /// File name used in messages (`scenes/<name>.toml` for built-ins).
+    pub label: String,
+    /// TOML text.
+    pub text: String,
+}
+
+/// Finds a scene: a built-in name, else a path to a TOML file.
+pub fn locate(spec: &str) -> Result<Source> {
+    if let Some(b) = builtin::find(spec) {
+        return Ok(Source {
+            label: format!("scenes/{}.toml", b.name),
+            text: b.toml.to_string(),
+        });
+    }
+    let path = std::path::Path::new(spec);
+    if path.is_file() {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| Error::at(spec, "", format!("cannot read scene file: {e}")))?;
+        return Ok(Source {
+            label: spec.to_string(),
+            text,
+        });
+    }
+    Err(Error::Input(format!(
+        "{spec}: unknown scene: not a built-in scene (allowed: {}) and no such file",
+        builtin::names().join(", ")
+    )))
+}
+
+/// Parses TOML text into a table; a syntax error names the line and column.
+pub fn parse_table(label: &str, text: &str) -> Result<toml::Table> {
+    text.parse::<toml::Table>().map_err(|e| {
+        let place = e
+            .span()
+            .map(|s| {
+                let before = &text[..s.start.min(text.len())];
+                let line = before.matches('\n').count() + 1;
+                let col = before.len() - before.rfind('\n').map_or(0, |p| p + 1) + 1;
+                format!("line {line}, column {col}: ")
+            })
+            .unwrap_or_default();
+        Error::at(label, "", format!("malformed TOML: {place}{}", e.message()))
+    })
+}
+
+/// Applies `key=value` (dotted key; value in TOML syntax, else taken as a string) to `table`.
+pub fn apply_set(label: &str, table: &mut toml::Table, assignment: &str) -> Result<()> {
+    let (key, raw) = assignment.split_once('=').ok_or_else(|| {
+        Error::at(
+            label,
+            "",
+            format!("--set {assignment}: expected key=value, e.g. numerics.courant=0.4"),
+        )
+    })?;
+    let key = key.trim();
+    let raw = raw.trim();
+    let parts: Vec<&str> = key.split('.').collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        return Err(Error::at(
+            label,
+            "",
+            format!("--set {assignment}: empty key component"),
+        ));
+    }
+    // TOML syntax first (numbers, arrays, booleans, quoted strings); bare text is a string so
+    // that `--set initial.c=0.5*z` works without shell-escaped quotes.
+    let value = format!("v = {raw}")
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    let mut node = table;
+    for (depth, part) in parts[..parts.len() - 1].iter().enumerate() {
+        let entry = node
+            .entry(part.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        node = match entry {
+            toml::Value::Table(t) => t,
+            _ => {
+                return Err(Error::at(
+                    label,
+                    &parts[..=depth].join("."),
+                    format!(
+                        "--set {key}: `{}` is not a table",
+                        parts[..=depth].join(".")
+                    ),
+                ))
+            }
+        };
+    }
+    node.insert(parts[parts.len() - 1].to_string(), value);
+    Ok(())
+}
+
+/// Deserialises a table into a [`SceneFile`], naming the dotted path of a bad key.
+pub fn deserialize(label: &str, table: toml::Table) -> Result<SceneFile> {
+    serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+        let path = e.path().to_string();
+        let key = if path == "." { String::new() } else { path };
+        let mut msg = e.inner().to_string().trim_end().to_string();
+        // toml appends " in `key`"; the key is already named in front.
+        if let Some(cut) = msg
+            .rfind("in `")
+            .filter(|&c| msg.ends_with('`') && msg[..c].ends_with(char::is_whitespace))
+        {
+            msg.truncate(cut);
+        }
+        let msg = msg.trim_end();
+        Error::at(label, &key, msg)
+    })
+}
+
+/// Loads a scene: locate, parse, apply overrides in order, deserialise, validate and evaluate
+/// its fields on the grid.
+pub fn load(spec: &str, sets: &[String]) -> Result<(Scene, Fields)> {
+    let src = locate(spec)?;
+    let mut table = parse_table(&src.label, &src.text)?;
+    for s in sets {
+        apply_set(&src.label, &mut table, s)?;
+    }
+    let file = deserialize(&src.label, table)?;
+    let scene = Scene::validate(&src.label, file)?;
+    let fields = scene.evaluate_fields()?;
+    Ok((scene, fields))
+}

@@ -1,0 +1,208 @@
+//! Recording: truth simulation + simulated velocity sensor -> recording file.
+
+use super::scene::{coarsen, Scene};
+use sieve_core::sensor::frame::{encode, FRAME_WIRE_MAX};
+use sieve_core::sensor::recording::{write_recording, RecordingHeader, TruthRecord};
+use sieve_core::sensor::{VelocityFrame, MAX_SENSOR_POINTS};
+use sieve_core::{diagnose, Real};
+use std::path::Path;
+
+/// What to record.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordOptions {
+    /// Scene.
+    pub scene: Scene,
+    /// Truth grid (x, z), at most 64 x 64.
+    pub truth_cells: [u16; 2],
+    /// Estimator grid written into the sensor configuration (at most 1024 cells for the
+    /// firmware).
+    pub estimator_cells: [u16; 2],
+    /// Sensor grid (x, z), at most 16 x 16; also the grid of the stored truth phihat.
+    pub sensor: [u8; 2],
+    /// Velocity noise: standard deviation relative to the scene's largest speed.
+    pub noise: f64,
+    /// Noise seed.
+    pub seed: u64,
+    /// Frame period [s] (1 / rate).
+    pub period: f64,
+    /// Number of frames.
+    pub frames: u32,
+    /// Substep budget per tick written into the configuration.
+    pub max_substeps: u16,
+}
+
+impl RecordOptions {
+    /// Defaults of a scene: truth and estimator 32 x 32, sensor 8 x 8 (4x coarser), 5 %
+    /// noise, seed 1, the scene's period and length, budget 4 substeps.
+    pub fn new(scene: Scene) -> Self {
+        Self {
+            scene,
+            truth_cells: [32, 32],
+            estimator_cells: [32, 32],
+            sensor: [8, 8],
+            noise: 0.05,
+            seed: 1,
+            period: scene.default_period(),
+            frames: scene.default_frames(),
+            max_substeps: 4,
+        }
+    }
+}
+
+/// Summary of a recording.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordReport {
+    /// Frames written.
+    pub frames: u32,
+    /// Bytes of the frame stream.
+    pub stream_bytes: usize,
+    /// Bytes of the whole file.
+    pub file_bytes: usize,
+    /// Truth psi at the end.
+    pub final_truth_psi: f64,
+}
+
+/// SplitMix64 + Box–Muller with the core's libm functions, so a recording is the same on
+/// every platform. (The host crate carries no RNG dependency; this is the reference
+/// SplitMix64 of the core's fault feeder.)
+struct Noise {
+    rng: sieve_core::sensor::feeder::SplitMix64,
+    spare: Option<f64>,
+}
+
+impl Noise {
+    fn new(seed: u64) -> Self {
+        Self {
+            rng: sieve_core::sensor::feeder::SplitMix64::new(seed),
+            spare: None,
+        }
+    }
+    fn uniform(&mut self) -> f64 {
+        // 53 random bits in (0, 1].
+        ((self.rng.next_u64() >> 11) as f64 + 1.0) / (1u64 << 53) as f64
+    }
+    fn gaussian(&mut self) -> f64 {
+        if let Some(s) = self.spare.take() {
+            return s;
+        }
+        let r = (-2.0 * Real::ln(self.uniform())).sqrt();
+        let a = 2.0 * core::f64::consts::PI * self.uniform();
+        self.spare = Some(r * Real::sin(a));
+        r * Real::cos(a)
+    }
+}
+
+/// Records a scene into bytes (see [`record`]).
+pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), String> {
+    let scene = opts.scene;
+    let ns = [opts.sensor[0] as usize, opts.sensor[1] as usize];
+    if ns[0] * ns[1] > MAX_SENSOR_POINTS || ns[0] == 0 || ns[1] == 0 {
+        return Err(format!("sensor grid {ns:?} exceeds 16 x 16"));
+    }
+    if !(opts.period > 0.0 && opts.noise >= 0.0) {
+        return Err("period must be > 0 and noise >= 0".into());
+    }
+    let config = scene.sensor_config(
+        opts.estimator_cells,
+        opts.sensor,
+        opts.noise,
+        opts.period,
+        opts.max_substeps,
+    );
+    config
+        .validate(super::ESTIMATOR_CAPACITY)
+        .map_err(|e| format!("sensor configuration: {e:?}"))?;
+    let mut truth = scene.truth(opts.truth_cells)?;
+    let nf = [opts.truth_cells[0] as usize, opts.truth_cells[1] as usize];
+    let e = scene.extent();
+    let sigma = opts.noise * scene.max_speed();
+    let mut noise = Noise::new(opts.seed);
+    let mut stream = Vec::new();
+    let mut truth_bytes = Vec::new();
+    let mut scratch = vec![0u8; FRAME_WIRE_MAX];
+    let mut wire = vec![0u8; FRAME_WIRE_MAX];
+    let mut final_psi = 0.0;
+    for k in 1..=opts.frames {
+        // The sensor measures the flow of period k at its points (cell centres of the sensor
+        // grid), with Gaussian noise on each component.
+        let mut frame = VelocityFrame {
+            seq: k,
+            time: (k as f64 * opts.period) as f32,
+            period: opts.period as f32,
+            nx: opts.sensor[0],
+            nz: opts.sensor[1],
+            u: Default::default(),
+        };
+        for iz in 0..ns[1] {
+            for ix in 0..ns[0] {
+                let x = (ix as f64 + 0.5) * e[0] / ns[0] as f64;
+                let z = (iz as f64 + 0.5) * e[1] / ns[1] as f64;
+                let u = scene.velocity(x, z);
+                for uc in u {
+                    let v = (uc + sigma * noise.gaussian()) as f32;
+                    frame.u.push(v).map_err(|_| "frame capacity")?;
+                }
+            }
+        }
+        let n = encode(&frame, &mut scratch, &mut wire).map_err(|_| "frame encoding")?;
+        stream.extend_from_slice(&wire[..n]);
+        let steps = truth.advance_to(k as f64 * opts.period, 1 << 20);
+        if steps >= 1 << 20 {
+            return Err("truth did not reach the frame time".into());
+        }
+        let d = diagnose(&*truth);
+        final_psi = d.psi;
+        let coarse = coarsen(|i| truth.phi(i) / truth.c(i), nf, ns);
+        let mut rec = TruthRecord {
+            seq: k,
+            time: truth.time() as f32,
+            psi: d.psi as f32,
+            phihat: Default::default(),
+        };
+        for v in coarse {
+            rec.phihat.push(v as f32).map_err(|_| "truth capacity")?;
+        }
+        if !rec.encode_into(|b| truth_bytes.extend_from_slice(b)) {
+            return Err("truth encoding".into());
+        }
+    }
+    let mut name = sieve_core::sensor::heapless::String::new();
+    let _ = name.push_str(scene.name());
+    let header = RecordingHeader {
+        config,
+        scene: name,
+        noise: opts.noise as f32,
+        seed: opts.seed,
+        frames: opts.frames,
+        truth_cells: opts.truth_cells,
+        truth_coarse: [opts.sensor[0] as u16, opts.sensor[1] as u16],
+    };
+    let mut out = Vec::new();
+    let mut hscratch = vec![0u8; 4096];
+    write_recording(
+        &header,
+        &stream,
+        &truth_bytes,
+        &mut hscratch,
+        |b| {
+            out.extend_from_slice(b);
+            Ok::<(), String>(())
+        },
+        "header encoding".to_string(),
+    )?;
+    let report = RecordReport {
+        frames: opts.frames,
+        stream_bytes: stream.len(),
+        file_bytes: out.len(),
+        final_truth_psi: final_psi,
+    };
+    Ok((out, report))
+}
+
+/// Runs the scene's truth simulation and the simulated sensor and writes the recording to
+/// `out` (format: `sieve_core::sensor::recording`).
+pub fn record(opts: &RecordOptions, out: &Path) -> Result<RecordReport, String> {
+    let (bytes, report) = record_to_bytes(opts)?;
+    std::fs::write(out, &bytes).map_err(|e| format!("{}: {e}", out.display()))?;
+    Ok(report)
+}

@@ -1,0 +1,202 @@
+//! Replay: the firmware's soft-sensor loop on the host, compared with the recorded truth.
+
+use super::scene::coarsen;
+use super::ESTIMATOR_CAPACITY;
+use sieve_core::sensor::feeder::{feed_bytes, Faults, Feeder, InjectedFaults};
+use sieve_core::sensor::frame::FRAME_WIRE_MAX;
+use sieve_core::sensor::recording::{Recording, TruthRecord};
+use sieve_core::sensor::{Counters, FrameDecoder, SoftSensor, WireCounters};
+use std::io::Write;
+use std::path::Path;
+
+/// How to replay.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReplayOptions {
+    /// Fault injection in the feeder (`Faults::default()` = clean; `Faults::DEMO` is what
+    /// firmware-sim's faulted pass uses).
+    pub faults: Faults,
+}
+
+/// One tick of the replay.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReplayRow {
+    /// Tick index.
+    pub tick: u32,
+    /// Last accepted sequence number.
+    pub seq: u32,
+    /// Estimator time [s].
+    pub time: f32,
+    /// Estimated psi.
+    pub psi: f32,
+    /// Truth psi at the estimator's time.
+    pub psi_truth: f32,
+    /// Mean |phihat_est - phihat_truth| over the coarse truth grid.
+    pub l1: f64,
+    /// Health bits.
+    pub health: u8,
+    /// Alarm bits.
+    pub alarms: u8,
+    /// Substeps taken.
+    pub substeps: u16,
+    /// Region means.
+    pub regions: Vec<f32>,
+}
+
+/// Result of a replay.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReplayReport {
+    /// Scene name from the recording.
+    pub scene: String,
+    /// Per-tick rows (ticks whose estimator time has a truth record).
+    pub rows: Vec<ReplayRow>,
+    /// Largest |psi_est - psi_truth|.
+    pub max_psi_error: f64,
+    /// Largest L1 of phihat.
+    pub max_l1: f64,
+    /// Mean L1 of phihat.
+    pub mean_l1: f64,
+    /// Ticks run.
+    pub ticks: u32,
+    /// Estimator counters.
+    pub counters: Counters,
+    /// Decoder counters.
+    pub wire: WireCounters,
+    /// Injected faults.
+    pub injected: InjectedFaults,
+    /// Final lag [s].
+    pub lag: f32,
+    /// Relative change of the small-phase mass over the run (f64 sum). Nonzero only through
+    /// the phi clamps that a measured velocity with divergence (noise) makes necessary, and
+    /// through the inflow and outflow of open boundaries.
+    pub mass_drift: f64,
+    /// Final state hash (as printed by firmware-sim).
+    pub final_state_hash: u64,
+}
+
+/// Replays recording bytes.
+pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, String> {
+    let rec = Recording::parse(bytes).map_err(|e| format!("recording: {e:?}"))?;
+    let truth: Vec<TruthRecord> = rec.truth().collect();
+    let mut sensor: Box<SoftSensor<f32, ESTIMATOR_CAPACITY>> = Box::default();
+    sensor
+        .configure(&rec.header.config)
+        .map_err(|e| format!("configuration: {e:?}"))?;
+    let mut decoder: Box<FrameDecoder<FRAME_WIRE_MAX>> = Box::default();
+    let mut feeder = Box::new(Feeder::new(rec.stream, opts.faults));
+    let cfg = rec.header.config.clone();
+    let period = cfg.tick_period as f64;
+    let nf = [cfg.cells[0] as usize, cfg.cells[1] as usize];
+    let nc = [
+        rec.header.truth_coarse[0] as usize,
+        rec.header.truth_coarse[1] as usize,
+    ];
+    let mass = |s: &SoftSensor<f32, ESTIMATOR_CAPACITY>| -> f64 {
+        let g = s.segregation();
+        (0..g.len()).map(|i| g.phi(i) as f64).sum()
+    };
+    let mass0 = mass(&sensor);
+    let mut rows = Vec::new();
+    let mut tick = 0u32;
+    // The firmware loop: one tick per frame period; the feeder's bytes of the tick go through
+    // the decoder into the sensor, then the tick ends. Runs until the stream is delivered.
+    while !feeder.done() {
+        feeder.tick(|chunk| feed_bytes(&mut *sensor, &mut *decoder, chunk));
+        let e = sensor.finish_tick();
+        // Compare with the truth at the estimator's own time (the frame periods it has
+        // simulated), so lost or late periods show up as error, not as a shifted index.
+        let covered = (e.time as f64 / period).round() as usize;
+        if let Some(t) = covered.checked_sub(1).and_then(|k| truth.get(k)) {
+            let est = coarsen(|i| sensor.phihat(i) as f64, nf, nc);
+            let l1 = est
+                .iter()
+                .zip(&t.phihat)
+                .map(|(a, &b)| (a - b as f64).abs())
+                .sum::<f64>()
+                / est.len().max(1) as f64;
+            rows.push(ReplayRow {
+                tick,
+                seq: e.seq,
+                time: e.time,
+                psi: e.psi,
+                psi_truth: t.psi,
+                l1,
+                health: e.health,
+                alarms: e.alarms,
+                substeps: e.substeps,
+                regions: e.regions.to_vec(),
+            });
+        }
+        tick += 1;
+    }
+    let max_psi_error = rows
+        .iter()
+        .map(|r| (r.psi as f64 - r.psi_truth as f64).abs())
+        .fold(0.0, f64::max);
+    let max_l1 = rows.iter().map(|r| r.l1).fold(0.0, f64::max);
+    let mean_l1 = rows.iter().map(|r| r.l1).sum::<f64>() / rows.len().max(1) as f64;
+    Ok(ReplayReport {
+        scene: rec.header.scene.as_str().to_string(),
+        rows,
+        max_psi_error,
+        max_l1,
+        mean_l1,
+        ticks: tick,
+        counters: *sensor.counters(),
+        wire: decoder.counters,
+        injected: feeder.injected,
+        lag: sensor.lag(),
+        mass_drift: (mass(&sensor) - mass0) / mass0,
+        final_state_hash: sensor.state_hash(),
+    })
+}
+
+/// Replays a recording file: the soft sensor (f32, firmware loop) against the truth.
+pub fn replay(path: &Path, opts: &ReplayOptions) -> Result<ReplayReport, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    replay_bytes(&bytes, opts)
+}
+
+/// Prints the error over time (every `every`-th tick and the last) and the summary lines in
+/// the same `key=value` format as firmware-sim.
+pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std::io::Result<()> {
+    writeln!(out, "scene={}", r.scene)?;
+    writeln!(
+        out,
+        "{:>6} {:>6} {:>8} {:>8} {:>8} {:>9} {:>8} {:>6} {:>5}",
+        "tick", "seq", "time", "psi", "truth", "psi_err", "L1", "health", "subst"
+    )?;
+    let n = r.rows.len();
+    for (k, row) in r.rows.iter().enumerate() {
+        if k % every.max(1) == 0 || k + 1 == n {
+            writeln!(
+                out,
+                "{:>6} {:>6} {:>8.3} {:>8.4} {:>8.4} {:>9.5} {:>8.5} {:>#6x} {:>5}",
+                row.tick,
+                row.seq,
+                row.time,
+                row.psi,
+                row.psi_truth,
+                row.psi - row.psi_truth,
+                row.l1,
+                row.health,
+                row.substeps
+            )?;
+        }
+    }
+    writeln!(out, "max_psi_error={:.5}", r.max_psi_error)?;
+    writeln!(out, "max_l1={:.5} mean_l1={:.5}", r.max_l1, r.mean_l1)?;
+    let c = &r.counters;
+    let w = &r.wire;
+    writeln!(
+        out,
+        "faults: decoded={} overflow={} framing={} crc={} decode={} dims={} non_finite={} range={} seq={} outliers={} stale_ticks={} frozen_ticks={} budget_limited={} lost_periods={} phi_clamps={}",
+        w.decoded, w.overflow, w.framing, w.crc, w.decode, c.dims, c.non_finite, c.range, c.seq,
+        c.outliers, c.stale_ticks, c.frozen_ticks, c.budget_limited, c.lost_periods, c.phi_clamps
+    )?;
+    writeln!(
+        out,
+        "ticks={} lag={:.6} mass_drift={:.3e}",
+        r.ticks, r.lag, r.mass_drift
+    )?;
+    writeln!(out, "final_state_hash=0x{:016x}", r.final_state_hash)
+}

@@ -1,0 +1,267 @@
+//! Prescribed-flow scenes for the soft sensor: the ground-truth simulation (the core solver on
+//! the truth grid with the exact velocity) and the sensor configuration that goes with it.
+
+use sieve_core::sensor::{Region, SensorConfig};
+use sieve_core::{
+    Boundary, DirectionMode, Grid, Phase, Real, Scheme, Segregation, SegregationConfig,
+    TemperatureMode,
+};
+
+/// Capacity of the truth solver (up to 64 x 64 cells).
+pub const TRUTH_CAPACITY: usize = 4096;
+
+/// Truth solver type: f64, boxed by the caller (it is about 400 KiB).
+pub type Truth = Segregation<f64, 2, TRUTH_CAPACITY>;
+
+/// Heating prefactor a, eta0 and eps0 of the glass beads of model.md 7.4 (T from shear).
+const HEATING: f64 = 1.5;
+const ETA0: f64 = 1.3e-4;
+const EPS0: f64 = 1477.15;
+const G: f64 = 9.81;
+
+/// The scenes the recorder knows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scene {
+    /// Idealised shear cell (model.md 7.3): 0.025 m box, periodic x, walls in z, c = 0.64,
+    /// `u_x = 0.0007 + 0.0048 z / 0.025`, |S| = 0.025 m/s, mixed start (phihat 0.5).
+    ShearCell,
+    /// Gray–Thornton simple shear (model.md 7.2): x in [0, 2] downstream, z in [0, 1],
+    /// `u_x = 2 z`, c = 0.64, inflow phihat 0.6 at x = 0, free outflow at x = 2, walls in z,
+    /// |S| = 0.5, mixed start (phihat 0.6).
+    GrayThornton,
+}
+
+impl Scene {
+    /// Name used on the command line and in recordings.
+    pub fn name(self) -> &'static str {
+        match self {
+            Scene::ShearCell => "shear-cell",
+            Scene::GrayThornton => "gray-thornton-shear",
+        }
+    }
+
+    /// Parses a scene name (as printed by [`Scene::name`]).
+    pub fn from_name(s: &str) -> Option<Self> {
+        match s {
+            "shear-cell" | "idealised-shear-cell" => Some(Scene::ShearCell),
+            "gray-thornton-shear" | "gray-thornton" => Some(Scene::GrayThornton),
+            _ => None,
+        }
+    }
+
+    /// Box size (x, z) [m].
+    pub fn extent(self) -> [f64; 2] {
+        match self {
+            Scene::ShearCell => [0.025, 0.025],
+            Scene::GrayThornton => [2.0, 1.0],
+        }
+    }
+
+    /// The prescribed velocity at a point.
+    pub fn velocity(self, _x: f64, z: f64) -> [f64; 2] {
+        match self {
+            Scene::ShearCell => [0.0007 + 0.0048 * z / 0.025, 0.0],
+            Scene::GrayThornton => [2.0 * z, 0.0],
+        }
+    }
+
+    /// Largest speed (the reference of the relative noise level).
+    pub fn max_speed(self) -> f64 {
+        match self {
+            Scene::ShearCell => 0.0055,
+            Scene::GrayThornton => 2.0,
+        }
+    }
+
+    /// Uniform shear rate of the prescribed flow [1/s].
+    fn shear_rate(self) -> f64 {
+        match self {
+            Scene::ShearCell => 0.0048 / 0.025,
+            Scene::GrayThornton => 2.0,
+        }
+    }
+
+    /// Target segregation speed |S| [m/s].
+    fn segregation_speed(self) -> f64 {
+        match self {
+            Scene::ShearCell => 0.025,
+            Scene::GrayThornton => 0.5,
+        }
+    }
+
+    /// S0 such that `S0 sqrt(T) |g| = |S|` with `T = a eta0/eps0 gammadot^2`.
+    pub fn s0(self) -> f64 {
+        let sqrt_t = (HEATING * ETA0 / EPS0).sqrt() * self.shear_rate();
+        self.segregation_speed() / (sqrt_t * G)
+    }
+
+    /// Boundaries.
+    pub fn boundaries(self) -> [[Boundary; 2]; 2] {
+        match self {
+            Scene::ShearCell => [
+                [Boundary::Periodic, Boundary::Periodic],
+                [Boundary::Wall, Boundary::Wall],
+            ],
+            Scene::GrayThornton => [
+                [Boundary::Inflow, Boundary::Outflow],
+                [Boundary::Wall, Boundary::Wall],
+            ],
+        }
+    }
+
+    /// Initial (and inflow) phihat.
+    pub fn initial_phihat(self) -> f64 {
+        match self {
+            Scene::ShearCell => 0.5,
+            Scene::GrayThornton => 0.6,
+        }
+    }
+
+    /// Default frame period [s] (one stable substep of a 32 x 32 estimator in the clean case).
+    pub fn default_period(self) -> f64 {
+        0.01
+    }
+
+    /// Default number of frames (long enough to segregate / reach the steady state).
+    pub fn default_frames(self) -> u32 {
+        match self {
+            Scene::ShearCell => 150,
+            Scene::GrayThornton => 300,
+        }
+    }
+
+    /// The sensor configuration for an estimator of `cells` and a sensor grid of `sensor`
+    /// points, with input handling tuned to the noise level `noise` (relative to the largest
+    /// speed) and the frame `period`.
+    pub fn sensor_config(
+        self,
+        cells: [u16; 2],
+        sensor: [u8; 2],
+        noise: f64,
+        period: f64,
+        max_substeps: u16,
+    ) -> SensorConfig<f32> {
+        let e = self.extent();
+        let umax = self.max_speed();
+        let sigma = noise * umax;
+        // A linear profile differs from its neighbourhood median by up to one sensor spacing
+        // times the shear rate at the walls; spikes beyond that plus 6 sigma are outliers.
+        let profile_step = self.shear_rate() * e[1] / sensor[1] as f64;
+        let (nx, nz) = (cells[0], cells[1]);
+        let q = (nz / 4).max(1);
+        let (regions, outlet) = match self {
+            Scene::ShearCell => (
+                vec![
+                    Region::new("bottom", [0, 0], [nx, q]),
+                    Region::new("top", [0, nz - q], [nx, nz]),
+                ],
+                None,
+            ),
+            Scene::GrayThornton => (
+                vec![
+                    Region::new("outlet", [nx - 1, 0], [nx, nz]),
+                    Region::new("bottom", [0, 0], [nx, q]),
+                    Region::new("top", [0, nz - q], [nx, nz]),
+                ],
+                Some(0),
+            ),
+        };
+        let f = |x: f64| x as f32;
+        let mut cfg = SensorConfig {
+            cells,
+            extent: [f(e[0]), f(e[1])],
+            bc: self.boundaries(),
+            sensor,
+            s0: f(self.s0()),
+            eta0: f(ETA0),
+            eps0: f(EPS0),
+            heating: f(HEATING),
+            gravity: [0.0, f(-G)],
+            c: 0.64,
+            initial_phihat: f(self.initial_phihat()),
+            inflow_phihat: f(self.initial_phihat()),
+            diffusion: 0.0,
+            courant: 0.5,
+            tick_period: f(period),
+            max_period_factor: 2.0,
+            max_substeps,
+            hold_ticks: 5,
+            reject_speed: f(3.0 * umax),
+            outlier_tol: f(6.0 * sigma + profile_step + 1e-3 * umax),
+            // Smoothing only when there is noise to average. The EMA lags a change of the flow
+            // by about 1/smoothing = 50 frames (0.5 s): right for these steady flows, to be
+            // shortened for flows that change faster. Tuned on the accuracy table (README):
+            // noise in u_z advects phi directly and noise in the gradient inflates T.
+            smoothing: if noise > 0.0 { 0.02 } else { 1.0 },
+            spatial_passes: if noise > 0.0 { 2 } else { 0 },
+            regions: Default::default(),
+            outlet,
+            psi_alarm: 0.3,
+            fines_band: [0.4, 0.8],
+        };
+        for r in regions {
+            // At most MAX_REGIONS (4) are defined above.
+            let _ = cfg.regions.push(r);
+        }
+        cfg
+    }
+
+    /// The truth solver on a `cells` grid with the exact velocity, in its initial state.
+    pub fn truth(self, cells: [u16; 2]) -> Result<Box<Truth>, String> {
+        let e = self.extent();
+        let grid = Grid::new(
+            [cells[0] as usize, cells[1] as usize],
+            [0.0; 2],
+            e,
+            TRUTH_CAPACITY,
+        )
+        .map_err(|err| format!("truth grid: {err:?}"))?;
+        let cfg = SegregationConfig {
+            scheme: Scheme::Modified,
+            phase: Phase::Small,
+            s0: self.s0(),
+            gravity: [0.0, -G],
+            direction: DirectionMode::Flow,
+            temperature: TemperatureMode::FromShear {
+                heating: HEATING,
+                eta0: ETA0,
+                eps0: EPS0,
+            },
+            diffusion: 0.0,
+            courant: 0.5,
+            vacuum: f64::VACUUM,
+        };
+        let mut t: Box<Truth> = Box::default();
+        t.setup(grid, self.boundaries(), cfg)
+            .map_err(|err| format!("truth setup: {err:?}"))?;
+        let c = 0.64;
+        let ph = self.initial_phihat();
+        for i in 0..grid.len() {
+            let x = grid.center(i);
+            t.set_cell(i, c, 0.0, self.velocity(x[0], x[1]), ph * c);
+            t.set_inflow(i, ph * c);
+        }
+        t.prepare()
+            .map_err(|err| format!("truth prepare: {err:?}"))?;
+        Ok(t)
+    }
+}
+
+/// Averages a per-cell field of an `nf` grid onto an `nc` grid (each fine cell goes to the
+/// coarse cell containing its centre).
+pub fn coarsen(field: impl Fn(usize) -> f64, nf: [usize; 2], nc: [usize; 2]) -> Vec<f64> {
+    let mut sum = vec![0.0; nc[0] * nc[1]];
+    let mut cnt = vec![0u32; nc[0] * nc[1]];
+    for iz in 0..nf[1] {
+        for ix in 0..nf[0] {
+            let cx = ix * nc[0] / nf[0];
+            let cz = iz * nc[1] / nf[1];
+            sum[cx + nc[0] * cz] += field(ix + nf[0] * iz);
+            cnt[cx + nc[0] * cz] += 1;
+        }
+    }
+    sum.iter()
+        .zip(&cnt)
+        .map(|(s, &n)| if n > 0 { s / n as f64 } else { 0.0 })
+        .collect()
+}
