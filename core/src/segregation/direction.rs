@@ -14,16 +14,30 @@ pub fn velocity_gradient<R: Real, const D: usize, const N: usize>(
     u: &[[R; N]; D],
     i: usize,
 ) -> [[R; D]; D] {
+    velocity_gradient_at(grid, bc, u, i, grid.coords(i))
+}
+
+/// [`velocity_gradient`] with the integer coordinates of cell `i` already known.
+pub fn velocity_gradient_at<R: Real, const D: usize, const N: usize>(
+    grid: &Grid<R, D>,
+    bc: &Boundaries<D>,
+    u: &[[R; N]; D],
+    i: usize,
+    coords: [usize; D],
+) -> [[R; D]; D] {
     let mut g = [[R::ZERO; D]; D];
     let h = grid.spacing();
     let cells = grid.cells();
+    let mut s = 1;
     for j in 0..D {
         let n = cells[j];
+        let stride = s;
+        s *= n;
         if n < 2 {
             continue;
         }
-        let s = grid.stride(j);
-        let cj = grid.coord(i, j);
+        let s = stride;
+        let cj = coords[j];
         let periodic = bc[j][0] == Boundary::Periodic;
         let (lo, hi, width) = if cj > 0 && cj + 1 < n {
             (i - s, i + s, R::TWO)

@@ -184,6 +184,8 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     flux: [R; N],
     /// `max_i sum_a (|u_a| + |S_a|)/h_a + 2 D sum_a 1/h_a^2`, so that `dt = C / rate`.
     rate: R,
+    /// Running maxima over cells and steps of `q - c` and `-q` (tracked phase), since setup.
+    excess: [R; 2],
     prepared: bool,
     time: R,
     steps: u64,
@@ -214,6 +216,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             rhs: [R::ZERO; N],
             flux: [R::ZERO; N],
             rate: R::ZERO,
+            excess: [R::ZERO; 2],
             prepared: false,
             time: R::ZERO,
             steps: 0,
@@ -288,6 +291,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             self.k[a][..n].fill(R::ZERO);
         }
         self.rate = R::ZERO;
+        self.excess = [R::ZERO; 2];
         self.prepared = false;
         self.time = R::ZERO;
         self.steps = 0;
@@ -317,6 +321,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// Sets the small-phase fraction of cell `i` (for restoring a snapshot).
     pub fn set_phi(&mut self, i: usize, phi: R) {
         self.q[i] = self.tracked(phi, self.c[i]);
+    }
+
+    /// Sets the tracked phase fraction of cell `i` exactly (bit-exact snapshot restore).
+    pub fn set_tracked(&mut self, i: usize, q: R) {
+        self.q[i] = q;
     }
 
     /// Sets the inflow (Dirichlet) small-phase fraction seen by inflow faces of boundary cell `i`.
@@ -389,6 +398,25 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         Ok(())
     }
 
+    /// Re-derives the coefficients after only the velocity changed (a new measured frame):
+    /// checks that u is finite, then as [`Self::prepare`] without re-validating c, T and phi.
+    /// phi may have left [0, c] by round-off or by transport in a measured, not exactly
+    /// divergence-free velocity; the step stays conservative either way.
+    pub fn prepare_velocity(&mut self) -> Result<(), SetupError> {
+        let n = self.grid.len();
+        for a in 0..D {
+            if let Some(i) = self.u[a][..n].iter().position(|v| !v.is_finite()) {
+                return Err(SetupError::NonFinite {
+                    field: "u",
+                    cell: i,
+                });
+            }
+        }
+        self.derive_coefficients();
+        self.prepared = true;
+        Ok(())
+    }
+
     fn derive_coefficients(&mut self) {
         let n = self.grid.len();
         let cfg = self.cfg;
@@ -413,14 +441,24 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             diffusion_rate += R::TWO * cfg.diffusion / (ha * ha);
         }
         let mut rate = R::ZERO;
+        let needs_gradient = matches!(cfg.direction, DirectionMode::Flow)
+            || matches!(cfg.temperature, TemperatureMode::FromShear { .. });
+        let cells = self.grid.cells();
+        // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
+        let mut coords = [0usize; D];
         for i in 0..n {
-            let needs_gradient = matches!(cfg.direction, DirectionMode::Flow)
-                || matches!(cfg.temperature, TemperatureMode::FromShear { .. });
             let grad = if needs_gradient {
-                direction::velocity_gradient(&self.grid, &self.bc, &self.u, i)
+                direction::velocity_gradient_at(&self.grid, &self.bc, &self.u, i, coords)
             } else {
                 [[R::ZERO; D]; D]
             };
+            for a in 0..D {
+                coords[a] += 1;
+                if coords[a] < cells[a] {
+                    break;
+                }
+                coords[a] = 0;
+            }
             if let TemperatureMode::FromShear {
                 heating,
                 eta0,
@@ -486,6 +524,17 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             taken += 1;
         }
         taken
+    }
+
+    /// Largest `(phi - c, -phi)` seen in any cell after any step since setup (0 if never
+    /// positive): the bound violations of model.md 6, over cells *and* time.
+    pub fn bound_violations(&self) -> (R, R) {
+        let [above, below] = self.excess;
+        match self.cfg.phase {
+            Phase::Small => (above, below),
+            // phi - c = -psi and -phi = psi - c
+            Phase::Large => (below, above),
+        }
     }
 
     /// Number of steps taken so far.

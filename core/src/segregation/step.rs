@@ -128,9 +128,17 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             };
             self.axis_increment::<K, DIFFUSE>(axis, ax);
         }
-        for (q, dq) in self.q[..n].iter_mut().zip(self.rhs[..n].iter()) {
+        let (mut above, mut below) = (self.excess[0], self.excess[1]);
+        for ((q, dq), c) in self.q[..n]
+            .iter_mut()
+            .zip(self.rhs[..n].iter())
+            .zip(self.c[..n].iter())
+        {
             *q += *dq;
+            above = above.max(*q - *c);
+            below = below.max(-*q);
         }
+        self.excess = [above, below];
     }
 
     #[inline(always)]
