@@ -13,8 +13,10 @@
 #![forbid(unsafe_code)]
 
 pub mod boundary;
+pub mod closure;
 pub mod diagnostics;
 pub mod exact;
+pub mod flow;
 pub mod grid;
 pub mod hash;
 pub mod real;

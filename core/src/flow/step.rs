@@ -1,0 +1,679 @@
+//! One time step of the flow (the scheme of the module docs of [`super`]).
+
+use super::cg::{self, Scratch, Stencil, Stop};
+use super::{Flow, FlowSide, Slip};
+use crate::boundary::Boundary;
+use crate::closure;
+use crate::real::Real;
+
+/// What the viscous flux of one velocity component sees at a non-periodic boundary face.
+#[derive(Clone, Copy)]
+enum Face<R> {
+    /// Dirichlet value at the face (no-slip wall, normal component at a wall, inflow).
+    Value(R),
+    /// Given stress towards the cell (partial slip below the friction limit).
+    Stress(R),
+    /// Zero flux (slip wall tangential, outflow).
+    Free,
+}
+
+/// Upwind mass flux with face velocity `un` (the segregation transport rule).
+#[inline(always)]
+fn upwind<R: Real>(cl: R, cr: R, un: R) -> R {
+    un.max(R::ZERO) * cl + un.min(R::ZERO) * cr
+}
+
+impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
+    /// One step of length `dt` (at most [`Self::stable_dt`]). Adds `dt` to the clock.
+    pub fn step(&mut self, dt: R) {
+        debug_assert!(self.prepared, "prepare() must follow set_cell()");
+        let n = self.grid.len();
+        for a in 0..D {
+            self.u_prev[a][..n].copy_from_slice(&self.u[a][..n]);
+        }
+        self.transport(dt);
+        self.pressures(); // new c, old T: forward-backward acoustics
+        self.pressure_and_gravity(dt);
+        self.coefficients();
+        self.velocity_from_momentum();
+        self.viscous(dt);
+        self.temperature_stage(dt);
+        self.pressures();
+        self.residual = self.step_residual(dt);
+        self.time += dt;
+        self.steps += 1;
+    }
+
+    fn periodic(&self) -> [bool; D] {
+        let mut p = [false; D];
+        for a in 0..D {
+            p[a] = self.bc[a][0].kind == Boundary::Periodic;
+        }
+        p
+    }
+
+    /// Mass flux through the low boundary face of `first` along `a` (positive = into the cell).
+    fn low_flux(&self, a: usize, first: usize, side: &FlowSide<R, D>) -> R {
+        match side.kind {
+            Boundary::Inflow => upwind(side.c, self.c[first], side.velocity[a]),
+            Boundary::Outflow => upwind(R::ZERO, self.c[first], self.u[a][first].min(R::ZERO)),
+            _ => R::ZERO,
+        }
+    }
+
+    /// Mass flux through the high boundary face of `last` along `a` (positive = out of the cell).
+    fn high_flux(&self, a: usize, last: usize, first: usize, side: &FlowSide<R, D>) -> R {
+        match side.kind {
+            Boundary::Wall => R::ZERO,
+            Boundary::Periodic => upwind(
+                self.c[last],
+                self.c[first],
+                (self.u[a][last] + self.u[a][first]) * R::HALF,
+            ),
+            Boundary::Inflow => upwind(self.c[last], side.c, side.velocity[a]),
+            Boundary::Outflow => upwind(self.c[last], R::ZERO, self.u[a][last].max(R::ZERO)),
+        }
+    }
+
+    /// Stage 1: upwind transport of c, c u, c T with conservative limiters.
+    ///
+    /// The face velocity is the mean of the two cells plus a Rhie-Chow correction
+    /// `dt (F_f / c_f - (A_L + A_R)/2)`: the compact face acceleration minus the mean of the
+    /// cell accelerations. It vanishes at a discrete rest state and on smooth flows (O(h^2)),
+    /// and it drives a mass flux against the odd-even (checkerboard) pressure modes that the
+    /// collocated central pressure gradient cannot see, so those are damped, not frozen in.
+    fn transport(&mut self, dt: R) {
+        let n = self.grid.len();
+        let h = self.grid.spacing();
+        let grid = self.grid;
+        let vac = self.cfg.vacuum;
+        // Compact parts only: the direct gravity of faded faces is not a pressure mode, and
+        // counting it would let the correction hold an unsupported surface cell in the air.
+        self.cell_forces(false);
+        // Pass 1: face fluxes (stored at the left cell), inflow and outflow of each cell.
+        self.inflow[..n].fill(R::ZERO);
+        self.diag[..n].fill(R::ZERO);
+        for a in 0..D {
+            let lam = dt / h[a];
+            let cap = self.cfg.courant * h[a] / dt;
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let f = self.interior_flux(a, l, l + s, dt, cap, vac);
+                    self.flux[a][l] = f;
+                    self.count(l, l + s, lam * f);
+                }
+            }
+            let (lo, hi) = (self.bc[a][0], self.bc[a][1]);
+            grid.for_each_boundary_cell(a, true, |last, first| {
+                let f = if hi.kind == Boundary::Periodic {
+                    self.interior_flux(a, last, first, dt, cap, vac)
+                } else {
+                    self.high_flux(a, last, first, &hi)
+                };
+                self.flux[a][last] = f;
+                if hi.kind == Boundary::Periodic {
+                    self.count(last, first, lam * f);
+                } else if f < R::ZERO {
+                    self.inflow[last] -= lam * f;
+                } else {
+                    self.diag[last] += lam * f;
+                }
+            });
+            if matches!(lo.kind, Boundary::Inflow | Boundary::Outflow) {
+                grid.for_each_boundary_cell(a, false, |first, _| {
+                    let f = self.low_flux(a, first, &lo);
+                    if f > R::ZERO {
+                        self.inflow[first] += lam * f;
+                    } else {
+                        self.diag[first] -= lam * f;
+                    }
+                });
+            }
+        }
+        // Limiters: a cell's inflow is scaled so it cannot pass c_max (outflow only lowers c),
+        // its outflow so it cannot drop below 0 (inflow only raises c). Each face flux takes
+        // the smaller factor of its donor and receiver, so both bounds hold whatever the
+        // neighbours do, and every flux still leaves one cell and enters the other.
+        for i in 0..n {
+            let room = ((R::ONE - self.cfg.margin) * self.c_rcp[i] - self.c[i]).max(R::ZERO);
+            let inflow = self.inflow[i];
+            self.inflow[i] = if inflow > room { room / inflow } else { R::ONE };
+            let content = self.c[i].max(R::ZERO);
+            let outflow = self.diag[i];
+            self.diag[i] = if outflow > content {
+                content / outflow
+            } else {
+                R::ONE
+            };
+        }
+        // Pass 2: apply.
+        for a in 0..D {
+            let lam = dt / h[a];
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    self.exchange(a, l, l + s, lam);
+                }
+            }
+            let (lo, hi) = (self.bc[a][0], self.bc[a][1]);
+            grid.for_each_boundary_cell(a, true, |last, first| match hi.kind {
+                Boundary::Periodic => self.exchange(a, last, first, lam),
+                Boundary::Wall => {}
+                _ => {
+                    let f = self.flux[a][last];
+                    if f > R::ZERO {
+                        // out of the box: the interior state leaves
+                        let f = f * self.diag[last];
+                        let (u, t) = (self.velocity(last), self.t[last]);
+                        self.add_flux(last, -lam * f, u, t);
+                    } else if f < R::ZERO {
+                        let f = f * self.inflow[last];
+                        self.add_flux(last, -lam * f, hi.velocity, hi.t);
+                    }
+                }
+            });
+            if matches!(lo.kind, Boundary::Inflow | Boundary::Outflow) {
+                grid.for_each_boundary_cell(a, false, |first, _| {
+                    let f = self.low_flux(a, first, &lo);
+                    if f > R::ZERO {
+                        let f = f * self.inflow[first];
+                        self.add_flux(first, lam * f, lo.velocity, lo.t);
+                    } else if f < R::ZERO {
+                        let f = f * self.diag[first];
+                        let (u, t) = (self.velocity(first), self.t[first]);
+                        self.add_flux(first, lam * f, u, t);
+                    }
+                });
+            }
+        }
+    }
+
+    /// Upwind mass flux of an interior (or wrap) face with the Rhie-Chow face velocity; the
+    /// correction is capped at `cap = C h / dt` (it is O(dt) anyway).
+    #[inline(always)]
+    fn interior_flux(&self, a: usize, l: usize, r: usize, dt: R, cap: R, vac: R) -> R {
+        let (cl, cr) = (self.c[l], self.c[r]);
+        let (ff, _) = self.face_force(a, cl, self.p[l], cr, self.p[r]);
+        let cf = (cl + cr) * R::HALF;
+        let acc = |i: usize| {
+            if self.c[i] > vac {
+                self.kf[a][i] / self.c[i]
+            } else {
+                R::ZERO
+            }
+        };
+        let face_acc = if cf > vac { ff / cf } else { R::ZERO };
+        let du = (dt * (face_acc - (acc(l) + acc(r)) * R::HALF))
+            .max(-cap)
+            .min(cap);
+        upwind(cl, cr, (self.u[a][l] + self.u[a][r]) * R::HALF + du)
+    }
+
+    /// Books `df = lam f` of the face (l, r) as inflow and outflow of the two cells.
+    #[inline(always)]
+    fn count(&mut self, l: usize, r: usize, df: R) {
+        if df > R::ZERO {
+            self.inflow[r] += df;
+            self.diag[l] += df;
+        } else {
+            self.inflow[l] -= df;
+            self.diag[r] -= df;
+        }
+    }
+
+    /// Moves the stored flux of face (l, r) along `a`, scaled by the smaller limiter factor
+    /// of donor (outflow, in `diag`) and receiver (inflow, in `inflow`).
+    #[inline(always)]
+    fn exchange(&mut self, a: usize, l: usize, r: usize, lam: R) {
+        let f = self.flux[a][l];
+        if f > R::ZERO {
+            let df = lam * f * self.inflow[r].min(self.diag[l]);
+            let (u, t) = (self.velocity(l), self.t[l]);
+            self.add_flux(l, -df, u, t);
+            self.add_flux(r, df, u, t);
+        } else if f < R::ZERO {
+            let df = lam * f * self.inflow[l].min(self.diag[r]);
+            let (u, t) = (self.velocity(r), self.t[r]);
+            self.add_flux(l, -df, u, t);
+            self.add_flux(r, df, u, t);
+        }
+    }
+
+    #[inline(always)]
+    fn add_flux(&mut self, i: usize, dc: R, u: [R; D], t: R) {
+        self.c[i] += dc;
+        for a in 0..D {
+            self.m[a][i] += dc * u[a];
+        }
+        self.e[i] += dc * t;
+    }
+
+    /// Compact face force per volume along `a` between a left and a right state `(c, p)`:
+    /// `w (-(p_R - p_L)/h + g_a (c_L + c_R)/2)`, with the fade weight
+    /// `w = min(1, min(c_L, c_R)/surface)` (the free-surface condition `p -> 0` next to a nearly
+    /// empty cell, so such a cell is not blown away by a dense neighbour). Returns `(F, w)`.
+    #[inline(always)]
+    fn face_force(&self, a: usize, cl: R, pl: R, cr: R, pr: R) -> (R, R) {
+        let w = (cl.min(cr) / self.cfg.surface).min(R::ONE);
+        let h = self.grid.spacing()[a];
+        (
+            w * ((pl - pr) / h + self.cfg.gravity[a] * (cl + cr) * R::HALF),
+            w,
+        )
+    }
+
+    /// Face force of the boundary face of cell `i` (`other`: the other end of its line).
+    fn boundary_face_force(
+        &self,
+        a: usize,
+        i: usize,
+        other: usize,
+        high: bool,
+        side: &FlowSide<R, D>,
+    ) -> (R, R) {
+        let (ci, pi) = (self.c[i], self.p[i]);
+        let (cg, pg) = match side.kind {
+            // Hydrostatic ghost (c_i, p_i -+ h c_i g_a): the wall carries its half exactly.
+            Boundary::Wall => return (R::ZERO, R::ONE),
+            Boundary::Periodic => (self.c[other], self.p[other]),
+            Boundary::Inflow => (
+                side.c,
+                closure::pressure(
+                    &self.cfg.material,
+                    side.c,
+                    side.t,
+                    self.c_rcp[i],
+                    self.c_rlp[i],
+                ),
+            ),
+            Boundary::Outflow => (ci, pi),
+        };
+        if high {
+            self.face_force(a, ci, pi, cg, pg)
+        } else {
+            self.face_force(a, cg, pg, ci, pi)
+        }
+    }
+
+    /// Pressure + gravity force per volume of every cell into `kf` (scratch): half the compact
+    /// force of each of its faces, plus (if `with_direct_gravity`) direct gravity on the share
+    /// `(1 - w)/2` of faded faces (so dust in the air still falls). In the bulk this is the central pressure gradient with
+    /// the gravity of the face masses; a rest state is `F_f = 0` on every face, i.e. the compact
+    /// lithostatic balance `(p_R - p_L)/h = g (c_L + c_R)/2`.
+    fn cell_forces(&mut self, with_direct_gravity: bool) {
+        let n = self.grid.len();
+        let grid = self.grid;
+        let mut g = self.cfg.gravity;
+        if !with_direct_gravity {
+            g = [R::ZERO; D];
+        }
+        for a in 0..D {
+            self.kf[a][..n].fill(R::ZERO);
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let r = l + s;
+                    let (f, w) = self.face_force(a, self.c[l], self.p[l], self.c[r], self.p[r]);
+                    let rest = R::HALF * (R::ONE - w) * g[a];
+                    self.kf[a][l] += R::HALF * f + rest * self.c[l];
+                    self.kf[a][r] += R::HALF * f + rest * self.c[r];
+                }
+            }
+            for (high, side) in [(false, self.bc[a][0]), (true, self.bc[a][1])] {
+                if side.kind == Boundary::Periodic && !high {
+                    continue; // each wrap face once
+                }
+                grid.for_each_boundary_cell(a, high, |i, other| {
+                    let (f, w) = self.boundary_face_force(a, i, other, high, &side);
+                    let rest = R::HALF * (R::ONE - w) * g[a];
+                    self.kf[a][i] += R::HALF * f + rest * self.c[i];
+                    if side.kind == Boundary::Periodic {
+                        self.kf[a][other] += R::HALF * f + rest * self.c[other];
+                    }
+                });
+            }
+        }
+    }
+
+    /// Stage 2: `m += dt (-grad p + c g)` with the new c (forward-backward acoustics).
+    fn pressure_and_gravity(&mut self, dt: R) {
+        let n = self.grid.len();
+        self.cell_forces(true);
+        for a in 0..D {
+            for i in 0..n {
+                self.m[a][i] += dt * self.kf[a][i];
+            }
+        }
+    }
+
+    /// Lagged transport coefficients at the new c and old T.
+    fn coefficients(&mut self) {
+        let n = self.grid.len();
+        for i in 0..n {
+            let tr = closure::transport(
+                &self.cfg.material,
+                self.c_eff(i),
+                self.t[i],
+                self.c_rcp[i],
+                self.c_rlp[i],
+                self.cfg.t_min,
+            );
+            self.eta[i] = tr.eta;
+            self.lam[i] = tr.lambda;
+            self.eps[i] = tr.eps;
+        }
+    }
+
+    fn velocity_from_momentum(&mut self) {
+        let n = self.grid.len();
+        let vac = self.cfg.vacuum;
+        for i in 0..n {
+            let c = self.c[i];
+            for a in 0..D {
+                self.u[a][i] = if c > vac { self.m[a][i] / c } else { R::ZERO };
+            }
+        }
+    }
+
+    /// Face coefficients `scale * mean(coef) / h_a^2` of the interior and wrap faces.
+    fn face_coefficients(&mut self, use_lambda: bool, scale: R) {
+        let h = self.grid.spacing();
+        let grid = self.grid;
+        let periodic = self.periodic();
+        for a in 0..D {
+            let k = scale * R::HALF / (h[a] * h[a]);
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            let coef = if use_lambda { &self.lam } else { &self.eta };
+            let kf = &mut self.kf[a];
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    kf[l] = k * (coef[l] + coef[l + s]);
+                }
+            }
+            grid.for_each_boundary_cell(a, true, |last, first| {
+                kf[last] = if periodic[a] {
+                    k * (coef[last] + coef[first])
+                } else {
+                    R::ZERO
+                };
+            });
+        }
+    }
+
+    /// Boundary condition of velocity component `comp` at the boundary face of cell `i` on
+    /// side `side` of axis `axis` (model.md 2), with the friction branch decided on the
+    /// velocity at the start of the step (lagged).
+    fn wall_face(&self, comp: usize, side: &FlowSide<R, D>, i: usize, axis: usize) -> Face<R> {
+        match side.kind {
+            Boundary::Inflow => Face::Value(side.velocity[comp]),
+            Boundary::Outflow | Boundary::Periodic => Face::Free,
+            Boundary::Wall if comp == axis => Face::Value(R::ZERO),
+            Boundary::Wall => match side.slip {
+                Slip::NoSlip => Face::Value(side.velocity[comp]),
+                Slip::Slip => Face::Free,
+                Slip::Friction(tan) => {
+                    let (ui, uw) = (self.u_prev[comp][i], side.velocity[comp]);
+                    let hw = self.grid.spacing()[axis] * R::HALF;
+                    let w = self.eta[i] * (ui - uw).abs() / hw;
+                    let limit = self.p[i] * tan;
+                    if limit >= w {
+                        Face::Value(uw)
+                    } else if uw > ui {
+                        Face::Stress(limit)
+                    } else {
+                        Face::Stress(-limit)
+                    }
+                }
+            },
+        }
+    }
+
+    /// Stage 3: one implicit solve per velocity component, then the viscous heating.
+    fn viscous(&mut self, dt: R) {
+        let n = self.grid.len();
+        let h = self.grid.spacing();
+        let grid = self.grid;
+        let vac = self.cfg.vacuum;
+        let periodic = self.periodic();
+        self.face_coefficients(false, R::ONE);
+        // Velocity scale of the solver tolerance: the largest speed in the field or on a wall.
+        let mut u_ref = R::from_f64(1e-6);
+        for sides in &self.bc {
+            for s in sides {
+                for v in s.velocity {
+                    u_ref = u_ref.max(v.abs());
+                }
+            }
+        }
+        for a in 0..D {
+            for i in 0..n {
+                u_ref = u_ref.max(self.u[a][i].abs());
+            }
+        }
+        let mut mass_norm = R::ZERO;
+        for i in 0..n {
+            let cd = self.c[i].max(vac) / dt;
+            mass_norm += cd * cd;
+        }
+        let mass_norm = mass_norm.sqrt();
+        for comp in 0..D {
+            for i in 0..n {
+                let cd = self.c[i].max(vac) / dt;
+                self.diag[i] = cd;
+                self.rhs[i] = cd * self.u[comp][i];
+            }
+            for axis in 0..D {
+                if periodic[axis] {
+                    continue;
+                }
+                let k2 = R::TWO / (h[axis] * h[axis]);
+                for (high, side) in [(false, self.bc[axis][0]), (true, self.bc[axis][1])] {
+                    grid.for_each_boundary_cell(axis, high, |i, _| {
+                        match self.wall_face(comp, &side, i, axis) {
+                            Face::Value(v) => {
+                                let k = k2 * self.eta[i];
+                                self.diag[i] += k;
+                                self.rhs[i] += k * v;
+                            }
+                            Face::Stress(tau) => self.rhs[i] += tau / h[axis],
+                            Face::Free => {}
+                        }
+                    });
+                }
+            }
+            // Scale of the mass term `c u / dt` alone: the wall terms (yield viscosity up to
+            // eta0 p_y / sqrt(T_min)) would make the floor meaninglessly large.
+            let floor = mass_norm * u_ref;
+            let st = Stencil {
+                grid: &self.grid,
+                periodic,
+                kf: &self.kf,
+            };
+            let res = cg::solve(
+                &st,
+                &self.diag,
+                &self.rhs,
+                &mut self.u[comp],
+                Scratch {
+                    r: &mut self.r,
+                    p: &mut self.pv,
+                    ap: &mut self.ap,
+                    pre: &mut self.pre,
+                },
+                Stop {
+                    relative: self.cfg.cg_tolerance,
+                    floor,
+                    max_iterations: self.cfg.cg_max_iterations,
+                },
+            );
+            self.last_cg[comp.min(2)] = res.iterations;
+            self.cg_iterations += u64::from(res.iterations);
+            for i in 0..n {
+                if self.c[i] > vac {
+                    self.m[comp][i] = self.c[i] * self.u[comp][i];
+                } else {
+                    self.u[comp][i] = R::ZERO;
+                    self.m[comp][i] = R::ZERO;
+                }
+            }
+        }
+        self.heating();
+    }
+
+    /// Discrete viscous heating `H = eta kappa:kappa` per cell into the `inflow` scratch: each
+    /// face's dissipation `eta_f |du|^2 / h^2` is shared half and half by its two cells, so the
+    /// heating equals the work of the discrete viscous operator.
+    fn heating(&mut self) {
+        let n = self.grid.len();
+        let h = self.grid.spacing();
+        let grid = self.grid;
+        let periodic = self.periodic();
+        self.inflow[..n].fill(R::ZERO);
+        for a in 0..D {
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let w = R::HALF * self.kf[a][l] * self.jump2(l, l + s);
+                    self.inflow[l] += w;
+                    self.inflow[l + s] += w;
+                }
+            }
+            if periodic[a] {
+                grid.for_each_boundary_cell(a, true, |last, first| {
+                    let w = R::HALF * self.kf[a][last] * self.jump2(last, first);
+                    self.inflow[last] += w;
+                    self.inflow[first] += w;
+                });
+                continue;
+            }
+            let k4 = R::from_f64(4.0) / (h[a] * h[a]);
+            for (high, side) in [(false, self.bc[a][0]), (true, self.bc[a][1])] {
+                grid.for_each_boundary_cell(a, high, |i, _| {
+                    let mut w = R::ZERO;
+                    for comp in 0..D {
+                        w += match self.wall_face(comp, &side, i, a) {
+                            Face::Value(v) => {
+                                let du = v - self.u[comp][i];
+                                k4 * self.eta[i] * du * du
+                            }
+                            Face::Stress(tau) => tau * tau / self.eta[i],
+                            Face::Free => R::ZERO,
+                        };
+                    }
+                    self.inflow[i] += R::HALF * w;
+                });
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn jump2(&self, l: usize, r: usize) -> R {
+        let mut s = R::ZERO;
+        for comp in 0..D {
+            let d = self.u[comp][r] - self.u[comp][l];
+            s += d * d;
+        }
+        s
+    }
+
+    /// Stage 4: implicit conduction and dissipation with the heating as source.
+    fn temperature_stage(&mut self, dt: R) {
+        let n = self.grid.len();
+        let h = self.grid.spacing();
+        let grid = self.grid;
+        let vac = self.cfg.vacuum;
+        let a_heat = self.cfg.material.heating;
+        let periodic = self.periodic();
+        for i in 0..n {
+            let cd = self.c[i].max(vac);
+            self.diag[i] = cd / dt + self.c[i] * self.eps[i];
+            self.rhs[i] = self.e[i].max(R::ZERO) / dt + a_heat * self.inflow[i];
+        }
+        self.face_coefficients(true, a_heat);
+        for axis in 0..D {
+            let k2 = a_heat * R::TWO / (h[axis] * h[axis]);
+            for (high, side) in [(false, self.bc[axis][0]), (true, self.bc[axis][1])] {
+                if side.kind != Boundary::Inflow {
+                    continue; // walls and outflow: d_n T = 0; periodic: wrap faces
+                }
+                grid.for_each_boundary_cell(axis, high, |i, _| {
+                    let k = k2 * self.lam[i];
+                    self.diag[i] += k;
+                    self.rhs[i] += k * side.t;
+                });
+            }
+        }
+        // No absolute floor: T spans many orders of magnitude between cells (and the
+        // dissipation term of a resting cell is huge), so only the relative residual is a
+        // meaningful target; a zero right-hand side returns T = 0 at once.
+        let floor = R::ZERO;
+        let st = Stencil {
+            grid: &self.grid,
+            periodic,
+            kf: &self.kf,
+        };
+        let res = cg::solve(
+            &st,
+            &self.diag,
+            &self.rhs,
+            &mut self.t,
+            Scratch {
+                r: &mut self.r,
+                p: &mut self.pv,
+                ap: &mut self.ap,
+                pre: &mut self.pre,
+            },
+            Stop {
+                relative: self.cfg.cg_tolerance,
+                floor,
+                max_iterations: self.cfg.cg_max_iterations,
+            },
+        );
+        self.last_cg[3] = res.iterations;
+        self.cg_iterations += u64::from(res.iterations);
+        for i in 0..n {
+            // The exact solution is >= 0 (M-matrix, rhs >= 0); clip the solver's round-off.
+            if self.c[i] > vac {
+                self.t[i] = self.t[i].max(R::ZERO);
+            } else {
+                self.t[i] = R::ZERO;
+            }
+            self.e[i] = self.c[i] * self.t[i];
+        }
+    }
+
+    fn step_residual(&self, dt: R) -> R {
+        let n = self.grid.len();
+        let mut u_ref = R::from_f64(1e-3);
+        for sides in &self.bc {
+            for s in sides {
+                for v in s.velocity {
+                    u_ref = u_ref.max(v.abs());
+                }
+            }
+        }
+        let mut du = R::ZERO;
+        let mut umax = R::ZERO;
+        for a in 0..D {
+            for i in 0..n {
+                if self.c[i] < self.cfg.surface {
+                    continue;
+                }
+                du = du.max((self.u[a][i] - self.u_prev[a][i]).abs());
+                umax = umax.max(self.u[a][i].abs());
+            }
+        }
+        du / (dt * umax.max(u_ref))
+    }
+}

@@ -1,0 +1,294 @@
+//! The shear cell of model.md 7.4 with the full flow model: glass beads, 0.025 m box, periodic
+//! in x, no-slip plates moving at 0.0055 m/s (top) and 0.0007 m/s (bottom), c = 0.6 at rest and
+//! cold at t = 0, gravity -9.81. The steady velocity profile decays exponentially from the top
+//! plate, converges under refinement, and sqrt(T)/shear rate is nearly the constant
+//! sqrt(a eta0/eps0) of steady uniform shear (model.md 2).
+//!
+//! The refinement runs use 4 cells in x: the problem is periodic in x with x-independent data,
+//! so the solution is x-independent (checked against a full 40 x 40 run) and 20..160 cells in z
+//! cost what a 1D run costs.
+
+use sieve_core::closure::Material;
+use sieve_core::flow::{Flow, FlowConfig, FlowSide};
+use sieve_core::Grid;
+
+const N: usize = 1600;
+const L: f64 = 0.025;
+const U_TOP: f64 = 0.0055;
+const U_BOTTOM: f64 = 0.0007;
+/// Physical time of the runs; the profile changes by < 1e-3 relative after ~0.1 s.
+const T_END: f64 = 0.25;
+
+fn run_big<F: FnOnce() + Send + 'static>(f: F) {
+    std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(f)
+        .unwrap()
+        .join()
+        .unwrap();
+}
+
+struct Profile {
+    /// x-averaged u_x, T and |du_x/dz| per row
+    u: Vec<f64>,
+    t: Vec<f64>,
+    shear: Vec<f64>,
+    /// largest |u_x - row mean| over the field
+    x_variation: f64,
+    max_packing: f64,
+    steps: u64,
+}
+
+fn shear_cell(nx: usize, nz: usize, dt_cap: f64) -> Profile {
+    let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+    let grid = Grid::new([nx, nz], [0.0; 2], [L, L], N).unwrap();
+    let cfg = FlowConfig::new(Material::glass_beads());
+    let bottom = FlowSide::moving_wall([U_BOTTOM, 0.0]);
+    let top = FlowSide::moving_wall([U_TOP, 0.0]);
+    let px = FlowSide::periodic();
+    flow.setup(grid, [[px, px], [bottom, top]], cfg).unwrap();
+    for i in 0..grid.len() {
+        flow.set_cell(i, 0.6, [0.0; 2], 0.0);
+    }
+    flow.prepare().unwrap();
+    let mut max_packing: f64 = 0.0;
+    while flow.time() < T_END {
+        flow.step(flow.stable_dt().min(dt_cap));
+        max_packing = max_packing.max(flow.diagnostics().max_packing);
+    }
+    let dz = L / nz as f64;
+    let row = |k: usize, f: &dyn Fn(usize) -> f64| {
+        (0..nx).map(|j| f(j + nx * k)).sum::<f64>() / nx as f64
+    };
+    let u: Vec<f64> = (0..nz).map(|k| row(k, &|i| flow.velocity(i)[0])).collect();
+    let t: Vec<f64> = (0..nz).map(|k| row(k, &|i| flow.temperature(i))).collect();
+    let mut x_variation: f64 = 0.0;
+    for k in 0..nz {
+        for j in 0..nx {
+            x_variation = x_variation.max((flow.velocity(j + nx * k)[0] - u[k]).abs());
+        }
+    }
+    // central differences inside, one-sided to the plate at the walls
+    let shear = (0..nz)
+        .map(|k| {
+            let below = if k == 0 { U_BOTTOM } else { u[k - 1] };
+            let above = if k + 1 == nz { U_TOP } else { u[k + 1] };
+            let width = if k == 0 || k + 1 == nz {
+                1.5 * dz
+            } else {
+                2.0 * dz
+            };
+            ((above - below) / width).abs()
+        })
+        .collect();
+    Profile {
+        u,
+        t,
+        shear,
+        x_variation,
+        max_packing,
+        steps: flow.steps(),
+    }
+}
+
+/// Restriction of a fine profile to the next coarser grid (mean of the two fine cells).
+fn restrict(fine: &[f64]) -> Vec<f64> {
+    fine.chunks(2).map(|p| 0.5 * (p[0] + p[1])).collect()
+}
+
+#[test]
+fn shear_cell_profile_converges_and_follows_the_shear_temperature_relation() {
+    run_big(|| refinement(&[20, 40, 80]));
+}
+
+/// With 160 cells: ~25 s more; run with `--ignored`. Measured: differences 9.7e-5, 2.0e-5,
+/// 4.7e-6 m/s, observed orders 2.25, 2.12.
+#[test]
+#[ignore]
+fn shear_cell_refinement_to_160() {
+    run_big(|| refinement(&[20, 40, 80, 160]));
+}
+
+fn refinement(sizes: &[usize]) {
+    {
+        let profiles: Vec<Profile> = sizes
+            .iter()
+            .map(|&nz| shear_cell(4, nz, f64::MAX))
+            .collect();
+        let ratio_theory = Material::<f64>::glass_beads().temperature_shear_ratio();
+        for (nz, p) in sizes.iter().zip(&profiles) {
+            let n = p.u.len();
+            // decays from the top plate to the bottom plate speed, monotonically
+            assert!(
+                p.u.windows(2).all(|w| w[1] >= w[0] - 1e-12),
+                "{nz}: not monotone"
+            );
+            assert!(
+                (p.u[0] - U_BOTTOM).abs() < 1e-2 * U_BOTTOM,
+                "{nz}: bottom {}",
+                p.u[0]
+            );
+            assert!(p.u[n - 1] > 0.85 * U_TOP, "{nz}: top {}", p.u[n - 1]);
+            // exponential decay: the excess speed u - u_bottom drops by > 25x from the top
+            // cell to mid-height (measured 30x at nz = 20, more on finer grids)
+            let excess = |k: usize| p.u[k] - U_BOTTOM;
+            println!("{nz}: excess top/mid {:.1}", excess(n - 1) / excess(n / 2));
+            assert!(
+                excess(n - 1) > 25.0 * excess(n / 2),
+                "{nz}: {} {}",
+                excess(n - 1),
+                excess(n / 2)
+            );
+            assert!(p.max_packing < 0.999);
+            // sqrt(T)/shear rate vs sqrt(a eta0/eps0) over the sheared rows (T > 1e-12)
+            let (mut lo, mut hi) = (f64::MAX, 0.0_f64);
+            for k in 0..n {
+                if p.t[k] > 1e-12 {
+                    let r = p.t[k].sqrt() / p.shear[k] / ratio_theory;
+                    lo = lo.min(r);
+                    hi = hi.max(r);
+                }
+            }
+            println!(
+                "nz {nz}: u top {:.5e}, steps {}, sqrt(T)/shear / theory in [{lo:.4}, {hi:.4}], T max {:.3e}",
+                p.u[n - 1],
+                p.steps,
+                p.t[n - 1]
+            );
+            assert!(lo > 0.9 && hi < 1.12, "{nz}: ratio in [{lo}, {hi}]");
+        }
+        // grid convergence of u_x: max difference to the restricted next finer profile
+        let diffs: Vec<f64> = (0..sizes.len() - 1)
+            .map(|k| {
+                let fine = restrict(&profiles[k + 1].u);
+                profiles[k]
+                    .u
+                    .iter()
+                    .zip(&fine)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max)
+            })
+            .collect();
+        let orders: Vec<f64> = diffs.windows(2).map(|w| (w[0] / w[1]).log2()).collect();
+        println!("max |u_h - R u_h/2| (m/s): {diffs:?}, observed orders {orders:?}");
+        for w in diffs.windows(2) {
+            assert!(w[1] < 0.75 * w[0], "not converging: {diffs:?}");
+        }
+        // measured 9.7e-5 (20 vs 40), 2.0e-5 (40 vs 80), 4.7e-6 (80 vs 160) m/s
+        assert!(diffs[0] < 1.5e-4 && diffs[1] < 3e-5, "{diffs:?}");
+        assert!(orders.iter().all(|&o| o > 1.5), "{orders:?}");
+    }
+}
+
+#[test]
+fn shear_cell_is_x_independent_in_full_2d() {
+    run_big(|| {
+        // the same step for both (the thin grid alone would allow a larger one)
+        let full = shear_cell(16, 16, 2e-5);
+        let thin = shear_cell(4, 16, 2e-5);
+        assert!(full.x_variation < 1e-9, "x variation {}", full.x_variation);
+        let d = full
+            .u
+            .iter()
+            .zip(&thin.u)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        println!(
+            "16x16 vs 4x16: x variation {:.2e}, profile difference {d:.2e}",
+            full.x_variation
+        );
+        assert!(d < 1e-9, "{d}");
+    });
+}
+
+/// The 700 s shear-cell experiment at 80 x 80, measured (issue 3, Performance; run with
+/// `--ignored --nocapture`): the flow is x-independent (checked above to 1e-10), so it is
+/// spun up to steady state on 4 x 80 cells, replicated to 80 x 80 and frozen; then the
+/// inversely graded bed re-segregates with S0 = 1 for 700 s. Prints the wall times, the step
+/// counts, Psi(t), and the S0 that would put the end of re-segregation at 700 s (the
+/// segregation flux is linear in S0 and the flow is frozen, so that time scales as 1/S0).
+/// Measured: flow 15.6k steps (t = 0.23 s) in 6.0 s, segregation 37.9k steps in 10.5 s
+/// (including a diagnosis per step). Psi only reaches 0.28: the shear, hence sqrt(T), decays
+/// within ~3 mm of the top plate, so the inverse-grading interface at mid-height sits in the
+/// quasi-static zone and does not re-segregate with S0 = 1; no S0 fit yet.
+#[test]
+#[ignore]
+fn shear_cell_700s_projection() {
+    run_big(|| {
+        use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
+        use sieve_core::{diagnose, Boundary};
+        const NF: usize = 80 * 80;
+        let (nx, nz) = (4, 80);
+        let clock = std::time::Instant::now();
+        let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+        let grid = Grid::new([nx, nz], [0.0; 2], [L, L], N).unwrap();
+        let bottom = FlowSide::moving_wall([U_BOTTOM, 0.0]);
+        let top = FlowSide::moving_wall([U_TOP, 0.0]);
+        let px = FlowSide::periodic();
+        flow.setup(
+            grid,
+            [[px, px], [bottom, top]],
+            FlowConfig::new(Material::glass_beads()),
+        )
+        .unwrap();
+        for i in 0..grid.len() {
+            flow.set_cell(i, 0.6, [0.0; 2], 0.0);
+        }
+        flow.prepare().unwrap();
+        loop {
+            flow.step(flow.stable_dt());
+            if flow.steps() > 50 && flow.residual() < 2e-2 {
+                break;
+            }
+        }
+        let t_flow = clock.elapsed();
+        println!(
+            "flow 4x80: {} steps to residual < 2e-2 (t = {:.3} s), {:.2?}",
+            flow.steps(),
+            flow.time(),
+            t_flow
+        );
+        let mut seg: Box<Segregation<f64, 2, NF>> = Box::new(Segregation::zeroed());
+        let fine = Grid::new([80, 80], [0.0; 2], [L, L], NF).unwrap();
+        let mut cfg = SegregationConfig::new();
+        cfg.gravity = [0.0, -9.81];
+        cfg.direction = DirectionMode::Flow;
+        cfg.s0 = 1.0;
+        seg.setup(fine, [[Boundary::Periodic; 2], [Boundary::Wall; 2]], cfg)
+            .unwrap();
+        for i in 0..fine.len() {
+            let k = fine.coords(i)[1];
+            let src = nx * k; // row k of the thin run
+            let c = flow.c(src);
+            let phi = if k >= 40 { c } else { 0.0 };
+            seg.set_cell(i, c, flow.temperature(src), flow.velocity(src), phi);
+        }
+        seg.prepare().unwrap();
+        let clock = std::time::Instant::now();
+        let mut peak: f64 = 0.0;
+        let mut done = None;
+        let mut next = 0.0;
+        while seg.time() < 700.0 {
+            let dt = seg.stable_dt().min(700.0 - seg.time());
+            seg.step(dt);
+            let psi = diagnose(&seg).psi;
+            peak = peak.max(psi);
+            // re-segregated: Psi back below 0.2 after having mixed past 0.5
+            if done.is_none() && peak > 0.5 && psi < 0.2 {
+                done = Some(seg.time());
+            }
+            if seg.time() >= next {
+                println!("t {:7.1} s psi {psi:.4}", seg.time());
+                next += 50.0;
+            }
+        }
+        println!(
+            "segregation 80x80: {} steps, dt {:.3e} s, {:.2?}; psi peak {peak:.3}; re-segregated at {:?} s with S0 = 1 -> S0 fit {:?}",
+            seg.steps(),
+            seg.stable_dt(),
+            clock.elapsed(),
+            done,
+            done.map(|t| t / 700.0)
+        );
+    });
+}
