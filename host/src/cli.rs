@@ -4,6 +4,7 @@ use crate::converge::{self, ConvergeOptions};
 use crate::error::{Error, Result};
 use crate::run::{self, RunOptions};
 use crate::scene::{self, builtin};
+use crate::soft_sensor;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
@@ -25,6 +26,48 @@ pub enum Command {
     Run(RunArgs),
     /// Run a scene on several grids and print a work-precision table (errors, orders, times).
     Converge(ConvergeArgs),
+    /// Write the velocity frames a sensor would see from a scene, with the truth alongside.
+    Record(RecordArgs),
+    /// Run the soft sensor over a recording: estimate-against-truth error and state hash.
+    Replay(ReplayArgs),
+}
+
+/// Arguments of `sieve record`.
+#[derive(Debug, Args)]
+pub struct RecordArgs {
+    /// Scene: shear-cell (the idealised shear cell, model.md 7.3) or gray-thornton-shear.
+    pub scene: String,
+    /// Sensor (velocity frame) grid NXxNZ, at most 16x16; the estimator grid is 32x32.
+    #[arg(long = "sensor-grid", value_name = "NXxNZ", default_value = "8x8")]
+    pub sensor_grid: String,
+    /// Velocity noise: standard deviation relative to the scene's largest speed.
+    #[arg(long, value_name = "SIGMA", default_value_t = 0.05)]
+    pub noise: f64,
+    /// Frame rate [Hz] [default: the scene's].
+    #[arg(long, value_name = "HZ")]
+    pub rate: Option<f64>,
+    /// Number of frames [default: the scene's].
+    #[arg(long, value_name = "N")]
+    pub frames: Option<u32>,
+    /// Noise seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Recording file to write.
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+}
+
+/// Arguments of `sieve replay`.
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// Recording file (from `sieve record` or firmware-sim/recordings/).
+    pub file: PathBuf,
+    /// Inject firmware-sim's demo faults (bit flips, drops, duplicates, NaNs, stalls).
+    #[arg(long)]
+    pub faults: bool,
+    /// Print every N-th tick.
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub every: usize,
 }
 
 /// Face flux names on the command line.
@@ -213,6 +256,25 @@ pub fn execute(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Record(a) => record(&a),
+        Command::Replay(a) => {
+            let opts = soft_sensor::ReplayOptions {
+                faults: if a.faults {
+                    soft_sensor::Faults::DEMO
+                } else {
+                    soft_sensor::Faults::NONE
+                },
+            };
+            let report = soft_sensor::replay(&a.file, &opts).map_err(|e| {
+                Error::at(
+                    &a.file.display().to_string(),
+                    "",
+                    format!("not a valid recording: {e}"),
+                )
+            })?;
+            soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
+                .map_err(|e| Error::failure(format!("stdout: {e}")))
+        }
         Command::Converge(a) => {
             let mut sets = a.set.clone();
             if let Some(s) = a.scheme {
@@ -237,6 +299,72 @@ pub fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// `sieve record`: checks the options, records in memory, writes the file atomically.
+fn record(a: &RecordArgs) -> Result<()> {
+    let scene = soft_sensor::Scene::from_name(&a.scene).ok_or_else(|| {
+        Error::at(
+            &a.scene,
+            "SCENE",
+            "unknown recording scene: allowed shear-cell, gray-thornton-shear",
+        )
+    })?;
+    let grid = grid_array(&a.sensor_grid)?;
+    let dims: Vec<u64> = grid
+        .trim_matches(['[', ']'])
+        .split(',')
+        .filter_map(|p| p.parse().ok())
+        .collect();
+    if dims.len() != 2 || dims.iter().any(|&n| !(2..=16).contains(&n)) {
+        return Err(Error::range(
+            "command line",
+            "--sensor-grid",
+            &a.sensor_grid,
+            "NXxNZ with 2..=16 cells per axis",
+        ));
+    }
+    if !(a.noise.is_finite() && (0.0..=1.0).contains(&a.noise)) {
+        return Err(Error::range(
+            "command line",
+            "--noise",
+            a.noise,
+            "0 <= SIGMA <= 1",
+        ));
+    }
+    let mut opts = soft_sensor::RecordOptions::new(scene);
+    opts.sensor = [dims[0] as u8, dims[1] as u8];
+    opts.noise = a.noise;
+    opts.seed = a.seed;
+    if let Some(hz) = a.rate {
+        if !(hz.is_finite() && hz > 0.0) {
+            return Err(Error::range("command line", "--rate", hz, "HZ > 0"));
+        }
+        opts.period = 1.0 / hz;
+    }
+    if let Some(n) = a.frames {
+        if !(1..=100_000).contains(&n) {
+            return Err(Error::range("command line", "--frames", n, "1..=100000"));
+        }
+        opts.frames = n;
+    }
+    let (bytes, report) = soft_sensor::record_to_bytes(&opts).map_err(|e| {
+        Error::at(
+            "command line",
+            "",
+            format!("cannot record {}: {e}", a.scene),
+        )
+    })?;
+    crate::output::write_file_atomically(&a.out, &bytes)?;
+    println!(
+        "recorded {} frames ({} bytes) of {} to {}; final truth psi = {:.4}",
+        report.frames,
+        report.file_bytes,
+        scene.name(),
+        a.out.display(),
+        report.final_truth_psi
+    );
+    Ok(())
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@
 //! analytic fields) -> [`run`] (the core solver on its own thread, the time loop) ->
 //! diagnostics -> [`output`] (summary.json, series.csv, final.csv, VTK fields, PNG plots,
 //! written atomically). [`converge`] runs a scene on several grids; [`cli`] parses the command
-//! line; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
+//! line; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
 
 pub mod cli;
 pub mod converge;
@@ -12,5 +12,6 @@ pub mod error;
 pub mod output;
 pub mod run;
 pub mod scene;
+pub mod soft_sensor;
 
 pub use error::{Error, Result};

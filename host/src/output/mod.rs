@@ -101,6 +101,18 @@ pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     std::fs::write(path, bytes).map_err(|e| Error::io(path, e))
 }
 
+/// Writes one file atomically: a temporary file beside it, renamed into place, so a reader
+/// never sees it half-written and a failure leaves any previous file untouched.
+pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let parent = parent_of(path);
+    std::fs::create_dir_all(&parent).map_err(|e| Error::io(&parent, e))?;
+    let mut tmp = tempfile::NamedTempFile::new_in(&parent).map_err(|e| Error::io(&parent, e))?;
+    tmp.write_all(bytes).map_err(|e| Error::io(tmp.path(), e))?;
+    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
+    Ok(())
+}
+
 /// Formats a number for text outputs: plain decimal in a readable range, exponent otherwise,
 /// always the shortest form that reads back to the same f64.
 pub fn num(x: f64) -> String {
