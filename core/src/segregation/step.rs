@@ -117,8 +117,6 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     }
 
     fn step_with<K: Kernel<R>, const DIFFUSE: bool>(&mut self, dt: R) {
-        let n = self.grid.len();
-        self.rhs[..n].fill(R::ZERO);
         let h = self.grid.spacing();
         for axis in 0..D {
             let ax = AxisConst {
@@ -126,19 +124,15 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 diffusion: self.cfg.diffusion / h[axis],
                 vacuum: self.cfg.vacuum,
             };
-            self.axis_increment::<K, DIFFUSE>(axis, ax);
+            // The first axis initialises the increment (no zeroing pass); the last one applies
+            // it to q while it adds its own lower-face fluxes (no separate update pass).
+            match (axis == 0, axis + 1 == D) {
+                (true, true) => self.axis_increment::<K, DIFFUSE, true, true>(axis, ax),
+                (true, false) => self.axis_increment::<K, DIFFUSE, true, false>(axis, ax),
+                (false, true) => self.axis_increment::<K, DIFFUSE, false, true>(axis, ax),
+                (false, false) => self.axis_increment::<K, DIFFUSE, false, false>(axis, ax),
+            }
         }
-        let (mut above, mut below) = (self.excess[0], self.excess[1]);
-        for ((q, dq), c) in self.q[..n]
-            .iter_mut()
-            .zip(self.rhs[..n].iter())
-            .zip(self.c[..n].iter())
-        {
-            *q += *dq;
-            above = above.max(*q - *c);
-            below = below.max(-*q);
-        }
-        self.excess = [above, below];
     }
 
     #[inline(always)]
@@ -163,14 +157,22 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         s
     }
 
-    fn axis_increment<K: Kernel<R>, const DIFFUSE: bool>(&mut self, axis: usize, ax: AxisConst<R>) {
+    /// Adds the flux differences along `axis` to the increment. `FIRST`: the increment is
+    /// assigned rather than accumulated. `LAST`: the axis is the outermost (its interior faces
+    /// form one block), and q is updated in the same pass. Per cell, the additions happen in
+    /// the same order either way, so the result does not depend on this fusion.
+    fn axis_increment<K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool, const LAST: bool>(
+        &mut self,
+        axis: usize,
+        ax: AxisConst<R>,
+    ) {
         let fb = self.grid.face_blocks(axis);
         let s = fb.stride;
         // Interior faces, block by block: left cells l0..l0+len, right cells shifted by s.
         for b in 0..fb.blocks {
             let l0 = b * fb.block_stride;
             let len = fb.block_len;
-            interior_block::<R, K, DIFFUSE>(
+            interior_block::<R, K, DIFFUSE, FIRST>(
                 &mut self.flux[l0..l0 + len],
                 &mut self.rhs[l0..l0 + len],
                 Slices::new(
@@ -211,20 +213,14 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 ),
             };
             self.flux[last] = f;
-            self.rhs[last] -= f;
-        });
-        // Each cell has lost its high-face flux (above); it gains the flux of the face below.
-        for b in 0..fb.blocks {
-            let l0 = b * fb.block_stride;
-            let len = fb.block_len;
-            let (src, dst) = (
-                &self.flux[l0..l0 + len],
-                &mut self.rhs[l0 + s..l0 + s + len],
-            );
-            for (dq, f) in dst.iter_mut().zip(src.iter()) {
-                *dq += *f;
+            if FIRST {
+                self.rhs[last] = -f;
+            } else {
+                self.rhs[last] -= f;
             }
-        }
+        });
+        // Each cell has lost its high-face flux (above). The cells at the low end of a line
+        // gain their boundary flux (they have no interior face below) ...
         if low != Boundary::Wall {
             grid.for_each_boundary_cell(axis, false, |first, last| {
                 let f = match low {
@@ -238,6 +234,54 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 self.rhs[first] += f;
             });
         }
+        // ... and every other cell the flux of the interior face below it.
+        if LAST {
+            debug_assert_eq!(fb.blocks, 1);
+            self.apply_increment(s);
+        } else {
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                let len = fb.block_len;
+                let (src, dst) = (
+                    &self.flux[l0..l0 + len],
+                    &mut self.rhs[l0 + s..l0 + s + len],
+                );
+                for (dq, f) in dst.iter_mut().zip(src.iter()) {
+                    *dq += *f;
+                }
+            }
+        }
+    }
+
+    /// The last axis's lower-face fluxes, added to the increment, and the increment to q, in
+    /// one pass; tracks the running bound violations on the way. `s` is the stride of the
+    /// outermost axis: cells `s..n` have an interior face below, cells `0..s` do not.
+    fn apply_increment(&mut self, s: usize) {
+        let n = self.grid.len();
+        let (mut above, mut below) = (self.excess[0], self.excess[1]);
+        {
+            let (q, dq, c) = (&mut self.q[..s], &self.rhs[..s], &self.c[..s]);
+            for i in 0..s {
+                q[i] += dq[i];
+                above = above.max(q[i] - c[i]);
+                below = below.max(-q[i]);
+            }
+        }
+        {
+            let len = n - s;
+            let (q, dq, c, f) = (
+                &mut self.q[s..n],
+                &self.rhs[s..n],
+                &self.c[s..n],
+                &self.flux[..len],
+            );
+            for i in 0..len {
+                q[i] += dq[i] + f[i];
+                above = above.max(q[i] - c[i]);
+                below = below.max(-q[i]);
+            }
+        }
+        self.excess = [above, below];
     }
 }
 
@@ -287,7 +331,7 @@ impl<'a, R: Real> Slices<'a, R> {
 /// right cell gains it in a separate pass: doing both here would chain iterations along x and
 /// stop vectorisation). All slices have the length of `out`, so bounds checks vanish.
 #[inline(never)]
-fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
+fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool>(
     out: &mut [R],
     rhs: &mut [R],
     left: Slices<'_, R>,
@@ -300,7 +344,11 @@ fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
     for j in 0..len {
         let f = face::<R, K, DIFFUSE>(left.get(j), right.get(j), ax);
         out[j] = f;
-        rhs[j] -= f;
+        if FIRST {
+            rhs[j] = -f;
+        } else {
+            rhs[j] -= f;
+        }
     }
 }
 
