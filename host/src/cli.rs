@@ -26,6 +26,9 @@ pub enum Command {
     Run(RunArgs),
     /// Run a scene on several grids and print a work-precision table (errors, orders, times).
     Converge(ConvergeArgs),
+    /// Fit S0 of a frozen-flow scene so that re-segregation completes at a target time, per
+    /// grid (the flow is spun up and frozen once per grid); writes fit.csv, fit.json, plots/.
+    Fit(FitArgs),
     /// Write the velocity frames a sensor would see from a scene, with the truth alongside.
     Record(RecordArgs),
     /// Run the soft sensor over a recording: estimate-against-truth error and state hash.
@@ -149,6 +152,34 @@ pub struct ConvergeArgs {
     pub quiet: bool,
 }
 
+/// Arguments of `sieve fit`.
+#[derive(Debug, Args)]
+pub struct FitArgs {
+    /// Built-in scene name or path to a scene TOML file (model.equations = "frozen-flow").
+    pub scene: String,
+    /// Target segregation time [s].
+    #[arg(long = "target-time", value_name = "T", default_value_t = 700.0)]
+    pub target_time: f64,
+    /// Cells along the vertical axis, comma separated [default: the scene's grid].
+    #[arg(long, value_name = "N,N,...", value_delimiter = ',')]
+    pub levels: Vec<usize>,
+    /// Psi threshold of "re-segregated" [default: the scene's run.psi_threshold].
+    #[arg(long, value_name = "PSI")]
+    pub threshold: Option<f64>,
+    /// Relative tolerance on the segregation time.
+    #[arg(long, value_name = "REL", default_value_t = 0.01)]
+    pub tolerance: f64,
+    /// Output directory [default: runs/<scene>-fit].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Override any scene key in dotted form (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// No per-evaluation lines on stderr.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
 /// `--grid NXxNY[xNZ]` as a TOML array.
 fn grid_array(grid: &str) -> Result<String> {
     let parts: Vec<&str> = grid.split(['x', 'X']).collect();
@@ -257,6 +288,25 @@ pub fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Record(a) => record(&a),
+        Command::Fit(a) => {
+            let (fit, dir) = crate::fit::fit(
+                &a.scene,
+                &a.set,
+                &crate::fit::FitOptions {
+                    target: a.target_time,
+                    levels: a.levels.clone(),
+                    threshold: a.threshold,
+                    tolerance: a.tolerance,
+                    out: a.out.clone(),
+                    quiet: a.quiet,
+                },
+            )?;
+            print!("{}", crate::fit::table(&fit));
+            if !a.quiet {
+                println!("wrote {}", dir.display());
+            }
+            Ok(())
+        }
         Command::Replay(a) => {
             let opts = soft_sensor::ReplayOptions {
                 faults: if a.faults {

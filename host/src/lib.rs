@@ -4,11 +4,14 @@
 //! analytic fields) -> [`run`] (the core solver on its own thread, the time loop) ->
 //! diagnostics -> [`output`] (summary.json, series.csv, final.csv, VTK fields, PNG plots,
 //! written atomically). [`converge`] runs a scene on several grids; [`cli`] parses the command
-//! line; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
+//! line; [`flow`] solves the granular flow of a scene (frozen or coupled) and [`fit`] fits S0 to a
+//! segregation time; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
 
 pub mod cli;
 pub mod converge;
 pub mod error;
+pub mod fit;
+pub mod flow;
 pub mod output;
 pub mod run;
 pub mod scene;

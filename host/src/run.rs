@@ -10,6 +10,7 @@ use crate::error::{Error, Result};
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Fields, Precision, Scene};
 use indicatif::ProgressBar;
+use sieve_core::flow::Flow;
 use sieve_core::segregation::SegregationConfig;
 use sieve_core::{
     diagnose, DirectionMode, Grid, Real, Segregation, SegregationClock, TemperatureMode,
@@ -59,6 +60,60 @@ fn on_solver_thread<R: Real, const D: usize, const N: usize, J: SolverJob>(
             .spawn_scoped(scope, move || {
                 let mut s = Segregation::<R, D, N>::zeroed();
                 job.run(&mut s)
+            })
+            .map_err(|e| Error::failure(format!("cannot start the solver thread: {e}")))?;
+        handle
+            .join()
+            .map_err(|_| Error::failure("the solver thread panicked"))?
+    })
+}
+
+/// Work done with a segregation solver and a flow solver of the same precision, dimension and
+/// capacity (scenes that solve a flow).
+pub trait FlowJob: Send {
+    /// What the job returns.
+    type Output: Send;
+    /// Runs the job on zeroed solvers.
+    fn run<R: Real, const D: usize, const N: usize>(
+        self,
+        s: &mut Segregation<R, D, N>,
+        f: &mut Flow<R, D, N>,
+    ) -> Result<Self::Output>;
+}
+
+/// Runs `job` on a segregation and a flow solver, on their own thread (see [`with_solver`]).
+pub fn with_flow_solvers<J: FlowJob>(
+    precision: Precision,
+    dim: usize,
+    job: J,
+) -> Result<J::Output> {
+    match (precision, dim) {
+        (Precision::F64, 1) => on_flow_thread::<f64, 1, CAP_1D, J>(job),
+        (Precision::F64, 2) => on_flow_thread::<f64, 2, CAP_2D, J>(job),
+        (Precision::F64, 3) => on_flow_thread::<f64, 3, CAP_3D, J>(job),
+        (Precision::F32, 1) => on_flow_thread::<f32, 1, CAP_1D, J>(job),
+        (Precision::F32, 2) => on_flow_thread::<f32, 2, CAP_2D, J>(job),
+        (Precision::F32, 3) => on_flow_thread::<f32, 3, CAP_3D, J>(job),
+        _ => Err(Error::failure(format!(
+            "no solver compiled for dim = {dim}"
+        ))),
+    }
+}
+
+fn on_flow_thread<R: Real, const D: usize, const N: usize, J: FlowJob>(
+    job: J,
+) -> Result<J::Output> {
+    let stack =
+        (std::mem::size_of::<Segregation<R, D, N>>() + std::mem::size_of::<Flow<R, D, N>>()) * 2
+            + (64 << 20);
+    std::thread::scope(|scope| {
+        let handle = std::thread::Builder::new()
+            .name("sieve-solver".into())
+            .stack_size(stack)
+            .spawn_scoped(scope, move || {
+                let mut s = Segregation::<R, D, N>::zeroed();
+                let mut f = Flow::<R, D, N>::zeroed();
+                job.run(&mut s, &mut f)
             })
             .map_err(|e| Error::failure(format!("cannot start the solver thread: {e}")))?;
         handle
@@ -279,6 +334,8 @@ pub struct Snapshot {
     pub temp: Vec<f64>,
     /// Velocity (ux, uy, uz) per cell; components of absent axes are 0.
     pub u: Vec<[f64; 3]>,
+    /// Pressure per cell, for scenes that solve a flow (written as the extra column/array p).
+    pub p: Option<Vec<f64>>,
 }
 
 impl Snapshot {
@@ -295,6 +352,7 @@ impl Snapshot {
             phi: Vec::with_capacity(n),
             temp: Vec::with_capacity(n),
             u: Vec::with_capacity(n),
+            p: None,
         };
         debug_assert_eq!(n, scene.len());
         for i in 0..n {
@@ -353,6 +411,8 @@ struct RunOutcome {
     pvd: Vec<(f64, String)>,
     hash: u64,
     exact_l1: Option<f64>,
+    flow: Option<crate::flow::FlowSummary>,
+    profiles: Option<crate::flow::Profiles>,
 }
 
 struct RunJob<'a> {
@@ -381,30 +441,33 @@ fn plot_frame(scene: &Scene, phihat: &[f64]) -> Vec<f64> {
     out
 }
 
-impl SolverJob for RunJob<'_> {
-    type Output = RunOutcome;
-    fn run<R: Real, const D: usize, const N: usize>(
-        self,
-        s: &mut Segregation<R, D, N>,
-    ) -> Result<RunOutcome> {
+impl RunJob<'_> {
+    /// Writes the VTK snapshot of output `k` and keeps the plot frame if planned.
+    fn output(
+        &self,
+        k: usize,
+        t: f64,
+        snap: &Snapshot,
+        frames: &mut Vec<(usize, f64, Vec<f64>)>,
+        pvd: &mut Vec<(f64, String)>,
+    ) -> Result<()> {
+        let name = format!("state_{k:04}.vti");
+        crate::output::vtk::write_vti(&self.fields_dir.join(&name), self.scene, snap)?;
+        pvd.push((t, name));
+        if self.plan.contains(&k) {
+            frames.push((k, t, plot_frame(self.scene, &snap.phihat())));
+        }
+        Ok(())
+    }
+
+    /// final.csv, the exact comparison and the hash of the final state.
+    fn finish<R: Real, const D: usize, const N: usize>(
+        &self,
+        s: &Segregation<R, D, N>,
+        snap: &Snapshot,
+    ) -> Result<(u64, Option<f64>)> {
         let scene = self.scene;
-        load(s, scene, self.fields)?;
-        let bar = progress_bar(self.quiet, &scene.name);
-        let mut frames = Vec::new();
-        let mut pvd = Vec::new();
-        let stats = time_loop(s, scene, &bar, |k, t, s| {
-            let snap = Snapshot::of(s, scene);
-            let name = format!("state_{k:04}.vti");
-            crate::output::vtk::write_vti(&self.fields_dir.join(&name), scene, &snap)?;
-            pvd.push((t, name));
-            if self.plan.contains(&k) {
-                frames.push((k, t, plot_frame(scene, &snap.phihat())));
-            }
-            Ok(())
-        })?;
-        bar.finish_and_clear();
-        let snap = Snapshot::of(s, scene);
-        crate::output::csv::write_final(&self.staging.join("final.csv"), scene, &snap)?;
+        crate::output::csv::write_final(&self.staging.join("final.csv"), scene, snap)?;
         let exact_l1 = scene.column_a(self.fields).map(|ex| {
             let h = scene.spacing()[0];
             snap.phihat()
@@ -421,12 +484,84 @@ impl SolverJob for RunJob<'_> {
                 })
                 .sum()
         });
+        Ok((sieve_core::state_hash(s), exact_l1))
+    }
+}
+
+impl SolverJob for RunJob<'_> {
+    type Output = RunOutcome;
+    fn run<R: Real, const D: usize, const N: usize>(
+        self,
+        s: &mut Segregation<R, D, N>,
+    ) -> Result<RunOutcome> {
+        let scene = self.scene;
+        load(s, scene, self.fields)?;
+        let bar = progress_bar(self.quiet, &scene.name);
+        let mut frames = Vec::new();
+        let mut pvd = Vec::new();
+        let stats = time_loop(s, scene, &bar, |k, t, s| {
+            let snap = Snapshot::of(s, scene);
+            self.output(k, t, &snap, &mut frames, &mut pvd)
+        })?;
+        bar.finish_and_clear();
+        let snap = Snapshot::of(s, scene);
+        let (hash, exact_l1) = self.finish(s, &snap)?;
         Ok(RunOutcome {
             stats,
             frames,
             pvd,
-            hash: sieve_core::state_hash(s),
+            hash,
             exact_l1,
+            flow: None,
+            profiles: None,
+        })
+    }
+}
+
+impl FlowJob for RunJob<'_> {
+    type Output = RunOutcome;
+    fn run<R: Real, const D: usize, const N: usize>(
+        self,
+        s: &mut Segregation<R, D, N>,
+        f: &mut Flow<R, D, N>,
+    ) -> Result<RunOutcome> {
+        use crate::scene::Equations;
+        let scene = self.scene;
+        load(s, scene, self.fields)?;
+        let bar = progress_bar(self.quiet, &scene.name);
+        let mut frames = Vec::new();
+        let mut pvd = Vec::new();
+        let equations = scene.flow.as_ref().map(|m| m.equations);
+        let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
+            let cs = crate::flow::coupled_loop(f, s, scene, self.fields, &bar, |k, t, s, f| {
+                let mut snap = Snapshot::of(s, scene);
+                snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
+                self.output(k, t, &snap, &mut frames, &mut pvd)
+            })?;
+            let p: Vec<f64> = (0..f.len()).map(|i| f.pressure(i).to_f64()).collect();
+            (cs.stats, cs.summary, p)
+        } else {
+            let frozen = crate::flow::spin_up(f, scene, self.fields)?;
+            crate::flow::hand_over_frozen(s, scene, self.fields, &frozen)?;
+            let stats = time_loop(s, scene, &bar, |k, t, s| {
+                let mut snap = Snapshot::of(s, scene);
+                snap.p = Some(frozen.p.clone());
+                self.output(k, t, &snap, &mut frames, &mut pvd)
+            })?;
+            (stats, frozen.summary, frozen.p)
+        };
+        bar.finish_and_clear();
+        let mut snap = Snapshot::of(s, scene);
+        snap.p = Some(p_final);
+        let (hash, exact_l1) = self.finish(s, &snap)?;
+        Ok(RunOutcome {
+            stats,
+            frames,
+            pvd,
+            hash,
+            exact_l1,
+            flow: Some(summary),
+            profiles: Some(crate::flow::profiles(scene, &snap)),
         })
     }
 }
@@ -456,7 +591,11 @@ pub fn run_scene(
         plan: plot::frame_indices(n_outputs, max_frames),
         quiet: opts.quiet,
     };
-    let out = with_solver(scene.precision, scene.dim, job)?;
+    let out = if scene.flow.is_some() {
+        with_flow_solvers(scene.precision, scene.dim, job)?
+    } else {
+        with_solver(scene.precision, scene.dim, job)?
+    };
     let stats = &out.stats;
     output::csv::write_series(&staging.path().join("series.csv"), &stats.series)?;
     output::vtk::write_pvd(&fields_dir.join("series.pvd"), &out.pvd)?;
@@ -467,6 +606,9 @@ pub fn run_scene(
         &format!("{}: mixing index", scene.name),
     )?;
     write_phihat_plots(scene, &plots_dir, &out.frames)?;
+    if let Some(p) = &out.profiles {
+        plot::flow_profiles(&plots_dir, &scene.name, p)?;
+    }
     let first = stats.series.first().copied();
     let last = stats.series.last().copied();
     let mass_initial = first.map_or(0.0, |r| r.mass);
@@ -518,6 +660,7 @@ pub fn run_scene(
         psi_threshold: scene.psi_threshold,
         state_hash: format!("{:016x}", out.hash),
         exact,
+        flow: out.flow.clone(),
     };
     summary.write(&staging.path().join("summary.json"))?;
     staging.commit()?;

@@ -163,8 +163,8 @@ fn bad_input_exits_2_with_one_line_naming_file_key_and_range() {
         &["numerics.courant", "allowed a finite number"],
     );
     assert_bad_input(
-        &["run", "column-a", "--set", "model.equations=\"coupled\""],
-        &["model.equations", "prescribed"],
+        &["run", "column-a", "--set", "model.equations=\"full\""],
+        &["model.equations", "prescribed", "frozen-flow", "coupled"],
     );
     assert_bad_input(
         &["run", "column-a", "--set", "numerics.scheme=\"fast\""],

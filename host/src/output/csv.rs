@@ -31,11 +31,19 @@ pub fn write_series(path: &Path, rows: &[SeriesRow]) -> Result<()> {
     write_file(path, s.as_bytes())
 }
 
-/// Writes one row per cell (solver cell order, x fastest); absent axes are 0.
+/// `final.csv` of a scene that solves a flow: [`FINAL_HEADER`] plus the pressure `p`.
+pub const FINAL_HEADER_FLOW: &str = "x,y,z,c,phi,phihat,T,ux,uy,uz,p";
+
+/// Writes one row per cell (solver cell order, x fastest); absent axes are 0. With a pressure
+/// (flow scenes) the header is [`FINAL_HEADER_FLOW`].
 pub fn write_final(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
     let phihat = snap.phihat();
     let mut s = String::with_capacity(120 * (snap.c.len() + 1));
-    s.push_str(FINAL_HEADER);
+    s.push_str(if snap.p.is_some() {
+        FINAL_HEADER_FLOW
+    } else {
+        FINAL_HEADER
+    });
     s.push('\n');
     for i in 0..snap.c.len() {
         let p = scene.center(i);
@@ -54,6 +62,10 @@ pub fn write_final(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
             num(u[1]),
             num(u[2])
         );
+        if let Some(p) = &snap.p {
+            s.pop();
+            let _ = writeln!(s, ",{}", num(p[i]));
+        }
     }
     write_file(path, s.as_bytes())
 }

@@ -253,3 +253,194 @@ pub fn colour_map(
     .map_err(fail(path))?;
     root.present().map_err(fail(path))
 }
+
+/// Curves `x(z)` (one per label) against the vertical axis, linear or logarithmic in x.
+pub fn vertical_curves(
+    path: &Path,
+    title: &str,
+    xlabel: &str,
+    curves: &[(String, Vec<(f64, f64)>)],
+    log_x: bool,
+) -> Result<()> {
+    ensure_font()?;
+    let pts = || curves.iter().flat_map(|(_, v)| v.iter().copied());
+    let finite = |x: f64| x.is_finite() && (!log_x || x > 0.0);
+    let (mut x0, mut x1, mut z0, mut z1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for (x, z) in pts().filter(|&(x, z)| finite(x) && z.is_finite()) {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        z0 = z0.min(z);
+        z1 = z1.max(z);
+    }
+    if x0 > x1 {
+        (x0, x1, z0, z1) = if log_x {
+            (1e-3, 1.0, 0.0, 1.0)
+        } else {
+            (0.0, 1.0, 0.0, 1.0)
+        };
+    }
+    if x1 <= x0 {
+        x1 = if log_x { x0 * 10.0 } else { x0 + 1.0 };
+    }
+    if z1 <= z0 {
+        z1 = z0 + 1.0;
+    }
+    let root = BitMapBackend::new(path, (700, 700)).into_drawing_area();
+    root.fill(&WHITE).map_err(fail(path))?;
+    let mut builder = ChartBuilder::on(&root);
+    builder
+        .caption(title, (FONT_NAME, 20))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(70);
+    let n = curves.len().max(2) - 1;
+    macro_rules! draw {
+        ($chart:expr) => {{
+            let mut chart = $chart;
+            chart
+                .configure_mesh()
+                .x_desc(xlabel)
+                .y_desc("z [m]")
+                .label_style((FONT_NAME, 14))
+                .axis_desc_style((FONT_NAME, 16))
+                .draw()
+                .map_err(fail(path))?;
+            for (j, (label, v)) in curves.iter().enumerate() {
+                let colour = viridis(0.9 * j as f64 / n as f64);
+                let line: Vec<(f64, f64)> = v.iter().copied().filter(|&(x, _)| finite(x)).collect();
+                chart
+                    .draw_series(LineSeries::new(line, colour.stroke_width(2)))
+                    .map_err(fail(path))?
+                    .label(label.clone())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                    });
+            }
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperLeft)
+                .border_style(BLACK)
+                .background_style(WHITE.mix(0.9))
+                .label_font((FONT_NAME, 14))
+                .draw()
+                .map_err(fail(path))?;
+        }};
+    }
+    if log_x {
+        draw!(builder
+            .build_cartesian_2d((x0..x1).log_scale(), z0..z1)
+            .map_err(fail(path))?);
+    } else {
+        let pad = 0.02 * (x1 - x0);
+        draw!(builder
+            .build_cartesian_2d((x0 - pad)..(x1 + pad), z0..z1)
+            .map_err(fail(path))?);
+    }
+    root.present().map_err(fail(path))
+}
+
+/// The flow profiles of a run: `flow_velocity.png` (mean u_x(z)), `flow_temperature.png`
+/// (mean T(z), log scale) and `flow_shear_ratio.png` (sqrt(T)/shear rate over its steady
+/// uniform shear value sqrt(a eta0/eps0), rows with T > 1e-12 only).
+pub fn flow_profiles(dir: &Path, name: &str, p: &crate::flow::Profiles) -> Result<()> {
+    let one = |v: &[f64]| -> Vec<(String, Vec<(f64, f64)>)> {
+        vec![(
+            name.to_string(),
+            v.iter().copied().zip(p.z.iter().copied()).collect(),
+        )]
+    };
+    vertical_curves(
+        &dir.join("flow_velocity.png"),
+        &format!("{name}: mean velocity u_x(z)"),
+        "u_x [m/s]",
+        &one(&p.u),
+        false,
+    )?;
+    vertical_curves(
+        &dir.join("flow_temperature.png"),
+        &format!("{name}: mean granular temperature T(z)"),
+        "T [m^2/s^2]",
+        &one(&p.t),
+        true,
+    )?;
+    vertical_curves(
+        &dir.join("flow_shear_ratio.png"),
+        &format!("{name}: sqrt(T)/shear rate / sqrt(a eta0/eps0)"),
+        "sqrt(T) / |du_x/dz| / sqrt(a eta0 / eps0)",
+        &one(&shear_ratio(p)),
+        false,
+    )
+}
+
+/// `sqrt(T)/shear / sqrt(a eta0/eps0)` per row; NaN where T <= 1e-12 or no shear.
+pub fn shear_ratio(p: &crate::flow::Profiles) -> Vec<f64> {
+    p.t.iter()
+        .zip(&p.shear)
+        .map(|(&t, &g)| {
+            if t > 1e-12 && g > 0.0 {
+                t.sqrt() / g / p.ratio_theory
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
+}
+
+/// Psi(t) curves (one per label) with the threshold line.
+pub fn time_curves(
+    path: &Path,
+    title: &str,
+    curves: &[(String, Vec<(f64, f64)>)],
+    threshold: f64,
+) -> Result<()> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();
+    root.fill(&WHITE).map_err(fail(path))?;
+    let t_max = curves
+        .iter()
+        .flat_map(|(_, v)| v.iter().map(|p| p.0))
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FONT_NAME, 22))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..t_max, 0.0..1.05)
+        .map_err(fail(path))?;
+    chart
+        .configure_mesh()
+        .x_desc("t [s]")
+        .y_desc("mixing index Psi")
+        .label_style((FONT_NAME, 15))
+        .axis_desc_style((FONT_NAME, 17))
+        .draw()
+        .map_err(fail(path))?;
+    let n = curves.len().max(2) - 1;
+    for (j, (label, v)) in curves.iter().enumerate() {
+        let colour = viridis(0.9 * j as f64 / n as f64);
+        chart
+            .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
+            .map_err(fail(path))?
+            .label(label.clone())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+    }
+    chart
+        .draw_series(LineSeries::new(
+            vec![(0.0, threshold), (t_max, threshold)],
+            RED.stroke_width(1),
+        ))
+        .map_err(fail(path))?
+        .label(format!("threshold {threshold}"))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(1)));
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.9))
+        .label_font((FONT_NAME, 15))
+        .draw()
+        .map_err(fail(path))?;
+    root.present().map_err(fail(path))
+}

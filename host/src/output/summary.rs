@@ -76,6 +76,9 @@ pub struct Summary {
     pub state_hash: String,
     /// Comparison with the closed-form solution, if the scene has one.
     pub exact: Option<ExactComparison>,
+    /// Flow diagnostics, for scenes that solve a flow (absent for prescribed scenes).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flow: Option<crate::flow::FlowSummary>,
 }
 
 impl Summary {

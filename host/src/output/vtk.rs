@@ -10,7 +10,8 @@ use crate::scene::Scene;
 use std::fmt::Write;
 use std::path::Path;
 
-/// Writes one snapshot as `.vti`: cell arrays c, phi, phihat, T and the vector u.
+/// Writes one snapshot as `.vti`: cell arrays c, phi, phihat, T, the vector u and, for scenes
+/// that solve a flow, the pressure p.
 pub fn write_vti(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
     let mut cells = [0usize; 3];
     let mut origin = [0.0f64; 3];
@@ -24,13 +25,16 @@ pub fn write_vti(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
     let extent = format!("0 {} 0 {} 0 {}", cells[0], cells[1], cells[2]);
     let phihat = snap.phihat();
     let u: Vec<f64> = snap.u.iter().flatten().copied().collect();
-    let arrays: [(&str, usize, &[f64]); 5] = [
+    let mut arrays: Vec<(&str, usize, &[f64])> = vec![
         ("phihat", 1, &phihat),
         ("phi", 1, &snap.phi),
         ("c", 1, &snap.c),
         ("T", 1, &snap.temp),
         ("u", 3, &u),
     ];
+    if let Some(p) = &snap.p {
+        arrays.push(("p", 1, p));
+    }
     let mut xml = String::new();
     let _ = writeln!(xml, "<?xml version=\"1.0\"?>");
     let _ = writeln!(

@@ -30,6 +30,7 @@ builtins!(
     "gray-thornton-shear-inverse",
     "shear-cell-mixed",
     "shear-cell-inverse",
+    "shear-cell",
 );
 
 /// The scene `sieve run` runs without a SCENE argument: 2D, segregates visibly (mixes, then

@@ -46,6 +46,8 @@ pub struct SceneFile {
     pub boundary: BoundarySpec,
     /// End time, output interval, diagnostics.
     pub run: RunSpec,
+    /// Numerics of the granular flow (only with `model.equations` other than "prescribed").
+    pub flow: Option<FlowSpec>,
 }
 
 /// `[model]`.
@@ -58,6 +60,32 @@ pub struct ModelSpec {
     /// Floating-point type of the solver.
     #[serde(default)]
     pub precision: Precision,
+    /// Back-coupling of the packing limits to phihat (model.md 4); only with a flow.
+    pub back_coupling: Option<BackCoupling>,
+}
+
+/// Back-coupling of the packing limits `c_rcp(phihat)`, `c_rlp(phihat)` (model.md 4).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BackCoupling {
+    /// One-way coupling: the constants phi_rcp, phi_rlp.
+    #[default]
+    Off,
+    /// The analytic R -> 0 bound.
+    R0,
+    /// The degree-5 fit for R = 1/2.
+    Half,
+}
+
+impl BackCoupling {
+    /// "off", "r0" or "half".
+    pub fn name(self) -> &'static str {
+        match self {
+            BackCoupling::Off => "off",
+            BackCoupling::R0 => "r0",
+            BackCoupling::Half => "half",
+        }
+    }
 }
 
 /// Which equations a scene runs.
@@ -67,6 +95,21 @@ pub enum Equations {
     /// Only the segregation equation; u, c and T are prescribed by the scene.
     #[default]
     Prescribed,
+    /// The flow (model.md 2) is solved until steady, then frozen while segregation goes on.
+    FrozenFlow,
+    /// Flow and segregation advance together with a common time step.
+    Coupled,
+}
+
+impl Equations {
+    /// "prescribed", "frozen-flow" or "coupled".
+    pub fn name(self) -> &'static str {
+        match self {
+            Equations::Prescribed => "prescribed",
+            Equations::FrozenFlow => "frozen-flow",
+            Equations::Coupled => "coupled",
+        }
+    }
 }
 
 /// Floating-point type of the solver.
@@ -148,8 +191,15 @@ pub struct MaterialSpec {
     pub heating: f64,
     /// eta0 [m] (for `temperature = "shear"`).
     pub eta0: Option<f64>,
-    /// eps0 [1/m] (for `temperature = "shear"`).
+    /// eps0 [1/m] (for `temperature = "shear"` and the flow).
     pub eps0: Option<f64>,
+    /// lambda0 [m] (flow: conductivity prefactor).
+    pub lambda0: Option<f64>,
+    /// T0 [m^2/s^2] (flow: yield-pressure scale).
+    #[serde(rename = "T0")]
+    pub t0: Option<f64>,
+    /// Random loose packing of one grain size (flow).
+    pub phi_rlp: Option<f64>,
 }
 
 fn default_phi_rcp() -> f64 {
@@ -276,6 +326,79 @@ pub struct InitialSpec {
     pub phi: ExprSrc,
 }
 
+/// `[flow]`: numerics of the granular flow.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlowSpec {
+    /// Frozen flow: steady when the residual max |du|/(dt max(|u|, u_ref)) < this [1/s].
+    pub steady_tolerance: Option<f64>,
+    /// Least flow steps before the steady test counts.
+    pub min_steps: Option<i64>,
+    /// Most flow steps to reach the steady state.
+    pub max_steps: Option<i64>,
+    /// Temperature floor of the transport coefficients [m^2/s^2].
+    pub t_min: Option<f64>,
+    /// Courant number of the flow, 0 < C <= 0.5.
+    pub courant: Option<f64>,
+    /// "auto" (default): spin the flow up on 4 columns and replicate when the scene is
+    /// periodic in x and its initial data do not depend on x; "full": always the whole grid.
+    pub spin_up: Option<SpinUp>,
+}
+
+/// Where the frozen flow is spun up.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SpinUp {
+    /// 4 columns if the scene allows it (x-periodic, x-independent data), else full.
+    #[default]
+    Auto,
+    /// The whole grid.
+    Full,
+}
+
+/// `[boundary.flow.<side>]`: the tangential condition of a flow wall.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlowWallSpec {
+    /// "no-slip" (default), "slip" or "friction".
+    pub wall: Option<WallKind>,
+    /// Wall friction angle [deg] in [0, 90] (with `wall = "friction"`; 0 = slip, 90 = no-slip).
+    pub friction_angle: Option<f64>,
+    /// Tangential wall velocity [m/s], one entry per axis (normal entry 0).
+    pub velocity: Option<Vec<f64>>,
+}
+
+/// Tangential condition of a flow wall.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WallKind {
+    /// u_B = u_W.
+    #[default]
+    NoSlip,
+    /// Zero tangential stress.
+    Slip,
+    /// Partial slip by the wall friction angle.
+    Friction,
+}
+
+/// `[boundary.flow]`: flow wall conditions per side (`x_low`, `x_high`, ..., `z_high`).
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlowBoundarySpec {
+    /// Low x side.
+    pub x_low: Option<FlowWallSpec>,
+    /// High x side.
+    pub x_high: Option<FlowWallSpec>,
+    /// Low y side.
+    pub y_low: Option<FlowWallSpec>,
+    /// High y side.
+    pub y_high: Option<FlowWallSpec>,
+    /// Low z side (bottom).
+    pub z_low: Option<FlowWallSpec>,
+    /// High z side (top).
+    pub z_high: Option<FlowWallSpec>,
+}
+
 /// `[boundary]`: `[low, high]` kinds per axis (default wall), inflow state.
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -288,6 +411,8 @@ pub struct BoundarySpec {
     pub z: Option<[Boundary; 2]>,
     /// Dirichlet state at inflow sides.
     pub inflow: Option<InflowSpec>,
+    /// Flow wall conditions (only with a flow).
+    pub flow: Option<FlowBoundarySpec>,
 }
 
 /// `[boundary.inflow]`.

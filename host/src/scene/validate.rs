@@ -3,7 +3,10 @@
 //! naming the file, the key and the allowed range.
 
 use super::expr::{Expr, Vars};
-use super::{DirectionSpec, Equations, ExactKind, ExprSrc, Precision, SceneFile, TemperatureSpec};
+use super::{
+    BackCoupling, DirectionSpec, Equations, ExactKind, ExprSrc, FlowWallSpec, Precision, SceneFile,
+    SpinUp, TemperatureSpec, WallKind,
+};
 use crate::error::{Error, Result};
 use sieve_core::{Boundary, Phase, Scheme};
 
@@ -55,6 +58,69 @@ pub enum Temperature {
         /// eps0 [1/m]
         eps0: f64,
     },
+}
+
+/// The flow keeps `c <= (1 - FLOW_MARGIN) c_rcp` (`sieve_core::flow::FlowConfig::margin`).
+pub const FLOW_MARGIN: f64 = 1e-3;
+
+/// Tangential condition of one flow wall side.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum WallSlip {
+    /// u_B = u_W.
+    NoSlip,
+    /// Zero tangential stress.
+    Slip,
+    /// Partial slip: `tan(phi_w)` and the angle in degrees.
+    Friction {
+        /// tan(phi_w)
+        tan: f64,
+        /// phi_w [deg]
+        degrees: f64,
+    },
+}
+
+/// One side of the box for the flow (only meaningful on wall sides).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WallSide {
+    /// Tangential condition.
+    pub slip: WallSlip,
+    /// Wall velocity, solver axis order (normal component 0).
+    pub velocity: Vec<f64>,
+}
+
+/// The validated flow part of a scene (`model.equations` other than "prescribed").
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlowModel {
+    /// FrozenFlow or Coupled.
+    pub equations: Equations,
+    /// Back-coupling of the packing limits.
+    pub back_coupling: BackCoupling,
+    /// eta0 [m].
+    pub eta0: f64,
+    /// lambda0 [m].
+    pub lambda0: f64,
+    /// eps0 [1/m].
+    pub eps0: f64,
+    /// T0 [m^2/s^2].
+    pub t0: f64,
+    /// phi_rlp.
+    pub phi_rlp: f64,
+    /// Heating prefactor a.
+    pub heating: f64,
+    /// Wall conditions `[low, high]` per solver axis.
+    pub walls: Vec<[WallSide; 2]>,
+    /// Steady-state tolerance [1/s].
+    pub steady_tolerance: f64,
+    /// Least flow steps before the steady test counts.
+    pub min_steps: u64,
+    /// Most flow steps to steady state.
+    pub max_steps: u64,
+    /// T floor of the transport coefficients.
+    pub t_min: f64,
+    /// Flow Courant number.
+    pub courant: f64,
+    /// Spin-up policy.
+    pub spin_up: SpinUp,
 }
 
 /// A validated scene: every number finite and in range, every expression compiled.
@@ -114,6 +180,8 @@ pub struct Scene {
     pub psi_threshold: f64,
     /// Closed-form solution, if any.
     pub exact: Option<ExactKind>,
+    /// The flow model, if the scene solves one.
+    pub flow: Option<FlowModel>,
 }
 
 /// The fields of a scene evaluated at the cell centres (f64, solver cell order).
@@ -179,8 +247,33 @@ impl Scene {
             ));
         }
         let dim = f.dim as usize;
-        match f.model.equations {
-            Equations::Prescribed => {}
+        let has_flow = f.model.equations != Equations::Prescribed;
+        if !has_flow {
+            let only = |key: &str| {
+                Error::at(
+                    l,
+                    key,
+                    "only with a flow: allowed with model.equations = \"frozen-flow\" or \"coupled\"",
+                )
+            };
+            if f.model.back_coupling.is_some() {
+                return Err(only("model.back_coupling"));
+            }
+            if f.flow.is_some() {
+                return Err(only("flow"));
+            }
+            if f.boundary.flow.is_some() {
+                return Err(only("boundary.flow"));
+            }
+            for (key, v) in [
+                ("material.lambda0", f.material.lambda0),
+                ("material.T0", f.material.t0),
+                ("material.phi_rlp", f.material.phi_rlp),
+            ] {
+                if v.is_some() {
+                    return Err(only(key));
+                }
+            }
         }
         // Grid.
         if f.grid.cells.len() != dim {
@@ -288,6 +381,27 @@ impl Scene {
                 Direction::Fixed(v)
             }
         };
+        if has_flow {
+            if direction != Direction::Flow {
+                return Err(Error::range(
+                    l,
+                    "physics.direction",
+                    match &f.physics.direction {
+                        DirectionSpec::Name(n) => format!("{n:?}"),
+                        DirectionSpec::Vector(v) => format!("{v:?}"),
+                    },
+                    "\"flow\" with a solved flow (model.equations)",
+                ));
+            }
+            if f.physics.temperature != TemperatureSpec::Given {
+                return Err(Error::range(
+                    l,
+                    "physics.temperature",
+                    "\"shear\"",
+                    "\"given\" with a solved flow (T comes from the flow)",
+                ));
+            }
+        }
         let temperature = match f.physics.temperature {
             TemperatureSpec::Given => Temperature::Given,
             TemperatureSpec::Shear => {
@@ -378,6 +492,10 @@ impl Scene {
         let c = Expr::compile(l, "initial.c", &f.initial.c, false)?;
         let t = match (&f.initial.t, temperature) {
             (Some(t), _) => Some(Expr::compile(l, "initial.T", t, false)?),
+            // A solved flow starts cold unless the scene says otherwise.
+            (None, Temperature::Given) if has_flow => {
+                Some(Expr::compile(l, "initial.T", &ExprSrc::Number(0.0), false)?)
+            }
             (None, Temperature::Given) => {
                 return Err(Error::at(
                     l,
@@ -436,7 +554,13 @@ impl Scene {
                 "0 < psi_threshold < 1",
             ));
         }
+        let flow = if has_flow {
+            Some(validate_flow(l, &f, dim, phi_rcp, &boundaries)?)
+        } else {
+            None
+        };
         let scene = Scene {
+            flow,
             label: label.to_string(),
             name: f.name,
             description: f.description,
@@ -577,6 +701,7 @@ impl Scene {
             inflow: Vec::with_capacity(n),
         };
         let names = axis_names(self.dim);
+        let c_flow_max = (1.0 - FLOW_MARGIN) * self.phi_rcp;
         let at = |p: [f64; 3]| {
             let coords: Vec<String> = physical_axes(self.dim)
                 .iter()
@@ -587,6 +712,16 @@ impl Scene {
         for i in 0..n {
             let p = self.center(i);
             let c = self.c.eval(&mut vars, p, 0.0, l, "initial.c")?;
+            if self.flow.is_some() && !(c > 0.0 && c < c_flow_max) {
+                return Err(Error::range(
+                    l,
+                    "initial.c",
+                    format!("{c} {}", at(p)),
+                    &format!(
+                        "0 < c < c_rcp strictly with a solved flow: c < (1 - {FLOW_MARGIN}) material.phi_rcp = {c_flow_max}"
+                    ),
+                ));
+            }
             if !(c > 0.0 && c <= self.phi_rcp) {
                 return Err(Error::range(
                     l,
@@ -663,4 +798,255 @@ impl Scene {
         }
         Ok(f)
     }
+}
+
+fn positive(l: &str, key: &str, v: Option<f64>, unit: &str) -> Result<f64> {
+    let v = v.ok_or_else(|| {
+        Error::at(
+            l,
+            key,
+            "required with a solved flow (model.equations = \"frozen-flow\" or \"coupled\")",
+        )
+    })?;
+    if !(v.is_finite() && v > 0.0) {
+        return Err(Error::range(
+            l,
+            key,
+            v,
+            &format!("a finite number > 0 {unit}"),
+        ));
+    }
+    Ok(v)
+}
+
+fn wall_side(
+    l: &str,
+    key: &str,
+    spec: Option<&FlowWallSpec>,
+    kind: sieve_core::Boundary,
+    axis: usize,
+    dim: usize,
+) -> Result<WallSide> {
+    let mut side = WallSide {
+        slip: WallSlip::NoSlip,
+        velocity: vec![0.0; dim],
+    };
+    let Some(spec) = spec else {
+        return Ok(side);
+    };
+    if kind != sieve_core::Boundary::Wall {
+        return Err(Error::at(
+            l,
+            key,
+            format!(
+                "given but this side is {:?}: allowed only on \"wall\" sides",
+                format!("{kind:?}").to_lowercase()
+            ),
+        ));
+    }
+    let wall = spec.wall.unwrap_or(if spec.friction_angle.is_some() {
+        WallKind::Friction
+    } else {
+        WallKind::NoSlip
+    });
+    side.slip = match (wall, spec.friction_angle) {
+        (WallKind::NoSlip, None) => WallSlip::NoSlip,
+        (WallKind::Slip, None) => WallSlip::Slip,
+        (WallKind::Friction, Some(deg)) => {
+            if !(deg.is_finite() && (0.0..=90.0).contains(&deg)) {
+                return Err(Error::range(
+                    l,
+                    &format!("{key}.friction_angle"),
+                    deg,
+                    "0 <= friction_angle <= 90 [deg] (0 = slip, 90 = no-slip)",
+                ));
+            }
+            if deg == 90.0 {
+                WallSlip::NoSlip
+            } else {
+                WallSlip::Friction {
+                    tan: libm::tan(deg.to_radians()),
+                    degrees: deg,
+                }
+            }
+        }
+        (WallKind::Friction, None) => {
+            return Err(Error::at(
+                l,
+                &format!("{key}.friction_angle"),
+                "required with wall = \"friction\": allowed 0..=90 [deg]",
+            ))
+        }
+        (_, Some(_)) => {
+            return Err(Error::at(
+                l,
+                &format!("{key}.friction_angle"),
+                "only with wall = \"friction\" (then 0 <= friction_angle <= 90 [deg])",
+            ))
+        }
+    };
+    if let Some(v) = &spec.velocity {
+        let v = vector(l, &format!("{key}.velocity"), v, dim)?;
+        if v[axis] != 0.0 {
+            return Err(Error::range(
+                l,
+                &format!("{key}.velocity[{axis}]"),
+                v[axis],
+                "0: walls move tangentially only",
+            ));
+        }
+        side.velocity = v;
+    }
+    Ok(side)
+}
+
+fn validate_flow(
+    l: &str,
+    f: &SceneFile,
+    dim: usize,
+    phi_rcp: f64,
+    boundaries: &[[sieve_core::Boundary; 2]],
+) -> Result<FlowModel> {
+    let m = &f.material;
+    let eta0 = positive(l, "material.eta0", m.eta0, "[m]")?;
+    let lambda0 = positive(l, "material.lambda0", m.lambda0, "[m]")?;
+    let eps0 = positive(l, "material.eps0", m.eps0, "[1/m]")?;
+    let heating = positive(l, "material.heating", Some(m.heating), "")?;
+    let t0 = m.t0.ok_or_else(|| {
+        Error::at(
+            l,
+            "material.T0",
+            "required with a solved flow (model.equations = \"frozen-flow\" or \"coupled\")",
+        )
+    })?;
+    if !(t0.is_finite() && t0 >= 0.0) {
+        return Err(Error::range(l, "material.T0", t0, "T0 >= 0 [m^2/s^2]"));
+    }
+    if !(phi_rcp < 1.0) {
+        return Err(Error::range(
+            l,
+            "material.phi_rcp",
+            phi_rcp,
+            "0 < phi_rcp < 1 with a solved flow",
+        ));
+    }
+    let phi_rlp = positive(l, "material.phi_rlp", m.phi_rlp, "")?;
+    if !(phi_rlp < phi_rcp) {
+        return Err(Error::range(
+            l,
+            "material.phi_rlp",
+            phi_rlp,
+            &format!("0 < phi_rlp < material.phi_rcp = {phi_rcp}"),
+        ));
+    }
+    if boundaries
+        .iter()
+        .flatten()
+        .any(|&k| k == sieve_core::Boundary::Inflow)
+    {
+        return Err(Error::at(
+            l,
+            "boundary",
+            "\"inflow\" sides are not supported with a solved flow yet: allowed wall, outflow, periodic",
+        ));
+    }
+    let names = axis_names(dim);
+    let fb = f.boundary.flow.clone().unwrap_or_default();
+    let by_name = [
+        ("x", &fb.x_low, &fb.x_high),
+        ("y", &fb.y_low, &fb.y_high),
+        ("z", &fb.z_low, &fb.z_high),
+    ];
+    let mut walls = Vec::with_capacity(dim);
+    for (name, lo, hi) in by_name {
+        match names.iter().position(|n| *n == name) {
+            Some(a) => walls.push([
+                wall_side(
+                    l,
+                    &format!("boundary.flow.{name}_low"),
+                    lo.as_ref(),
+                    boundaries[a][0],
+                    a,
+                    dim,
+                )?,
+                wall_side(
+                    l,
+                    &format!("boundary.flow.{name}_high"),
+                    hi.as_ref(),
+                    boundaries[a][1],
+                    a,
+                    dim,
+                )?,
+            ]),
+            None if lo.is_some() || hi.is_some() => {
+                return Err(Error::at(
+                    l,
+                    &format!("boundary.flow.{name}_low"),
+                    format!(
+                        "a {dim}D scene has no axis {name}: allowed sides of {}",
+                        names.join(", ")
+                    ),
+                ))
+            }
+            None => {}
+        }
+    }
+    // `walls` was filled in x, y, z order, which is the solver axis order of every dimension.
+    let fs = f.flow.clone().unwrap_or_default();
+    let steady_tolerance = positive(
+        l,
+        "flow.steady_tolerance",
+        Some(fs.steady_tolerance.unwrap_or(1e-3)),
+        "[1/s]",
+    )?;
+    let t_min = positive(
+        l,
+        "flow.t_min",
+        Some(fs.t_min.unwrap_or(1e-14)),
+        "[m^2/s^2]",
+    )?;
+    let courant = fs.courant.unwrap_or(0.4);
+    if !(courant.is_finite() && courant > 0.0 && courant <= 0.5) {
+        return Err(Error::range(
+            l,
+            "flow.courant",
+            courant,
+            "0 < courant <= 0.5",
+        ));
+    }
+    let min_steps = fs.min_steps.unwrap_or(50);
+    if !(0..=100_000_000).contains(&min_steps) {
+        return Err(Error::range(
+            l,
+            "flow.min_steps",
+            min_steps,
+            "0..=100000000",
+        ));
+    }
+    let max_steps = fs.max_steps.unwrap_or(200_000);
+    if !(1..=100_000_000).contains(&max_steps) || max_steps < min_steps {
+        return Err(Error::range(
+            l,
+            "flow.max_steps",
+            max_steps,
+            &format!("flow.min_steps = {min_steps} <= max_steps <= 100000000"),
+        ));
+    }
+    Ok(FlowModel {
+        equations: f.model.equations,
+        back_coupling: f.model.back_coupling.unwrap_or_default(),
+        eta0,
+        lambda0,
+        eps0,
+        t0,
+        phi_rlp,
+        heating,
+        walls,
+        steady_tolerance,
+        min_steps: min_steps as u64,
+        max_steps: max_steps as u64,
+        t_min,
+        courant,
+        spin_up: fs.spin_up.unwrap_or_default(),
+    })
 }

@@ -1,0 +1,491 @@
+//! The solved granular flow of a scene (model.md 2, 4; `model.equations = "frozen-flow"` or
+//! `"coupled"`): building `sieve_core::flow::Flow` from a validated scene, spinning it up to a
+//! steady state and freezing it, the coupled time loop, and the horizontally averaged flow
+//! profiles (u_x(z), T(z), sqrt(T)/shear rate) the plots show.
+//!
+//! **Model only what the scene needs.** A frozen-flow scene that is periodic in x and whose
+//! initial data (c, T, u, phi) do not depend on x has an x-independent flow, so the flow is spun
+//! up on [`SPIN_UP_COLUMNS`] columns and every row is replicated to the full grid (shown exact to
+//! 1e-12 against a full 2D run by `tests/tests/flow_shear_cell.rs`); `flow.spin_up = "full"`
+//! turns this off. The segregation then runs on the full grid with the frozen fields. Such a
+//! flow between walls in z has `c u_z = 0` exactly at steady state, so the frozen `u_z` (the
+//! bed's unfinished compaction when the residual test stops the spin-up) is set to 0: the
+//! segregation transport then keeps `phi <= c` on the frozen `c`.
+
+use crate::error::{Error, Result};
+use crate::run::{SeriesRow, Snapshot};
+use crate::scene::validate::{FlowModel, WallSlip};
+use crate::scene::{BackCoupling, Equations, Fields, Scene, SpinUp};
+use serde::Serialize;
+use sieve_core::closure::{Material, Packing};
+use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
+use sieve_core::flow::{Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, Slip};
+use sieve_core::{Boundary, Grid, Real, Segregation};
+use std::time::Instant;
+
+/// Columns of the x-reduced spin-up grid (periodic x needs a few cells for the stencils).
+pub const SPIN_UP_COLUMNS: usize = 4;
+
+/// The `flow` block of summary.json.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct FlowSummary {
+    /// "frozen-flow" or "coupled".
+    pub equations: String,
+    /// "off", "r0" or "half".
+    pub back_coupling: String,
+    /// Flow steps to the steady state (frozen-flow; null when coupled).
+    pub flow_steps_to_steady: Option<u64>,
+    /// Flow steps in total.
+    pub flow_steps: u64,
+    /// Physical time of the flow solve [s] (spin-up time when frozen).
+    pub flow_time: f64,
+    /// Wall time of the flow solve [s].
+    pub flow_seconds: f64,
+    /// Cells of the grid the flow was solved on (the spin-up grid when reduced).
+    pub flow_cells: Vec<usize>,
+    /// max c / c_rcp over cells (< 1 by construction).
+    pub max_packing: f64,
+    /// Smallest T over cells [m^2/s^2].
+    pub t_min: f64,
+    /// Largest T over filled cells [m^2/s^2].
+    pub t_max: f64,
+    /// Largest speed over filled cells [m/s].
+    pub max_speed: f64,
+    /// Kinetic energy sum c |u|^2 / 2 |C| (per unit grain density).
+    pub kinetic_energy: f64,
+    /// Steady-state residual of the last flow step [1/s].
+    pub residual: f64,
+    /// Steady-state tolerance [1/s].
+    pub steady_tolerance: f64,
+    /// Small-phase mass clipped into [0, c] on hand-over (coupled; 0 when frozen).
+    pub clipped_mass: f64,
+}
+
+/// The material of the flow.
+pub fn material<R: Real>(scene: &Scene, fm: &FlowModel) -> Material<R> {
+    Material {
+        eta0: R::from_f64(fm.eta0),
+        lambda0: R::from_f64(fm.lambda0),
+        eps0: R::from_f64(fm.eps0),
+        t0: R::from_f64(fm.t0),
+        phi_rcp: R::from_f64(scene.phi_rcp),
+        phi_rlp: R::from_f64(fm.phi_rlp),
+        heating: R::from_f64(fm.heating),
+        s0: R::from_f64(scene.s0),
+    }
+}
+
+/// The packing switch of the core.
+pub fn packing(b: BackCoupling) -> Packing {
+    match b {
+        BackCoupling::Off => Packing::Constant,
+        BackCoupling::R0 => Packing::BoundR0,
+        BackCoupling::Half => Packing::FitHalf,
+    }
+}
+
+fn boundaries<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowBoundaries<R, D> {
+    core::array::from_fn(|a| {
+        core::array::from_fn(|side| match scene.boundaries[a][side] {
+            Boundary::Periodic => FlowSide::periodic(),
+            Boundary::Outflow => FlowSide::outflow(),
+            // Rejected by validation; a resting no-slip wall keeps this total.
+            Boundary::Inflow | Boundary::Wall => {
+                let w = &fm.walls[a][side];
+                let mut s = FlowSide::wall(match w.slip {
+                    WallSlip::NoSlip => Slip::NoSlip,
+                    WallSlip::Slip => Slip::Slip,
+                    WallSlip::Friction { tan, .. } => Slip::Friction(R::from_f64(tan)),
+                });
+                s.velocity = core::array::from_fn(|b| R::from_f64(w.velocity[b]));
+                s
+            }
+        })
+    })
+}
+
+fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<R, D> {
+    let mut cfg = FlowConfig::new(material(scene, fm));
+    cfg.gravity = core::array::from_fn(|a| R::from_f64(scene.gravity[a]));
+    cfg.courant = R::from_f64(fm.courant);
+    cfg.t_min = R::from_f64(fm.t_min);
+    cfg
+}
+
+/// Columns of the spin-up grid: [`SPIN_UP_COLUMNS`] if the scene is 2D, periodic in x, wider
+/// than that, allows it (`flow.spin_up = "auto"`) and its initial fields do not depend on x;
+/// else the full width.
+pub fn spin_up_columns(scene: &Scene, fields: &Fields) -> usize {
+    let nx = scene.cells[0];
+    let fm = scene.flow.as_ref();
+    let allowed = scene.dim == 2
+        && nx > SPIN_UP_COLUMNS
+        && scene.boundaries[0] == [Boundary::Periodic; 2]
+        && fm.is_some_and(|f| f.spin_up == SpinUp::Auto && f.equations == Equations::FrozenFlow);
+    if !allowed {
+        return nx;
+    }
+    let same_row = |v: &[f64]| v.chunks(nx).all(|row| row.iter().all(|&x| x == row[0]));
+    let x_free = same_row(&fields.c)
+        && same_row(&fields.t)
+        && same_row(&fields.phi)
+        && fields.u.iter().all(|u| same_row(u));
+    if x_free {
+        SPIN_UP_COLUMNS
+    } else {
+        nx
+    }
+}
+
+/// Sets up `flow` on the full grid (`columns = nx`) or on `columns` columns, with the scene's
+/// initial fields (row-wise when reduced) and, with back-coupling on, the packing limits of the
+/// initial phihat; prepares it.
+fn setup<R: Real, const D: usize, const N: usize>(
+    flow: &mut Flow<R, D, N>,
+    scene: &Scene,
+    fields: &Fields,
+    columns: usize,
+) -> Result<()> {
+    let fm = scene
+        .flow
+        .as_ref()
+        .ok_or_else(|| Error::failure("no flow in scene"))?;
+    let mut cells: [usize; D] = core::array::from_fn(|a| scene.cells[a]);
+    cells[0] = columns;
+    let nx = scene.cells[0];
+    let extent: [R; D] = core::array::from_fn(|a| R::from_f64(scene.upper[a] - scene.lower[a]));
+    let lower: [R; D] = core::array::from_fn(|a| R::from_f64(scene.lower[a]));
+    let grid = Grid::new(cells, lower, extent, N)
+        .map_err(|e| Error::at(&scene.label, "grid", format!("{e:?}")))?;
+    flow.setup(grid, boundaries(scene, fm), config(scene, fm))
+        .map_err(|e| Error::at(&scene.label, "flow", format!("flow setup failed: {e:?}")))?;
+    let mat = material::<R>(scene, fm);
+    let pk = packing(fm.back_coupling);
+    for i in 0..grid.len() {
+        // The full-grid cell with the same row (x-independent data when reduced).
+        let src = if columns == nx {
+            i
+        } else {
+            i % columns + nx * (i / columns)
+        };
+        let c = fields.c[src];
+        let u: [R; D] = core::array::from_fn(|a| R::from_f64(fields.u[a][src]));
+        flow.set_cell(i, R::from_f64(c), u, R::from_f64(fields.t[src]));
+        if pk != Packing::Constant {
+            let (rcp, rlp) = pk.limits(&mat, R::from_f64(fields.phi[src] / c));
+            flow.set_packing(i, rcp, rlp);
+        }
+    }
+    flow.prepare().map_err(|e| {
+        Error::at(
+            &scene.label,
+            "initial",
+            format!("rejected by the flow solver: {e:?}"),
+        )
+    })
+}
+
+/// A steady flow, frozen, on the full grid (solver cell order).
+#[derive(Debug, Clone)]
+pub struct Frozen {
+    /// c per cell.
+    pub c: Vec<f64>,
+    /// T per cell.
+    pub t: Vec<f64>,
+    /// p per cell.
+    pub p: Vec<f64>,
+    /// Velocity per solver axis, per cell.
+    pub u: Vec<Vec<f64>>,
+    /// The flow block (without the segregation part).
+    pub summary: FlowSummary,
+}
+
+fn diag_f64<R: Real>(d: &FlowDiagnostics<R>) -> FlowDiagnostics<f64> {
+    FlowDiagnostics {
+        mass: d.mass.to_f64(),
+        max_packing: d.max_packing.to_f64(),
+        t_min: d.t_min.to_f64(),
+        t_max: d.t_max.to_f64(),
+        max_speed: d.max_speed.to_f64(),
+        kinetic_energy: d.kinetic_energy.to_f64(),
+        residual: d.residual.to_f64(),
+    }
+}
+
+fn summary_of<R: Real, const D: usize, const N: usize>(
+    flow: &Flow<R, D, N>,
+    fm: &FlowModel,
+    seconds: f64,
+    to_steady: Option<u64>,
+    clipped: f64,
+) -> FlowSummary {
+    let d = diag_f64(&flow.diagnostics());
+    FlowSummary {
+        equations: fm.equations.name().into(),
+        back_coupling: fm.back_coupling.name().into(),
+        flow_steps_to_steady: to_steady,
+        flow_steps: flow.steps(),
+        flow_time: flow.time().to_f64(),
+        flow_seconds: seconds,
+        flow_cells: flow.grid().cells().to_vec(),
+        max_packing: d.max_packing,
+        t_min: d.t_min,
+        t_max: d.t_max,
+        max_speed: d.max_speed,
+        kinetic_energy: d.kinetic_energy,
+        residual: d.residual,
+        steady_tolerance: fm.steady_tolerance,
+        clipped_mass: clipped,
+    }
+}
+
+/// Spins the flow up from the scene's initial fields until its residual is below
+/// `flow.steady_tolerance` (after at least `flow.min_steps` steps), on the reduced grid if the
+/// scene allows it ([`spin_up_columns`]), and returns it frozen on the full grid.
+pub fn spin_up<R: Real, const D: usize, const N: usize>(
+    flow: &mut Flow<R, D, N>,
+    scene: &Scene,
+    fields: &Fields,
+) -> Result<Frozen> {
+    let fm = scene
+        .flow
+        .as_ref()
+        .ok_or_else(|| Error::failure("no flow in scene"))?;
+    let start = Instant::now();
+    let columns = spin_up_columns(scene, fields);
+    setup(flow, scene, fields, columns)?;
+    let tol = R::from_f64(fm.steady_tolerance);
+    loop {
+        flow.step(flow.stable_dt());
+        let k = flow.steps();
+        if k >= fm.min_steps && flow.residual() < tol {
+            break;
+        }
+        if k >= fm.max_steps {
+            return Err(Error::failure(format!(
+                "{}: the flow did not reach steady state in flow.max_steps = {} steps (t = {:.4e} s, residual {:.3e} 1/s > flow.steady_tolerance = {}): raise flow.max_steps or flow.steady_tolerance",
+                scene.label,
+                fm.max_steps,
+                flow.time().to_f64(),
+                flow.residual().to_f64(),
+                fm.steady_tolerance
+            )));
+        }
+    }
+    let steps = flow.steps();
+    let summary = summary_of(flow, fm, start.elapsed().as_secs_f64(), Some(steps), 0.0);
+    let n = scene.len();
+    let nx = scene.cells[0];
+    // An x-independent flow between walls in z has c u_z = 0 exactly at steady state
+    // (continuity d_z(c u_z) = 0 with u_z = 0 at the walls); what is left of u_z is the bed's
+    // unfinished compaction, which would move phi against a frozen c (phi > c). Drop it.
+    let drop_vertical = columns < nx && scene.boundaries[D - 1] == [Boundary::Wall; 2];
+    let src = |i: usize| {
+        if columns == nx {
+            i
+        } else {
+            columns * (i / nx)
+        }
+    };
+    Ok(Frozen {
+        c: (0..n).map(|i| flow.c(src(i)).to_f64()).collect(),
+        t: (0..n).map(|i| flow.temperature(src(i)).to_f64()).collect(),
+        p: (0..n).map(|i| flow.pressure(src(i)).to_f64()).collect(),
+        u: (0..D)
+            .map(|a| {
+                (0..n)
+                    .map(|i| {
+                        if drop_vertical && a == D - 1 {
+                            0.0
+                        } else {
+                            flow.velocity(src(i))[a].to_f64()
+                        }
+                    })
+                    .collect()
+            })
+            .collect(),
+        summary,
+    })
+}
+
+/// Hands the frozen flow to the segregation solver (set up by [`crate::run::load`]) keeping
+/// each cell's initial composition `phihat = phi / c` (new `phi = phihat c_flow`), and
+/// prepares it; the clock starts at 0.
+pub fn hand_over_frozen<R: Real, const D: usize, const N: usize>(
+    seg: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    fields: &Fields,
+    frozen: &Frozen,
+) -> Result<()> {
+    for i in 0..scene.len() {
+        let c = frozen.c[i];
+        let phihat = (fields.phi[i] / fields.c[i]).clamp(0.0, 1.0);
+        let u: [R; D] = core::array::from_fn(|a| R::from_f64(frozen.u[a][i]));
+        let c_r = R::from_f64(c);
+        seg.set_cell(
+            i,
+            c_r,
+            R::from_f64(frozen.t[i]),
+            u,
+            (R::from_f64(phihat) * c_r).min(c_r),
+        );
+    }
+    seg.prepare().map_err(|e| {
+        Error::failure(format!(
+            "{}: the segregation solver rejected the frozen flow: {e:?}",
+            scene.label
+        ))
+    })
+}
+
+/// What the coupled loop measured beyond the segregation series.
+pub struct CoupledStats {
+    /// Segregation-side statistics.
+    pub stats: crate::run::LoopStats,
+    /// Flow block.
+    pub summary: FlowSummary,
+}
+
+/// Coupled mode: flow and segregation on the full grid with a common step (the last step
+/// before an output time shortened to land on it), packing back-coupled if switched on.
+/// `on_output(k, t, seg, flow)` is called at every output time.
+pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
+    flow: &mut Flow<R, D, N>,
+    seg: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    fields: &Fields,
+    progress: &indicatif::ProgressBar,
+    mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
+) -> Result<CoupledStats> {
+    let fm = scene
+        .flow
+        .as_ref()
+        .ok_or_else(|| Error::failure("no flow in scene"))?;
+    setup(flow, scene, fields, scene.cells[0])?;
+    let mut cc = CouplingConfig::new(Mode::Coupled);
+    cc.packing = packing(fm.back_coupling);
+    cc.steady_tolerance = R::from_f64(fm.steady_tolerance);
+    let fail = |e| Error::failure(format!("{}: coupled step failed: {e:?}", scene.label));
+    let mut cpl = Coupled::new(flow, seg, cc).map_err(fail)?;
+    let times = crate::run::output_times(scene.t_end, scene.output_interval);
+    let mut stats = crate::run::LoopStats {
+        dt: cpl.seg.stable_dt().to_f64(),
+        ..Default::default()
+    };
+    let mut timer = crate::run::SegregationTimer::new(scene.psi_threshold);
+    let mut flow_seconds = 0.0;
+    for (k, &t) in times.iter().enumerate() {
+        let target = R::from_f64(t);
+        let start = Instant::now();
+        while cpl.seg.time() < target {
+            let dt = cpl
+                .flow
+                .stable_dt()
+                .min(cpl.seg.stable_dt())
+                .min(target - cpl.seg.time());
+            cpl.flow.step(dt);
+            cpl.seg.step(dt);
+            cpl.apply_packing();
+            cpl.hand_over().map_err(fail)?;
+            stats.steps += 1;
+            if stats.steps % 256 == 0 {
+                progress.set_position((cpl.seg.time().to_f64() / scene.t_end * 1000.0) as u64);
+            }
+        }
+        let el = start.elapsed();
+        stats.stepping += el;
+        flow_seconds += el.as_secs_f64();
+        let d = sieve_core::diagnose(cpl.seg);
+        let row = SeriesRow {
+            t,
+            psi: d.psi.to_f64(),
+            mass: d.mass_small.to_f64(),
+            overshoot_max: d.overshoot.to_f64(),
+            undershoot_max: d.undershoot.to_f64(),
+        };
+        timer.sample(t, row.psi);
+        stats.series.push(row);
+        on_output(k, t, cpl.seg, cpl.flow)?;
+    }
+    stats.segregation_time = timer.time();
+    let clipped = cpl.clipped_mass().to_f64();
+    let summary = summary_of(cpl.flow, fm, flow_seconds, None, clipped);
+    Ok(CoupledStats { stats, summary })
+}
+
+/// Horizontally averaged flow profiles over the vertical (last) axis.
+#[derive(Debug, Clone, Default)]
+pub struct Profiles {
+    /// Cell-centre heights.
+    pub z: Vec<f64>,
+    /// Mean horizontal velocity u_x (the vertical velocity in 1D).
+    pub u: Vec<f64>,
+    /// Mean T.
+    pub t: Vec<f64>,
+    /// |d u_x / d z| (central differences; one-sided to a wall's velocity).
+    pub shear: Vec<f64>,
+    /// sqrt(a eta0 / eps0): sqrt(T)/shear of steady uniform shear (model.md 2).
+    pub ratio_theory: f64,
+}
+
+/// The profiles of a snapshot.
+pub fn profiles(scene: &Scene, snap: &Snapshot) -> Profiles {
+    let dim = scene.dim;
+    let nz = scene.cells[dim - 1];
+    let per_row = scene.len() / nz;
+    let hz = scene.spacing()[dim - 1];
+    // physical component: u_x in 2D/3D, u_z in 1D
+    let comp = if dim == 1 { 2 } else { 0 };
+    let mean = |f: &dyn Fn(usize) -> f64, k: usize| {
+        (0..per_row).map(|j| f(j + per_row * k)).sum::<f64>() / per_row as f64
+    };
+    let u: Vec<f64> = (0..nz).map(|k| mean(&|i| snap.u[i][comp], k)).collect();
+    let t: Vec<f64> = (0..nz).map(|k| mean(&|i| snap.temp[i], k)).collect();
+    let z: Vec<f64> = (0..nz)
+        .map(|k| scene.lower[dim - 1] + (k as f64 + 0.5) * hz)
+        .collect();
+    let fm = scene.flow.as_ref();
+    let wall_u = |side: usize| -> Option<f64> {
+        let fm = fm?;
+        if dim == 1 || scene.boundaries[dim - 1][side] != Boundary::Wall {
+            return None;
+        }
+        match fm.walls[dim - 1][side].slip {
+            WallSlip::NoSlip => Some(fm.walls[dim - 1][side].velocity[0]),
+            _ => None,
+        }
+    };
+    let shear = (0..nz)
+        .map(|k| {
+            let (below, wb) = if k == 0 {
+                match wall_u(0) {
+                    Some(w) => (w, 0.5),
+                    None => (u[0], 0.0),
+                }
+            } else {
+                (u[k - 1], 1.0)
+            };
+            let (above, wa) = if k + 1 == nz {
+                match wall_u(1) {
+                    Some(w) => (w, 0.5),
+                    None => (u[k], 0.0),
+                }
+            } else {
+                (u[k + 1], 1.0)
+            };
+            let width = (wb + wa) * hz;
+            if width > 0.0 {
+                ((above - below) / width).abs()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    Profiles {
+        z,
+        u,
+        t,
+        shear,
+        ratio_theory: fm.map_or(f64::NAN, |f| (f.heating * f.eta0 / f.eps0).sqrt()),
+    }
+}

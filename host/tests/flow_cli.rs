@@ -1,0 +1,293 @@
+//! The `sieve` CLI with a solved granular flow (issue 3, host side): the frozen-flow shear cell
+//! writes the flow block, p and the flow plots; bad flow keys exit 2 with one line naming file,
+//! key and range; `sieve fit` reproduces its target time; the coupled mode runs.
+
+use assert_cmd::Command;
+use std::path::Path;
+
+fn sieve() -> Command {
+    Command::cargo_bin("sieve").unwrap()
+}
+
+fn tmp() -> tempfile::TempDir {
+    tempfile::tempdir().unwrap()
+}
+
+fn run_in(dir: &Path, args: &[&str]) -> (i32, String, String) {
+    let out = sieve().current_dir(dir).args(args).output().unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+fn all_finite(v: &serde_json::Value) -> bool {
+    match v {
+        serde_json::Value::Number(n) => n.as_f64().is_some_and(f64::is_finite),
+        serde_json::Value::Array(a) => a.iter().all(all_finite),
+        serde_json::Value::Object(o) => o.values().all(all_finite),
+        _ => true,
+    }
+}
+
+#[test]
+fn frozen_shear_cell_writes_the_flow_block_pressure_and_profiles() {
+    let d = tmp();
+    let (code, _, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "shear-cell",
+            "--cells",
+            "12",
+            "--t-end",
+            "40",
+            "--quiet",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let dir = d.path().join("runs/shear-cell");
+    let s = json(&dir.join("summary.json"));
+    let f = &s["flow"];
+    assert_eq!(f["equations"], "frozen-flow");
+    assert_eq!(f["back_coupling"], "off");
+    // spun up on 4 columns (x-periodic, x-independent data), replicated to 12 x 12
+    assert_eq!(f["flow_cells"], serde_json::json!([4, 12]));
+    assert!(f["flow_steps_to_steady"].as_u64().unwrap() >= 50);
+    let mp = f["max_packing"].as_f64().unwrap();
+    assert!(mp > 0.9 && mp < 1.0, "{mp}");
+    assert!(f["t_min"].as_f64().unwrap() >= 0.0);
+    assert!(f["residual"].as_f64().unwrap() < f["steady_tolerance"].as_f64().unwrap());
+    for key in ["kinetic_energy", "clipped_mass", "t_max", "max_speed"] {
+        assert!(f[key].as_f64().unwrap() >= 0.0, "{key}");
+    }
+    assert!(all_finite(&s), "{s}");
+    // phi stays in [0, c] on the frozen flow; mass conserved
+    assert_eq!(s["overshoot_max"], 0.0);
+    assert_eq!(s["undershoot_max"], 0.0);
+    assert!(s["mass_rel_drift"].as_f64().unwrap() < 1e-12);
+    let fin = std::fs::read_to_string(dir.join("final.csv")).unwrap();
+    let mut lines = fin.lines();
+    assert_eq!(lines.next(), Some("x,y,z,c,phi,phihat,T,ux,uy,uz,p"));
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 144);
+    assert!(rows.iter().flatten().all(|v| v.is_finite()));
+    // lithostatic-like pressure: larger at the bottom row than at the top row
+    assert!(
+        rows[0][10] > rows[143][10],
+        "{} {}",
+        rows[0][10],
+        rows[143][10]
+    );
+    // the plate speeds bound u_x
+    assert!(rows.iter().all(|r| r[7] > 0.0006 && r[7] < 0.0056));
+    let vti = std::fs::read(dir.join("fields/state_0000.vti")).unwrap();
+    let head = String::from_utf8_lossy(&vti[..1500.min(vti.len())]).into_owned();
+    assert!(head.contains("Name=\"p\""), "{head}");
+    for png in [
+        "plots/psi.png",
+        "plots/flow_velocity.png",
+        "plots/flow_temperature.png",
+        "plots/flow_shear_ratio.png",
+    ] {
+        let bytes = std::fs::read(dir.join(png)).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG", "{png}");
+    }
+}
+
+#[test]
+fn prescribed_scenes_have_no_flow_block_and_the_old_final_header() {
+    let d = tmp();
+    let (code, _, err) = run_in(
+        d.path(),
+        &[
+            "run", "column-a", "--cells", "20", "--t-end", "0.1", "--quiet",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let dir = d.path().join("runs/column-a");
+    assert!(json(&dir.join("summary.json")).get("flow").is_none());
+    let fin = std::fs::read_to_string(dir.join("final.csv")).unwrap();
+    assert_eq!(fin.lines().next(), Some("x,y,z,c,phi,phihat,T,ux,uy,uz"));
+}
+
+fn assert_bad(sets: &[&str], needles: &[&str]) {
+    let d = tmp();
+    let mut args = vec!["run", "shear-cell", "--cells", "8", "--quiet"];
+    for s in sets {
+        args.push("--set");
+        args.push(s);
+    }
+    let (code, out, err) = run_in(d.path(), &args);
+    assert_eq!(code, 2, "{args:?}: {out} {err}");
+    assert_eq!(err.lines().count(), 1, "{args:?}: one line: {err}");
+    assert!(err.contains("scenes/shear-cell.toml"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: {err} lacks {n}");
+    }
+    assert!(!d.path().join("runs").exists(), "bad input wrote a run");
+}
+
+#[test]
+fn bad_flow_keys_exit_2_with_one_line_naming_file_key_and_range() {
+    // c must stay strictly below c_rcp for a solved flow
+    assert_bad(&["initial.c=0.632"], &["initial.c", "0 < c < c_rcp"]);
+    assert_bad(&["initial.c=0.6319"], &["initial.c", "c_rcp"]);
+    // wall friction angle in [0, 90] degrees
+    assert_bad(
+        &[
+            "boundary.flow.z_low.wall=\"friction\"",
+            "boundary.flow.z_low.friction_angle=95",
+        ],
+        &[
+            "boundary.flow.z_low.friction_angle",
+            "0 <= friction_angle <= 90",
+        ],
+    );
+    assert_bad(
+        &["boundary.flow.z_low.friction_angle=-1"],
+        &["boundary.flow.z_low.friction_angle", "90"],
+    );
+    // unknown switches
+    assert_bad(
+        &["model.equations=\"full\""],
+        &["model.equations", "frozen-flow", "coupled"],
+    );
+    assert_bad(
+        &["model.back_coupling=\"on\""],
+        &["model.back_coupling", "off", "r0", "half"],
+    );
+    // the flow needs the segregation direction from the flow and its own material keys
+    assert_bad(
+        &["physics.direction=\"gravity\""],
+        &["physics.direction", "flow"],
+    );
+    assert_bad(&["material.phi_rlp=0.7"], &["material.phi_rlp", "phi_rcp"]);
+    assert_bad(&["flow.courant=0.9"], &["flow.courant", "0.5"]);
+    // a moving wall moves tangentially only
+    assert_bad(
+        &["boundary.flow.z_high.velocity=[0.0055, 0.001]"],
+        &["boundary.flow.z_high.velocity[1]", "tangentially"],
+    );
+    // flow keys in a prescribed scene
+    let d = tmp();
+    let (code, _, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "column-a",
+            "--set",
+            "model.back_coupling=\"half\"",
+            "--quiet",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("model.back_coupling") && err.contains("frozen-flow"),
+        "{err}"
+    );
+}
+
+#[test]
+fn fit_reproduces_its_target_time() {
+    let d = tmp();
+    let (code, out, err) = run_in(
+        d.path(),
+        &[
+            "fit",
+            "shear-cell",
+            "--levels",
+            "10",
+            "--target-time",
+            "700",
+            "--tolerance",
+            "0.01",
+            "--quiet",
+            "--out",
+            "fit",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("S0"), "{out}");
+    let fit = json(&d.path().join("fit/fit.json"));
+    let lvl = &fit["levels"][0];
+    assert_eq!(lvl["converged"], true, "{fit}");
+    let s0 = lvl["s0"].as_f64().unwrap();
+    let t = lvl["segregation_time"].as_f64().unwrap();
+    assert!((t / 700.0 - 1.0).abs() <= 0.01, "{t}");
+    assert!(s0 > 0.0 && s0.is_finite());
+    let csv = std::fs::read_to_string(d.path().join("fit/fit.csv")).unwrap();
+    assert!(csv.starts_with("level,cells,s0,segregation_time"));
+    // an independent `sieve run` with the fitted S0 and the fit's sampling reproduces it
+    let (code, _, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "shear-cell",
+            "--cells",
+            "10",
+            "--t-end",
+            "900",
+            "--set",
+            &format!("material.s0={s0}"),
+            "--set",
+            "run.output_interval=1.4",
+            "--quiet",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let s = json(&d.path().join("runs/shear-cell/summary.json"));
+    let t_run = s["segregation_time"].as_f64().unwrap();
+    assert!((t_run / 700.0 - 1.0).abs() <= 0.01, "{t_run}");
+}
+
+#[test]
+fn fit_rejects_a_prescribed_scene() {
+    let d = tmp();
+    let (code, _, err) = run_in(d.path(), &["fit", "column-a", "--quiet"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("model.equations") && err.contains("frozen-flow"),
+        "{err}"
+    );
+}
+
+#[test]
+fn coupled_shear_cell_runs_briefly() {
+    let d = tmp();
+    let (code, _, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "shear-cell",
+            "--cells",
+            "6",
+            "--t-end",
+            "0.004",
+            "--set",
+            "model.equations=\"coupled\"",
+            "--set",
+            "model.back_coupling=\"half\"",
+            "--set",
+            "run.output_interval=0.002",
+            "--quiet",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let s = json(&d.path().join("runs/shear-cell/summary.json"));
+    let f = &s["flow"];
+    assert_eq!(f["equations"], "coupled");
+    assert_eq!(f["back_coupling"], "half");
+    assert!(f["flow_steps_to_steady"].is_null());
+    assert_eq!(f["flow_cells"], serde_json::json!([6, 6]));
+    assert!(f["flow_steps"].as_u64().unwrap() > 0);
+    assert!(f["max_packing"].as_f64().unwrap() < 1.0);
+    assert!(all_finite(&s), "{s}");
+}
