@@ -284,6 +284,21 @@ pub fn execute(cli: Cli) -> Result<()> {
                         .map_or_else(|| "not reached".into(), |t| format!("{t:.4}")),
                     out.display()
                 );
+                if let Some(f) = &summary.flow {
+                    println!(
+                        "flow ({}, back_coupling {}): {} flow steps on {:?} cells in {:.3} s (t = {:.4e} s), max c/c_rcp = {:.4}, T in [{:.3e}, {:.3e}], residual {:.3e} 1/s",
+                        f.equations,
+                        f.back_coupling,
+                        f.flow_steps,
+                        f.flow_cells,
+                        f.flow_seconds,
+                        f.flow_time,
+                        f.max_packing,
+                        f.t_min,
+                        f.t_max,
+                        f.residual
+                    );
+                }
             }
             Ok(())
         }
