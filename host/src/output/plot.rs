@@ -299,6 +299,7 @@ pub fn vertical_curves(
             let mut chart = $chart;
             chart
                 .configure_mesh()
+                .x_label_formatter(&|x: &f64| tick(*x, log_x))
                 .x_desc(xlabel)
                 .y_desc("z [m]")
                 .label_style((FONT_NAME, 14))
@@ -337,6 +338,16 @@ pub fn vertical_curves(
             .map_err(fail(path))?);
     }
     root.present().map_err(fail(path))
+}
+
+/// Tick label: one significant digit in exponent form on a log axis; at most 6 decimals on a
+/// linear one.
+fn tick(x: f64, log: bool) -> String {
+    if log {
+        format!("{x:.0e}")
+    } else {
+        format!("{}", (x * 1e6).round() / 1e6)
+    }
 }
 
 /// The flow profiles of a run: `flow_velocity.png` (mean u_x(z)), `flow_temperature.png`
