@@ -37,6 +37,8 @@ pub struct FlowSummary {
     pub flow_steps_to_steady: Option<u64>,
     /// Flow steps in total.
     pub flow_steps: u64,
+    /// Conjugate-gradient iterations of all implicit solves (velocity components and T).
+    pub cg_iterations: u64,
     /// Physical time of the flow solve [s] (spin-up time when frozen).
     pub flow_time: f64,
     /// Wall time of the flow solve [s].
@@ -225,6 +227,7 @@ fn summary_of<R: Real, const D: usize, const N: usize>(
         back_coupling: fm.back_coupling.name().into(),
         flow_steps_to_steady: to_steady,
         flow_steps: flow.steps(),
+        cg_iterations: flow.cg_iterations(),
         flow_time: flow.time().to_f64(),
         flow_seconds: seconds,
         flow_cells: flow.grid().cells().to_vec(),
