@@ -101,6 +101,35 @@ impl SolverJob for ConvergeJob<'_> {
     }
 }
 
+impl crate::run::FlowJob for ConvergeJob<'_> {
+    type Output = LevelRun;
+    fn run<R: Real, const D: usize, const N: usize>(
+        self,
+        s: &mut Segregation<R, D, N>,
+        f: &mut sieve_core::flow::Flow<R, D, N>,
+    ) -> Result<LevelRun> {
+        use crate::scene::Equations;
+        load(s, self.scene, self.fields)?;
+        let bar = indicatif::ProgressBar::hidden();
+        let coupled = self.scene.flow.as_ref().map(|m| m.equations) == Some(Equations::Coupled);
+        let steps = if coupled {
+            crate::flow::coupled_loop(f, s, self.scene, self.fields, &bar, |_, _, _, _| Ok(()))?
+                .stats
+                .steps
+        } else {
+            let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
+            crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
+            time_loop(s, self.scene, &bar, |_, _, _| Ok(()))?.steps
+        };
+        let n = s.len();
+        Ok(LevelRun {
+            phi: (0..n).map(|i| s.phi(i).to_f64()).collect(),
+            c: (0..n).map(|i| s.c(i).to_f64()).collect(),
+            steps,
+        })
+    }
+}
+
 fn cells_for(level: usize, base: &[usize], label: &str) -> Result<Vec<usize>> {
     let last = *base.last().unwrap_or(&1);
     base.iter()
@@ -234,7 +263,12 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
     let mut runs = Vec::with_capacity(levels.len());
     for (scene, fields) in &loaded {
         let start = Instant::now();
-        let r = with_solver(scene.precision, scene.dim, ConvergeJob { scene, fields })?;
+        let job = ConvergeJob { scene, fields };
+        let r = if scene.flow.is_some() {
+            crate::run::with_flow_solvers(scene.precision, scene.dim, job)?
+        } else {
+            with_solver(scene.precision, scene.dim, job)?
+        };
         let secs = start.elapsed().as_secs_f64();
         if !opts.quiet {
             eprintln!("level {:?}: {} steps, {:.3} s", scene.cells, r.steps, secs);

@@ -291,3 +291,29 @@ fn coupled_shear_cell_runs_briefly() {
     assert!(f["max_packing"].as_f64().unwrap() < 1.0);
     assert!(all_finite(&s), "{s}");
 }
+
+#[test]
+fn converge_runs_the_frozen_flow_per_level() {
+    let d = tmp();
+    let (code, out, err) = run_in(
+        d.path(),
+        &[
+            "converge",
+            "shear-cell",
+            "--levels",
+            "5,10",
+            "--t-end",
+            "100",
+            "--quiet",
+            "--out",
+            "conv",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let study = json(&d.path().join("conv/converge.json"));
+    let rows = study["levels"].as_array().unwrap();
+    assert_eq!(rows.len(), 2, "{out}");
+    // the segregation ran on the frozen flow: the coarse level differs from the fine one
+    let l1 = rows[0]["l1"].as_f64().unwrap();
+    assert!(l1.is_finite() && l1 > 0.0, "{l1}");
+}
