@@ -5,7 +5,7 @@ use core::fmt::Arguments;
 use sieve_core::sensor::feeder::{feed_bytes, Faults, Feeder};
 use sieve_core::sensor::frame::{encode, ESTIMATE_WIRE_MAX, FRAME_WIRE_MAX};
 use sieve_core::sensor::recording::Recording;
-use sieve_core::sensor::{Estimate, FrameDecoder, SoftSensor, WireCounters};
+use sieve_core::sensor::{Estimate, FrameDecoder, SoftSensor, TickProfile, WireCounters};
 
 /// Estimator capacity: a 32 x 32 grid.
 pub const CELLS: usize = 1024;
@@ -56,6 +56,10 @@ struct Stats {
     max_tick: u32,
     /// Instructions in the feeder callback: UART bytes, decoding, validation, filtering.
     feed: u64,
+    /// Instructions in the phases of `finish_tick`, summed over the pass.
+    phases: TickProfile,
+    /// Ticks that mapped a new frame (ran `prepare_velocity`).
+    mapped: u32,
 }
 
 macro_rules! out {
@@ -99,8 +103,13 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
             let (sensor, decoder) = (&mut s.sensor, &mut s.decoder);
             s.feeder.tick(|chunk| feed_bytes(sensor, decoder, chunk));
             let t1 = p.instructions();
-            let e = s.sensor.finish_tick();
+            let (e, prof) = s.sensor.finish_tick_profiled(&mut || p.instructions());
             let dt = p.instructions() - t0;
+            st.phases.map += prof.map;
+            st.phases.prepare += prof.prepare;
+            st.phases.substeps += prof.substeps;
+            st.phases.estimate += prof.estimate;
+            st.mapped += (prof.prepare > 0) as u32;
             st.feed += t1 - t0;
             st.ticks += 1;
             st.substeps += e.substeps as u64;
@@ -120,7 +129,7 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
         };
         out!(
             p,
-            "pass={} ticks={} substeps={} instr_total={} instr_mean_tick={} (feed+decode+filter {}, map+prepare+substeps+estimate {}) instr_max_tick={} (tick {}) instr_per_cell_substep_full_tick={}",
+            "pass={} ticks={} substeps={} instr_total={} instr_mean_tick={} (feed+decode+filter {}, map+prepare_velocity+substeps+estimate {}) instr_max_tick={} (tick {}) instr_per_cell_substep_full_tick={}",
             label,
             st.ticks,
             st.substeps,
@@ -132,6 +141,22 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
             st.max_tick,
             per_cell_substep
         );
+        // Per cell: feed+decode+filter and the estimate per tick, the mapping and
+        // prepare_velocity per mapped tick, the substeps per substep.
+        let per = |x: u64, n: u64| x / (cells * n.max(1));
+        let ticks = st.ticks as u64;
+        out!(
+            p,
+            "profile pass={} per_cell: feed+decode+filter={} map={} prepare_velocity={} substep={} estimate={} (per tick: {} mapped, {} substeps)",
+            label,
+            per(st.feed, ticks),
+            per(st.phases.map, st.mapped as u64),
+            per(st.phases.prepare, st.mapped as u64),
+            per(st.phases.substeps, st.substeps),
+            per(st.phases.estimate, ticks),
+            st.mapped,
+            st.substeps
+        );
         let w = s.decoder.counters;
         let c = s.sensor.counters();
         let inj = s.feeder.injected;
@@ -142,10 +167,10 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
         );
         out!(
             p,
-            "faults pass={} decoded={} overflow={} framing={} crc={} decode={} dims={} non_finite={} range={} seq={} outliers={} stale_ticks={} frozen_ticks={} budget_limited={} lost_periods={} phi_clamps={} lag={}",
+            "faults pass={} decoded={} overflow={} framing={} crc={} decode={} dims={} non_finite={} range={} seq={} outliers={} stale_ticks={} frozen_ticks={} budget_limited={} lost_periods={} phi_excursions={} lag={}",
             label, w.decoded, w.overflow, w.framing, w.crc, w.decode, c.dims, c.non_finite, c.range,
             c.seq, c.outliers, c.stale_ticks, c.frozen_ticks, c.budget_limited, c.lost_periods,
-            c.phi_clamps, s.sensor.lag()
+            c.phi_excursions, s.sensor.lag()
         );
         let h = s.sensor.state_hash();
         if faults == Faults::NONE {

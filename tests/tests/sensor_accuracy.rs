@@ -1,15 +1,14 @@
 //! Soft sensor against a truth simulation (issue 4, item 9): the same core solver on the truth
 //! grid with the exact velocity; the sensor sees a coarser, noisy velocity field.
 
-// The host's record/replay module, compiled here directly so these tests do not depend on the
-// CLI wiring of `host/src/lib.rs`.
-#[allow(dead_code, unused_imports)]
-#[path = "../../host/src/soft_sensor/mod.rs"]
-mod soft_sensor;
+use sieve::soft_sensor::{record_to_bytes, replay_bytes, RecordOptions, ReplayOptions, Scene};
 
-use soft_sensor::{record_to_bytes, replay_bytes, RecordOptions, ReplayOptions, Scene};
-
-fn run(scene: Scene, sensor: [u8; 2], noise: f64, truth: [u16; 2]) -> soft_sensor::ReplayReport {
+fn run(
+    scene: Scene,
+    sensor: [u8; 2],
+    noise: f64,
+    truth: [u16; 2],
+) -> sieve::soft_sensor::ReplayReport {
     let opts = RecordOptions {
         sensor,
         noise,
@@ -39,13 +38,14 @@ fn shear_cell_4x_coarser_5pct_noise_psi_within_005() {
     assert!(r.max_psi_error < 0.05, "max psi error {}", r.max_psi_error);
     assert!(r.mean_l1 < 0.1, "mean L1 {}", r.mean_l1);
     assert_eq!(r.counters.accepted, 150);
-    // Noise makes the measured flow slightly compressive; the clamps that keep phi <= c cost
-    // a little mass (the truth conserves it exactly).
+    // Noise makes the measured flow slightly compressive, so phi leaves [0, c] a little in
+    // places; nothing clamps it, so the mass is conserved to f32 round-off (the truth
+    // conserves it exactly).
     println!(
-        "mass drift {:e}, phi clamps {}",
-        r.mass_drift, r.counters.phi_clamps
+        "mass drift {:e}, phi excursions {}",
+        r.mass_drift, r.counters.phi_excursions
     );
-    assert!(r.mass_drift.abs() < 2e-3, "mass drift {}", r.mass_drift);
+    assert!(r.mass_drift.abs() < 1e-5, "mass drift {}", r.mass_drift);
     assert_eq!(r.counters.budget_limited, 0);
 }
 

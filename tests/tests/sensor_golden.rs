@@ -6,12 +6,8 @@
 //! To regenerate after an intended change: `SIEVE_BLESS=1 cargo test -p sieve-tests --test
 //! sensor_golden`, then update the constants below from the printed values.
 
-#[allow(dead_code, unused_imports)]
-#[path = "../../host/src/soft_sensor/mod.rs"]
-mod soft_sensor;
-
+use sieve::soft_sensor::{record_to_bytes, replay_bytes, RecordOptions, ReplayOptions, Scene};
 use sieve_core::sensor::feeder::Faults;
-use soft_sensor::{record_to_bytes, replay_bytes, RecordOptions, ReplayOptions, Scene};
 use std::path::PathBuf;
 
 /// The recording firmware-sim embeds: shear cell, truth and estimator 32 x 32, sensor 8 x 8
@@ -124,16 +120,16 @@ fn firmware_recording_and_golden_hashes() {
 #[test]
 fn record_and_replay_files_print_the_golden_line() {
     let path = std::env::temp_dir().join(format!("sieve-sensor-{}.rec", std::process::id()));
-    let rep = soft_sensor::record(&firmware_options(), &path).unwrap();
+    let rep = sieve::soft_sensor::record(&firmware_options(), &path).unwrap();
     assert_eq!(rep.frames, 100);
     assert_eq!(
         std::fs::metadata(&path).unwrap().len() as usize,
         rep.file_bytes
     );
-    let r = soft_sensor::replay(&path, &ReplayOptions::default()).unwrap();
+    let r = sieve::soft_sensor::replay(&path, &ReplayOptions::default()).unwrap();
     std::fs::remove_file(&path).unwrap();
     let mut out = Vec::new();
-    soft_sensor::print_report(&r, 10, &mut out).unwrap();
+    sieve::soft_sensor::print_report(&r, 10, &mut out).unwrap();
     let text = String::from_utf8(out).unwrap();
     print!("{text}");
     let golden = std::fs::read_to_string(recordings_dir().join("shear-cell.golden")).unwrap();

@@ -87,6 +87,9 @@ pub struct SensorConfig<R> {
     /// profiles unchanged (ends of non-periodic axes are not filtered) and cuts the noise of
     /// the measured gradient, which otherwise inflates T (T grows with its square).
     pub spatial_passes: u8,
+    /// Track the large phase (`Phase::Large`, phi = c - q) instead of the small one. The
+    /// estimate is the same up to round-off; snapshots restore either bit-exactly.
+    pub track_large: bool,
     /// Named regions, reported as mean phihat.
     pub regions: heapless::Vec<Region, MAX_REGIONS>,
     /// Index of the outlet region in `regions` (its mean is the discharge fines fraction).

@@ -1,10 +1,11 @@
 //! The soft-sensor estimator: input handling, the budgeted tick, and the estimate.
 
 use super::config::{ConfigError, SensorConfig};
+use super::entropy;
 use super::frame::{bump, Estimate, Reject, VelocityFrame};
 use super::{alarm, health, SensorReal, MAX_FRAME_VALUES};
 use crate::boundary::{Boundaries, Boundary};
-use crate::diagnostics::{diagnose, state_hash};
+use crate::diagnostics::{self, state_hash};
 use crate::grid::Grid;
 use crate::hash::Fnv64;
 use crate::segregation::{
@@ -36,10 +37,28 @@ pub struct Counters {
     pub budget_limited: u32,
     /// Frame periods that were never simulated (lost while frozen, or a sequence gap).
     pub lost_periods: u32,
-    /// Cells whose phi had left [0, c] and was put back before a new frame (see
-    /// `map_velocity`): by round-off, or by the compression of a measured velocity that is not
-    /// divergence-free (c is held fixed, so such a flow would pile phi above c).
-    pub phi_clamps: u32,
+    /// Cell-ticks in which phi was outside [0, c] at the end of the tick: by round-off, or by
+    /// the compression of a measured velocity that is not divergence-free (c is held fixed,
+    /// so such a flow piles phi slightly above c). The state is left as it is (exactly
+    /// conservative); only the readouts clamp phihat into [0, 1]. See
+    /// [`health::PHI_EXCURSION`].
+    pub phi_excursions: u32,
+}
+
+/// Cells per row segment whose x interpolation weights `map_velocity` keeps on the stack.
+const MAP_CHUNK: usize = 64;
+
+/// Instructions (or any clock) spent in the phases of one [`SoftSensor::finish_tick_profiled`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TickProfile {
+    /// Bilinear mapping of the sensor field onto the estimator grid.
+    pub map: u64,
+    /// `Segregation::prepare_velocity`: T, direction, coefficients, stable step.
+    pub prepare: u64,
+    /// The substeps (`Segregation::step`).
+    pub substeps: u64,
+    /// The readout (psi, min/max, regions, alarms, excursion count).
+    pub estimate: u64,
 }
 
 /// The soft sensor: a [`Segregation`] solver on the estimator grid plus the input filter
@@ -67,9 +86,10 @@ pub struct Counters {
 ///   full stable substeps (Courant-limited, so bounded and conservative), adds the shortfall
 ///   to `lag` and sets [`health::BUDGET_LIMITED`].
 /// * [`Self::finish_tick`] ends a tick: if frames were accepted, it maps the filtered
-///   velocity onto the estimator grid once (`prepare`) and advances by the booked time, so
-///   the work of a tick is one `prepare` plus at most `max_substeps` substeps however many
-///   frames arrived. If no frame was accepted during the tick, the last good velocity is held for one `tick_period` ([`health::STALE_INPUT`]) up to `hold_ticks`
+///   velocity onto the estimator grid once (`Segregation::prepare_velocity`: no validation
+///   of phi, no clamping, so the state stays exactly conservative) and advances by the booked
+///   time, so the work of a tick is one mapping plus at most `max_substeps` substeps however
+///   many frames arrived. If no frame was accepted during the tick, the last good velocity is held for one `tick_period` ([`health::STALE_INPUT`]) up to `hold_ticks`
 ///   consecutive ticks, after which the estimate freezes ([`health::FROZEN`]) until a good
 ///   frame arrives. It returns the [`Estimate`].
 #[derive(Clone, Debug)]
@@ -129,6 +149,7 @@ const fn empty_config<R: SensorReal>() -> SensorConfig<R> {
         outlier_tol: R::ONE,
         smoothing: R::ONE,
         spatial_passes: 0,
+        track_large: false,
         regions: heapless::Vec::new(),
         outlet: None,
         psi_alarm: R::ZERO,
@@ -161,7 +182,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
                 frozen_ticks: 0,
                 budget_limited: 0,
                 lost_periods: 0,
-                phi_clamps: 0,
+                phi_excursions: 0,
             },
             flags: 0,
             substeps: 0,
@@ -178,9 +199,13 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         let grid = Grid::new(cells, [R::ZERO; 2], cfg.extent, N).map_err(|_| ConfigError::Cells)?;
         let scfg = SegregationConfig {
             scheme: Scheme::Modified,
-            // The small phase is tracked so that phi round-trips bit-exactly through
-            // `phi()` / `set_phi()` (snapshots).
-            phase: Phase::Small,
+            // Either phase: snapshots store the tracked fraction itself (`set_tracked`), so
+            // both restore bit-exactly.
+            phase: if cfg.track_large {
+                Phase::Large
+            } else {
+                Phase::Small
+            },
             s0: cfg.s0,
             gravity: cfg.gravity,
             direction: DirectionMode::Flow,
@@ -369,8 +394,11 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         }
     }
 
-    /// Bilinear interpolation of the smoothed sensor field onto the estimator cell centres,
-    /// then `prepare` (T from shear, direction from the gradient, stable time step).
+    /// Bilinear interpolation of the smoothed sensor field onto the estimator cell centres
+    /// (`set_velocity` per cell; the coefficients are derived by [`Self::prepare_velocity`]).
+    ///
+    /// The weights of one axis depend only on the cell index along it: the x weights are
+    /// computed once per row segment of at most [`MAP_CHUNK`] cells and reused for every row.
     pub(super) fn map_velocity(&mut self) {
         let ne = [self.cfg.cells[0] as usize, self.cfg.cells[1] as usize];
         let ns = [self.cfg.sensor[0] as usize, self.cfg.sensor[1] as usize];
@@ -378,35 +406,40 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             self.cfg.bc[0][0] == Boundary::Periodic,
             self.cfg.bc[1][0] == Boundary::Periodic,
         ];
-        for iz in 0..ne[1] {
-            let (z0, z1, wz) = axis_weights::<R>(iz, ne[1], ns[1], periodic[1]);
-            for ix in 0..ne[0] {
-                let (x0, x1, wx) = axis_weights::<R>(ix, ne[0], ns[0], periodic[0]);
-                let mut u = [R::ZERO; 2];
-                for (comp, uc) in u.iter_mut().enumerate() {
-                    let v = |x: usize, z: usize| self.vel[2 * (x + ns[0] * z) + comp];
-                    let lo = v(x0, z0) + wx * (v(x1, z0) - v(x0, z0));
-                    let hi = v(x0, z1) + wx * (v(x1, z1) - v(x0, z1));
-                    *uc = lo + wz * (hi - lo);
+        let mut wx = [(0u8, 0u8, R::ZERO); MAP_CHUNK];
+        let mut x_start = 0;
+        while x_start < ne[0] {
+            let len = (ne[0] - x_start).min(MAP_CHUNK);
+            for (k, w) in wx[..len].iter_mut().enumerate() {
+                let (x0, x1, t) = axis_weights::<R>(x_start + k, ne[0], ns[0], periodic[0]);
+                // Sensor sides are at most MAX_SENSOR_SIDE (16): indices fit a u8.
+                *w = (x0 as u8, x1 as u8, t);
+            }
+            for iz in 0..ne[1] {
+                let (z0, z1, wz) = axis_weights::<R>(iz, ne[1], ns[1], periodic[1]);
+                let row0 = &self.vel[2 * ns[0] * z0..2 * ns[0] * (z0 + 1)];
+                let row1 = &self.vel[2 * ns[0] * z1..2 * ns[0] * (z1 + 1)];
+                for (k, &(x0, x1, t)) in wx[..len].iter().enumerate() {
+                    let (x0, x1) = (2 * x0 as usize, 2 * x1 as usize);
+                    let mut u = [R::ZERO; 2];
+                    for (comp, uc) in u.iter_mut().enumerate() {
+                        let lo = row0[x0 + comp] + t * (row0[x1 + comp] - row0[x0 + comp]);
+                        let hi = row1[x0 + comp] + t * (row1[x1 + comp] - row1[x0 + comp]);
+                        *uc = lo + wz * (hi - lo);
+                    }
+                    self.seg.set_velocity(x_start + k + ne[0] * iz, u);
                 }
-                self.seg.set_velocity(ix + ne[0] * iz, u);
             }
+            x_start += len;
         }
-        // `prepare` insists on 0 <= phi <= c. The modified Godunov flux keeps phi in range up
-        // to round-off, but the transport term does not when the measured velocity is not
-        // divergence-free (noise): with c held fixed, a converging measured flow piles phi
-        // above c. Such cells are put back into range and counted; this is the one place the
-        // estimator is not conservative (the change is tiny for a divergence-free flow and of
-        // the order of dt |div u| c per cell otherwise).
-        for i in 0..self.seg.len() {
-            let (phi, c) = (self.seg.phi(i), self.seg.c(i));
-            if phi > c || phi < R::ZERO {
-                self.seg.set_phi(i, phi.min(c).max(R::ZERO));
-                bump(&mut self.counters.phi_clamps);
-            }
-        }
-        // Cannot fail now: c and phi are in range and the velocities finite by validation.
-        let res = self.seg.prepare();
+    }
+
+    /// Re-derives T, the segregation direction and the stable step from the mapped velocity.
+    /// `prepare_velocity` checks only that u is finite (it is: frames are validated), not
+    /// that phi is in [0, c]: the state is never clamped, so the estimator stays exactly
+    /// conservative even when a noisy measured velocity is not divergence-free.
+    fn prepare_velocity(&mut self) {
+        let res = self.seg.prepare_velocity();
         debug_assert!(res.is_ok(), "validated input must prepare: {res:?}");
     }
 
@@ -439,10 +472,27 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
     /// Ends the tick: holds or freezes if no frame was accepted during it, then returns the
     /// estimate and clears the tick's health flags.
     pub fn finish_tick(&mut self) -> Estimate {
+        self.finish_tick_profiled(&mut || 0).0
+    }
+
+    /// [`Self::finish_tick`] that also reads `clock` between its phases (firmware-sim passes
+    /// the instruction counter) and returns the differences. With a constant clock the
+    /// readings compile away.
+    pub fn finish_tick_profiled(
+        &mut self,
+        clock: &mut impl FnMut() -> u64,
+    ) -> (Estimate, TickProfile) {
+        let mut prof = TickProfile::default();
+        let t0 = clock();
         if self.accepted_this_tick {
             // One velocity update per tick however many frames arrived (a burst after a
-            // stall costs one `prepare`, not one per frame), then their total time.
+            // stall costs one mapping, not one per frame), then their total time.
             self.map_velocity();
+            let t1 = clock();
+            self.prepare_velocity();
+            let t2 = clock();
+            prof.map = t1 - t0;
+            prof.prepare = t2 - t1;
             let dt = core::mem::replace(&mut self.pending, R::ZERO);
             if dt > R::ZERO {
                 self.advance(dt);
@@ -459,12 +509,18 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
                 bump(&mut self.counters.frozen_ticks);
             }
         }
-        let e = self.estimate();
+        let t3 = clock();
+        prof.substeps = t3 - t0 - prof.map - prof.prepare;
+        let (e, excursions) = self.readout();
+        if excursions > 0 {
+            self.counters.phi_excursions = self.counters.phi_excursions.wrapping_add(excursions);
+        }
+        prof.estimate = clock() - t3;
         self.flags = 0;
         self.substeps = 0;
         self.accepted_this_tick = false;
         self.tick = self.tick.wrapping_add(1);
-        e
+        (e, prof)
     }
 
     /// One tick with at most one frame (a rejected frame counts as a missing one).
@@ -477,7 +533,45 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
 
     /// The estimate of the current state with the current tick's flags.
     pub fn estimate(&self) -> Estimate {
-        let d = diagnose(&self.seg);
+        self.readout().0
+    }
+
+    /// The estimate and the number of cells whose phi is outside [0, c] (flagged with
+    /// [`health::PHI_EXCURSION`]). One pass over the cells, display-only clamping: phihat is
+    /// clamped into [0, 1] for min, max and psi, region means are clamped into [0, 1]; the
+    /// state is not touched. psi uses [`entropy::entropy_density`] (a table, about 12
+    /// instructions a cell instead of two `ln`), within 4e-4 of `diagnose`'s psi.
+    fn readout(&self) -> (Estimate, u32) {
+        let g = &self.seg;
+        let n = g.len();
+        let vacuum = g.config().vacuum;
+        let (mut mass_small, mut mass_total, mut ent) = (R::ZERO, R::ZERO, R::ZERO);
+        let (mut lo, mut hi) = (R::ONE, R::ZERO);
+        let mut excursions = 0u32;
+        for i in 0..n {
+            let (phi, c) = (g.phi(i), g.c(i));
+            mass_small += phi;
+            mass_total += c;
+            if phi < R::ZERO || phi > c {
+                excursions += 1;
+            }
+            if c > vacuum {
+                let ph = (phi / c).max(R::ZERO).min(R::ONE);
+                lo = lo.min(ph);
+                hi = hi.max(ph);
+                ent += entropy::entropy_density(ph) * c;
+            }
+        }
+        let mixed = if mass_total > R::ZERO {
+            diagnostics::mixing_entropy_density(mass_small / mass_total) * mass_total
+        } else {
+            R::ZERO
+        };
+        let psi = if mixed > R::ZERO {
+            ent / mixed
+        } else {
+            R::ZERO
+        };
         let cfg = &self.cfg;
         let nx = cfg.cells[0] as usize;
         let mut regions = heapless::Vec::new();
@@ -486,16 +580,20 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             for iz in r.lo[1] as usize..r.hi[1] as usize {
                 for ix in r.lo[0] as usize..r.hi[0] as usize {
                     let i = ix + nx * iz;
-                    sp += self.seg.phi(i);
-                    sc += self.seg.c(i);
+                    sp += g.phi(i);
+                    sc += g.c(i);
                 }
             }
-            let mean = if sc > R::ZERO { sp / sc } else { R::ZERO };
+            let mean = if sc > R::ZERO {
+                (sp / sc).max(R::ZERO).min(R::ONE)
+            } else {
+                R::ZERO
+            };
             // Cannot overflow: the configuration holds at most as many regions.
             let _ = regions.push(mean.to_f64() as f32);
         }
         let mut alarms = 0;
-        if d.psi < cfg.psi_alarm {
+        if psi < cfg.psi_alarm {
             alarms |= alarm::PSI_LOW;
         }
         if let Some(&fines) = cfg.outlet.and_then(|o| regions.get(o as usize)) {
@@ -510,20 +608,24 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         if !self.have_velocity {
             h |= health::NO_INPUT;
         }
+        if excursions > 0 {
+            h |= health::PHI_EXCURSION;
+        }
         let f = |x: R| x.to_f64() as f32;
-        Estimate {
+        let e = Estimate {
             seq: self.last_seq,
             tick: self.tick,
-            time: f(self.seg.time()),
-            psi: f(d.psi),
-            phihat_min: f(d.phihat_min),
-            phihat_max: f(d.phihat_max),
+            time: f(g.time()),
+            psi: f(psi),
+            phihat_min: f(lo),
+            phihat_max: f(hi),
             regions,
             alarms,
             health: h,
             substeps: self.substeps,
             lag: f(self.lag),
-        }
+        };
+        (e, excursions)
     }
 
     /// Hash of the whole estimator state: the core state hash (time, phi, c, T, u) then the

@@ -11,8 +11,9 @@
 //!
 //! ```text
 //! UART bytes -> FrameDecoder (COBS, CRC-32, postcard)  -> VelocityFrame
-//!            -> SoftSensor::submit (validate, median outlier clean-up, EMA smoothing,
-//!               bilinear map onto the estimator grid, prepare, budgeted substeps)
+//!            -> SoftSensor::submit (validate, median outlier clean-up, EMA smoothing)
+//!            -> SoftSensor::finish_tick (bilinear map onto the estimator grid,
+//!               prepare_velocity, budgeted substeps)
 //!            -> SoftSensor::estimate -> Estimate (psi, region means, alarms, health)
 //! ```
 //!
@@ -20,6 +21,7 @@
 //! at most [`MAX_SENSOR_POINTS`] points. Nothing allocates, nothing panics on input bytes.
 
 pub mod config;
+pub mod entropy;
 pub mod estimator;
 pub mod feeder;
 pub mod frame;
@@ -27,7 +29,7 @@ pub mod recording;
 pub mod snapshot;
 
 pub use config::{ConfigError, Region, SensorConfig};
-pub use estimator::{Counters, SoftSensor};
+pub use estimator::{Counters, SoftSensor, TickProfile};
 pub use frame::{Estimate, FrameDecoder, Reject, VelocityFrame, WireCounters};
 
 /// Re-exported so users of the wire types (the host CLI) need no direct dependency.
@@ -62,6 +64,11 @@ pub mod health {
     pub const OUTLIERS_REPLACED: u8 = 16;
     /// No valid frame has ever arrived: the estimate is the initial state.
     pub const NO_INPUT: u8 = 32;
+    /// phi is outside [0, c] in some cell (round-off, or a measured velocity that is not
+    /// divergence-free compressing phi above c). The state is kept as it is, so mass stays
+    /// exactly conservative; the readouts clamp phihat into [0, 1]. Cells are counted in
+    /// `Counters::phi_excursions`.
+    pub const PHI_EXCURSION: u8 = 64;
 }
 
 /// Alarm flags of an [`Estimate`] (bit set in `Estimate::alarms`).
@@ -83,6 +90,8 @@ pub trait SensorReal: Real + Serialize + DeserializeOwned {
     fn from_u32(n: u32) -> Self;
     /// `x` correctly rounded (the same value as `from_f64(x as f64)`).
     fn from_f32(x: f32) -> Self;
+    /// `self` truncated towards zero to an integer, saturating (`as u32`; NaN gives 0).
+    fn trunc_u32(self) -> u32;
 }
 impl SensorReal for f32 {
     #[inline(always)]
@@ -93,6 +102,10 @@ impl SensorReal for f32 {
     fn from_f32(x: f32) -> Self {
         x
     }
+    #[inline(always)]
+    fn trunc_u32(self) -> u32 {
+        self as u32
+    }
 }
 impl SensorReal for f64 {
     #[inline(always)]
@@ -102,6 +115,10 @@ impl SensorReal for f64 {
     #[inline(always)]
     fn from_f32(x: f32) -> Self {
         x as f64
+    }
+    #[inline(always)]
+    fn trunc_u32(self) -> u32 {
+        self as u32
     }
 }
 

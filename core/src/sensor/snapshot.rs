@@ -1,13 +1,16 @@
 //! Snapshots: the estimator state as postcard items plus a CRC-32, restored bit-identically.
 //!
-//! Layout: `postcard(SnapshotHeader)`, then `cells` values of phi and `2 * sensor points`
+//! Layout: `postcard(SnapshotHeader)`, then `cells` values of the tracked phase fraction `q`
+//! (phi for `Phase::Small`, c - phi for `Phase::Large`: the solver's own state, written and
+//! restored with `set_tracked`, so either phase round-trips bit-exactly) and `2 * sensor points`
 //! values of the smoothed sensor velocity (each a postcard `R`: fixed-width IEEE bits), then
 //! the CRC-32 of everything before it (4 bytes little endian). Items are written and read one
 //! by one, so no buffer of the size of the state is needed besides the output itself.
 //!
 //! Derived quantities (u on the estimator grid, T, the segregation coefficients) are not
-//! stored: restore maps the stored sensor field again and calls `prepare`, which computes
-//! them with the same operations in the same order, so they come out bit-identical.
+//! stored: restore maps the stored sensor field again and calls `prepare_velocity`, which
+//! computes them with the same operations in the same order, so they come out bit-identical.
+//! Nothing is clamped: q is restored as stored.
 
 use super::estimator::{Counters, SoftSensor};
 use super::{crc32, SensorReal, MAX_FRAME_VALUES};
@@ -16,7 +19,13 @@ use postcard::ser_flavors::Flavor;
 use serde::{Deserialize, Serialize};
 
 /// Snapshot format version.
-pub const SNAPSHOT_VERSION: u16 = 1;
+pub const SNAPSHOT_VERSION: u16 = 2;
+
+/// How far outside [0, c] a stored tracked fraction may be. The estimator never clamps, so
+/// phi may leave [0, c] by round-off and by the compression of a noisy measured velocity (of
+/// the order of 1e-4 in the shear cell at 10 % noise); anything beyond this is not a state it
+/// produces, and is refused.
+pub const SNAPSHOT_PHI_SLACK: f64 = 0.05;
 
 /// Upper bound of a snapshot's size for capacity `N` (f64 values, generous header).
 pub const fn snapshot_capacity(n: usize) -> usize {
@@ -55,7 +64,8 @@ pub enum SnapshotError {
     Version,
     /// Taken with another configuration (or c field).
     Config,
-    /// A value is non-finite or phi is outside [0, c].
+    /// A value is non-finite, or the tracked fraction is far outside [0, c] (see
+    /// [`SNAPSHOT_PHI_SLACK`]).
     Value,
 }
 
@@ -117,7 +127,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         };
         put(out, &mut at, &self.header())?;
         for i in 0..self.seg.len() {
-            put(out, &mut at, &self.seg.phi(i))?;
+            put(out, &mut at, &self.seg.tracked_fraction(i))?;
         }
         for v in &self.vel[..2 * self.cfg.sensor_points()] {
             put(out, &mut at, v)?;
@@ -158,16 +168,14 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         if !h.time.is_finite() || !h.lag.is_finite() {
             return Err(SnapshotError::Value);
         }
-        // Pass 1: validate every value without writing. phi may exceed [0, c] by what the
-        // last steps left there (clamped only when the next frame arrives), so a small
-        // tolerance applies; anything beyond is not a state this estimator produces.
-        let tol = R::from_f64(1e-3);
+        // Pass 1: validate every value without writing.
+        let tol = R::from_f64(SNAPSHOT_PHI_SLACK);
         let mut r = rest;
         for i in 0..n + nv {
             let (v, next): (R, _) =
                 postcard::take_from_bytes(r).map_err(|_| SnapshotError::Decode)?;
-            let bad_phi = i < n && (v < -tol || v > self.seg.c(i) + tol);
-            if !v.is_finite() || bad_phi {
+            let bad_q = i < n && (v < -tol || v > self.seg.c(i) + tol);
+            if !v.is_finite() || bad_q {
                 return Err(SnapshotError::Value);
             }
             r = next;
@@ -175,18 +183,14 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         if !r.is_empty() {
             return Err(SnapshotError::Decode);
         }
-        // Pass 2: write (cannot fail any more).
-        let write_phi = |s: &mut Self| {
-            let mut r = rest;
-            for i in 0..n {
-                if let Ok((v, next)) = postcard::take_from_bytes::<R>(r) {
-                    s.seg.set_phi(i, v);
-                    r = next;
-                }
+        // Pass 2: write (cannot fail any more): the tracked fractions exactly as stored.
+        let mut r = rest;
+        for i in 0..n {
+            if let Ok((v, next)) = postcard::take_from_bytes::<R>(r) {
+                self.seg.set_tracked(i, v);
+                r = next;
             }
-            r
-        };
-        let mut r = write_phi(self);
+        }
         for k in 0..nv {
             if let Ok((v, next)) = postcard::take_from_bytes::<R>(r) {
                 self.vel[k] = v;
@@ -199,21 +203,16 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.stale = h.stale;
         self.lag = h.lag;
         self.tick = h.tick;
-        // Derive u, T and the coefficients again (`prepare` wants phi in range, so this may
-        // clamp), then put the exact stored phi back: `set_phi` leaves the derived
-        // coefficients alone, which depend on u and c only.
+        // Derive u, T and the coefficients again; they depend on u and c only, not on q.
         if self.have_velocity {
             self.map_velocity();
         } else {
             for i in 0..n {
                 self.seg.set_velocity(i, [R::ZERO; 2]);
-                let phi = self.seg.phi(i).max(R::ZERO).min(self.seg.c(i));
-                self.seg.set_phi(i, phi);
             }
-            let ok = self.seg.prepare().is_ok();
-            debug_assert!(ok, "validated state must prepare");
         }
-        write_phi(self);
+        let ok = self.seg.prepare_velocity().is_ok();
+        debug_assert!(ok, "validated velocities must prepare");
         self.counters = h.counters;
         self.seg.set_clock(h.time, h.steps);
         Ok(())

@@ -194,6 +194,7 @@ impl Scene {
             // noise in u_z advects phi directly and noise in the gradient inflates T.
             smoothing: if noise > 0.0 { 0.02 } else { 1.0 },
             spatial_passes: if noise > 0.0 { 2 } else { 0 },
+            track_large: false,
             regions: Default::default(),
             outlet,
             psi_alarm: 0.3,
