@@ -199,8 +199,26 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
         held.saturating_sub(est) / (cells * sub),
         e0.psi
     );
+    // Cost of one f32 square root through core's `Real::sqrt` (libm; prepare_velocity calls
+    // it about five times per cell).
+    let mut acc = 0.0f32;
+    let t0 = p.instructions();
+    for k in 0..SQRT_PROBE {
+        acc += <f32 as sieve_core::Real>::sqrt(core::hint::black_box(1.0 + k as f32 * 0.37));
+    }
+    let t1 = p.instructions();
+    out!(
+        p,
+        "budget sqrtf_instr={} (mean of {} calls, sum {})",
+        (t1 - t0) / SQRT_PROBE as u64,
+        SQRT_PROBE,
+        acc
+    );
     true
 }
+
+/// Calls in the square-root probe.
+const SQRT_PROBE: u32 = 1024;
 
 fn print_estimate(p: &mut impl Platform, label: &str, e: &Estimate, instr: u64) {
     let mut body = [0u8; ESTIMATE_BODY];
