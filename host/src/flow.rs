@@ -411,6 +411,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
         on_output(k, t, cpl.seg, cpl.flow)?;
     }
     stats.segregation_time = timer.time();
+    stats.record_bounds(cpl.seg);
     let clipped = cpl.clipped_mass().to_f64();
     let summary = summary_of(cpl.flow, fm, flow_seconds, None, clipped);
     Ok(CoupledStats { stats, summary })

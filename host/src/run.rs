@@ -215,22 +215,33 @@ pub struct LoopStats {
     pub segregation_time: Option<f64>,
     /// The stable time step of the prepared state.
     pub dt: f64,
+    /// The solver's running bound violations `(max(phi - c), max(-phi))` over every cell after
+    /// every step ([`sieve_core::Segregation::bound_violations`]), not only at output times.
+    pub every_step: (f64, f64),
 }
 
 impl LoopStats {
-    /// Largest overshoot over all output times.
+    /// Largest overshoot over all cells, steps and output times.
     pub fn overshoot_max(&self) -> f64 {
         self.series
             .iter()
             .map(|r| r.overshoot_max)
-            .fold(0.0, f64::max)
+            .fold(self.every_step.0, f64::max)
     }
-    /// Largest undershoot over all output times.
+    /// Largest undershoot over all cells, steps and output times.
     pub fn undershoot_max(&self) -> f64 {
         self.series
             .iter()
             .map(|r| r.undershoot_max)
-            .fold(0.0, f64::max)
+            .fold(self.every_step.1, f64::max)
+    }
+    /// Records the solver's running bound violations at the end of a loop.
+    pub fn record_bounds<R: Real, const D: usize, const N: usize>(
+        &mut self,
+        s: &Segregation<R, D, N>,
+    ) {
+        let (above, below) = s.bound_violations();
+        self.every_step = (above.to_f64().max(0.0), below.to_f64().max(0.0));
     }
 }
 
@@ -318,6 +329,7 @@ pub fn time_loop<R: Real, const D: usize, const N: usize>(
         on_output(k, t, s)?;
     }
     stats.segregation_time = timer.time();
+    stats.record_bounds(s);
     Ok(stats)
 }
 
