@@ -1,4 +1,5 @@
-//! Matrix-free Jacobi-preconditioned conjugate gradients for the implicit stages of the flow.
+//! Matrix-free conjugate gradients for the implicit stages of the flow, preconditioned by
+//! exact solves along the grid lines of the last (vertical) axis.
 //!
 //! The operator is `A x = diag x + sum_faces k_f (x_L - x_R)` (added to the left cell,
 //! subtracted from the right one): a weighted graph Laplacian of the grid plus a positive
@@ -6,6 +7,18 @@
 //! Boundary conditions enter through `diag` and the right-hand side (Dirichlet) or not at all
 //! (zero flux); periodic faces are the wrap-around faces, stored at the last cell of a line.
 //! Sums run in cell order: the result is deterministic.
+//!
+//! # Why a line preconditioner
+//! The stiffness of these systems is vertical: the yield viscosity of a cold bed grows with
+//! the lithostatic pressure, and the layers of a sheared bed couple through it. With a Jacobi
+//! (diagonal) preconditioner the spin-up of the 7.4 shear cell took ~160 CG iterations per
+//! system (2.5 million in all on 4 x 80 cells, half the run time). Block Jacobi with one block
+//! per vertical grid line (the tridiagonal part of A along the last axis plus A's full
+//! diagonal, factored once per solve by the Thomas algorithm) is exact in 1D and takes the
+//! vertical coupling out of the iteration; what remains is the horizontal coupling. The
+//! factor stays symmetric positive definite (each row is diagonally dominant with a positive
+//! mass term), so CG applies unchanged. Rows of a line are processed together across the
+//! other axes, so both sweeps vectorise.
 
 use crate::grid::Grid;
 use crate::real::Real;
@@ -72,29 +85,79 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
         }
     }
 
-    /// `pre = 1 / (diag + sum of the adjacent face coefficients)`: the inverse of A's diagonal.
-    pub fn jacobi(&self, diag: &[R], pre: &mut [R]) {
+    /// `m = diag + sum of the adjacent face coefficients`: A's diagonal.
+    fn diagonal(&self, diag: &[R], m: &mut [R]) {
         let n = self.grid.len();
-        pre[..n].copy_from_slice(&diag[..n]);
+        m[..n].copy_from_slice(&diag[..n]);
         for a in 0..D {
             let fb = self.grid.face_blocks(a);
             let s = fb.stride;
             for b in 0..fb.blocks {
                 let l0 = b * fb.block_stride;
                 for j in l0..l0 + fb.block_len {
-                    pre[j] += self.kf[a][j];
-                    pre[j + s] += self.kf[a][j];
+                    m[j] += self.kf[a][j];
+                    m[j + s] += self.kf[a][j];
                 }
             }
             if self.periodic[a] {
                 self.grid.for_each_boundary_cell(a, true, |last, first| {
-                    pre[last] += self.kf[a][last];
-                    pre[first] += self.kf[a][last];
+                    m[last] += self.kf[a][last];
+                    m[first] += self.kf[a][last];
                 });
             }
         }
-        for p in pre[..n].iter_mut() {
-            *p = R::ONE / *p;
+    }
+
+    /// Factors the line preconditioner `M = L D L^T`: M is A's diagonal plus A's couplings
+    /// along the last axis (without a periodic wrap face), tridiagonal on each vertical line.
+    /// Writes `inv_d = 1 / D` and the multipliers `l` (`l[i] = k / d` of the face below cell
+    /// `i`; 0 on the bottom row).
+    pub fn line_factor(&self, diag: &[R], inv_d: &mut [R], l: &mut [R]) {
+        let n = self.grid.len();
+        let s = self.grid.stride(D - 1);
+        let k = &self.kf[D - 1];
+        let d = &mut inv_d[..n];
+        self.diagonal(diag, d);
+        l[..s].fill(R::ZERO);
+        for row in (s..n).step_by(s) {
+            let (below, here) = d.split_at_mut(row);
+            let (db, dh) = (&below[row - s..], &mut here[..s]);
+            let (lh, kb) = (&mut l[row..row + s], &k[row - s..row]);
+            for j in 0..s {
+                lh[j] = kb[j] / db[j];
+                dh[j] -= kb[j] * lh[j];
+            }
+        }
+        for x in d.iter_mut() {
+            *x = R::ONE / *x;
+        }
+    }
+
+    /// `z = M^-1 r` with the factor of [`Self::line_factor`]: forward and backward sweeps row
+    /// by row.
+    pub fn precondition(&self, inv_d: &[R], l: &[R], r: &[R], z: &mut [R]) {
+        let n = self.grid.len();
+        let s = self.grid.stride(D - 1);
+        let z = &mut z[..n];
+        z[..s].copy_from_slice(&r[..s]);
+        for row in (s..n).step_by(s) {
+            let (below, here) = z.split_at_mut(row);
+            let (zb, zh) = (&below[row - s..], &mut here[..s]);
+            let (rh, lh) = (&r[row..row + s], &l[row..row + s]);
+            for j in 0..s {
+                zh[j] = rh[j] + lh[j] * zb[j];
+            }
+        }
+        for (x, w) in z.iter_mut().zip(&inv_d[..n]) {
+            *x *= *w;
+        }
+        for row in (s..n).step_by(s).rev() {
+            let (below, here) = z.split_at_mut(row);
+            let (zb, zh) = (&mut below[row - s..], &here[..s]);
+            let lh = &l[row..row + s];
+            for j in 0..s {
+                zb[j] += lh[j] * zh[j];
+            }
         }
     }
 }
@@ -107,8 +170,10 @@ pub struct Scratch<'a, R> {
     pub p: &'a mut [R],
     /// A p
     pub ap: &'a mut [R],
-    /// inverse diagonal
+    /// inverse pivots of the line preconditioner
     pub pre: &'a mut [R],
+    /// multipliers of the line preconditioner
+    pub line: &'a mut [R],
 }
 
 /// Stopping rule of one solve: `|r| <= relative max(|b|, floor)` or `max_iterations`.
@@ -139,7 +204,7 @@ fn dot<R: Real>(a: &[R], b: &[R]) -> R {
     s
 }
 
-/// Solves `A x = b` by Jacobi-preconditioned CG from the initial guess in `x`, until
+/// Solves `A x = b` by line-preconditioned CG from the initial guess in `x`, until
 /// `|r| <= relative max(|b|, floor)` or `max_iterations` ([`Stop`]). `floor` is an absolute scale of the
 /// right-hand side (e.g. `|diag| u_ref`): without it a component that is ~0 everywhere (the
 /// vertical velocity of a shear flow) would be solved to a relative accuracy it does not need.
@@ -155,13 +220,14 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
     let (tol, floor, max_iter) = (stop.relative, stop.floor, stop.max_iterations);
     let n = st.grid.len();
     let (b, x) = (&b[..n], &mut x[..n]);
-    let (r, p, ap, pre) = (
+    let (r, p, ap, pre, line) = (
         &mut sc.r[..n],
         &mut sc.p[..n],
         &mut sc.ap[..n],
         &mut sc.pre[..n],
+        &mut sc.line[..n],
     );
-    st.jacobi(diag, pre);
+    st.line_factor(diag, pre, line);
     st.apply(diag, x, ap);
     for i in 0..n {
         r[i] = b[i] - ap[i];
@@ -182,11 +248,8 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
             relative_residual: rr.sqrt() / bnorm,
         };
     }
-    let mut rz = R::ZERO;
-    for i in 0..n {
-        p[i] = pre[i] * r[i];
-        rz += r[i] * p[i];
-    }
+    st.precondition(pre, line, r, p);
+    let mut rz = dot(r, p);
     let mut it = 0;
     while it < max_iter {
         it += 1;
@@ -205,14 +268,13 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
         if rr.sqrt() <= target {
             break;
         }
-        let mut rz_new = R::ZERO;
-        for i in 0..n {
-            rz_new += r[i] * r[i] * pre[i];
-        }
+        // z = M^-1 r into `ap` (free until the next product)
+        st.precondition(pre, line, r, ap);
+        let rz_new = dot(r, ap);
         let beta = rz_new / rz;
         rz = rz_new;
         for i in 0..n {
-            p[i] = pre[i] * r[i] + beta * p[i];
+            p[i] = ap[i] + beta * p[i];
         }
     }
     Solve {

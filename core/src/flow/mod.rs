@@ -25,7 +25,8 @@
 //!    `eta` lagged (evaluated at the new `c` and old `T`); walls: normal component 0,
 //!    tangential no-slip / slip / partial slip by the wall friction angle (model.md 2, branch
 //!    chosen on the velocity at the start of the step), moving walls, inflow Dirichlet, outflow
-//!    zero gradient. Jacobi-preconditioned conjugate gradients, matrix-free ([`cg`]).
+//!    zero gradient. Conjugate gradients, matrix-free, preconditioned by exact solves along the
+//!    vertical grid lines ([`cg`]).
 //! 4. **Temperature** (implicit): `(c/dt + eps c) T - a div(lambda grad T) = (c T)^*/dt + a H`
 //!    with the discrete viscous heating `H` of the velocity just solved (the dissipation of the
 //!    discrete viscous operator, face by face) and lagged `lambda`, `eps`. The matrix is an
@@ -269,6 +270,7 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     pv: [R; N],
     ap: [R; N],
     pre: [R; N],
+    line: [R; N],
     prepared: bool,
     time: R,
     steps: u64,
@@ -327,6 +329,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             pv: z,
             ap: z,
             pre: z,
+            line: z,
             prepared: false,
             time: R::ZERO,
             steps: 0,

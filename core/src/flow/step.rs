@@ -508,6 +508,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     p: &mut self.pv,
                     ap: &mut self.ap,
                     pre: &mut self.pre,
+                    line: &mut self.line,
                 },
                 Stop {
                     relative: self.cfg.cg_tolerance,
@@ -633,6 +634,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 p: &mut self.pv,
                 ap: &mut self.ap,
                 pre: &mut self.pre,
+                line: &mut self.line,
             },
             Stop {
                 relative: self.cfg.cg_tolerance,
