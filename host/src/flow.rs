@@ -111,6 +111,8 @@ fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<
     cfg.gravity = core::array::from_fn(|a| R::from_f64(scene.gravity[a]));
     cfg.courant = R::from_f64(fm.courant);
     cfg.t_min = R::from_f64(fm.t_min);
+    // Only faded faces (next to a nearly empty cell) feel it: no effect on a filled box.
+    cfg.free_surface_push = true;
     cfg
 }
 

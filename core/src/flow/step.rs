@@ -312,8 +312,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if !with_direct_gravity {
             g = [R::ZERO; D];
         }
+        let h = self.grid.spacing();
         for a in 0..D {
             self.kf[a][..n].fill(R::ZERO);
+            // Free-surface push per unit (1 - w) (0 for the compact parts only).
+            let open = if with_direct_gravity && self.cfg.free_surface_push {
+                R::ONE / h[a]
+            } else {
+                R::ZERO
+            };
             let fb = grid.face_blocks(a);
             let s = fb.stride;
             for b in 0..fb.blocks {
@@ -322,8 +329,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     let r = l + s;
                     let (f, w) = self.face_force(a, self.c[l], self.p[l], self.c[r], self.p[r]);
                     let rest = R::HALF * (R::ONE - w) * g[a];
-                    self.kf[a][l] += R::HALF * f + rest * self.c[l];
-                    self.kf[a][r] += R::HALF * f + rest * self.c[r];
+                    let push = (R::ONE - w) * open;
+                    self.kf[a][l] += R::HALF * f + rest * self.c[l] + push * self.p[l];
+                    self.kf[a][r] += R::HALF * f + rest * self.c[r] - push * self.p[r];
                 }
             }
             for (high, side) in [(false, self.bc[a][0]), (true, self.bc[a][1])] {
@@ -335,7 +343,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     let rest = R::HALF * (R::ONE - w) * g[a];
                     self.kf[a][i] += R::HALF * f + rest * self.c[i];
                     if side.kind == Boundary::Periodic {
-                        self.kf[a][other] += R::HALF * f + rest * self.c[other];
+                        // the wrap face is an interior face: `i` is its high-side (last) cell
+                        let push = (R::ONE - w) * open;
+                        self.kf[a][i] += push * self.p[i];
+                        self.kf[a][other] +=
+                            R::HALF * f + rest * self.c[other] - push * self.p[other];
                     }
                 });
             }
@@ -349,6 +361,69 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         for a in 0..D {
             for i in 0..n {
                 self.m[a][i] += dt * self.kf[a][i];
+            }
+        }
+        self.wall_contact();
+    }
+
+    /// Unilateral wall contact of loose cells, with Coulomb friction: a wall cell with
+    /// `c <= c_rlp` loses the normal momentum `J` that points into the wall (a perfectly
+    /// inelastic contact), and its tangential momentum relative to the wall loses up to
+    /// `tan(phi_w) J` (all of it at a no-slip wall, none at a slip wall).
+    ///
+    /// Why: the hydrostatic ghost of a wall face assumes that the cell's own pressure carries
+    /// the weight the wall does not. A loose cell (no yield pressure; cold, so `p ~ 0`) with a
+    /// free surface above cannot build that pressure, because it cannot compact without
+    /// inflow: the unbalanced half weight of its faded upper face would accelerate it into the
+    /// wall without bound (no mass moves, the wall flux is 0), and the spurious normal shear
+    /// at the wall would heat it forever. Grains that reach a wall stop there; the wall
+    /// supplies whatever normal reaction that takes (it can push, never pull). For the same
+    /// reason such a cell has no pressure for the friction law of the viscous stage
+    /// (`min(p tan(phi_w), W)` with `p ~ 0`, `W ~ eta ~ sqrt(T)`), so a thin loose sheet on a
+    /// floor would slide on for ever; the contact reaction is its normal load, and Coulomb
+    /// friction on it stops the sheet at the wall friction angle. Dense cells (`c > c_rlp`)
+    /// compact and carry their weight by pressure, and their wall friction is unchanged.
+    fn wall_contact(&mut self) {
+        let grid = self.grid;
+        for a in 0..D {
+            for (high, side) in [(false, self.bc[a][0]), (true, self.bc[a][1])] {
+                if side.kind != Boundary::Wall {
+                    continue;
+                }
+                grid.for_each_boundary_cell(a, high, |i, _| {
+                    let m = self.m[a][i];
+                    let into = (high && m > R::ZERO) || (!high && m < R::ZERO);
+                    // the inner neighbour (none on a one-cell line)
+                    let inner = if grid.cells()[a] < 2 {
+                        R::ZERO
+                    } else if high {
+                        self.c[i - grid.stride(a)]
+                    } else {
+                        self.c[i + grid.stride(a)]
+                    };
+                    let stuck = self.c[i] <= self.c_rlp[i] || inner < self.cfg.surface;
+                    if !(into && stuck) {
+                        return;
+                    }
+                    let impulse = m.abs();
+                    self.m[a][i] = R::ZERO;
+                    for b in 0..D {
+                        if b == a {
+                            continue;
+                        }
+                        let rel = self.m[b][i] - self.c[i] * side.velocity[b];
+                        let cut = match side.slip {
+                            Slip::NoSlip => rel.abs(),
+                            Slip::Slip => R::ZERO,
+                            Slip::Friction(tan) => (tan * impulse).min(rel.abs()),
+                        };
+                        if rel > R::ZERO {
+                            self.m[b][i] -= cut;
+                        } else {
+                            self.m[b][i] += cut;
+                        }
+                    }
+                });
             }
         }
     }

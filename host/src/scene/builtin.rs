@@ -31,6 +31,7 @@ builtins!(
     "shear-cell-mixed",
     "shear-cell-inverse",
     "shear-cell",
+    "column-collapse",
 );
 
 /// The scene `sieve run` runs without a SCENE argument: 2D, segregates visibly (mixes, then
