@@ -46,8 +46,8 @@ sensor grid plus noise; the sensor configuration (extent, boundaries, c, S0/eta0
 gravity, inflow phihat) comes from the scene, with notes on stderr where it departs from it. \
 Default period: 2 stable estimator substeps; default frames: cover run.t_end.\n\n\
 Legacy hand-written scenes: idealised-shear-cell (model.md 7.3, firmware-sim's \
-recordings/shear-cell.rec: --rate 100 --frames 100) and gray-thornton-sensor; both 100 Hz, \
-truth 32x32 by default.")]
+recordings/shear-cell.rec: --rate 100 --frames 100) and gray-thornton-sensor; by default 100 Hz, \
+150 and 300 frames, truth 32x32.")]
 pub struct RecordArgs {
     /// Scene: a 2D prescribed or frozen-flow built-in (e.g. shear-cell, shear-cell-mixed,
     /// gray-thornton-shear), a scene TOML file, or idealised-shear-cell / gray-thornton-sensor.
