@@ -37,24 +37,48 @@ pub enum Command {
 
 /// Arguments of `sieve record`.
 #[derive(Debug, Args)]
+#[command(after_help = "\
+SCENE is any 2D scene of the catalogue (see `sieve scenes`) or a scene TOML file whose \
+model.equations is \"prescribed\" or \"frozen-flow\" (\"coupled\" is rejected: its velocity is \
+not a fixed field). The truth is the scene's own run (as `sieve run`; a frozen flow is spun up \
+first) on its grid, sampled at every frame; the frames are its velocity averaged onto the \
+sensor grid plus noise; the sensor configuration (extent, boundaries, c, S0/eta0/eps0/heating, \
+gravity, inflow phihat) comes from the scene, with notes on stderr where it departs from it. \
+Default period: 2 stable estimator substeps; default frames: cover run.t_end.\n\n\
+Legacy hand-written scenes: idealised-shear-cell (model.md 7.3, firmware-sim's \
+recordings/shear-cell.rec: --rate 100 --frames 100) and gray-thornton-sensor; by default 100 Hz, \
+150 and 300 frames, truth 32x32.")]
 pub struct RecordArgs {
-    /// Scene: shear-cell (the idealised shear cell, model.md 7.3) or gray-thornton-shear.
+    /// Scene: a 2D prescribed or frozen-flow built-in (e.g. shear-cell, shear-cell-mixed,
+    /// gray-thornton-shear), a scene TOML file, or idealised-shear-cell / gray-thornton-sensor.
     pub scene: String,
-    /// Sensor (velocity frame) grid NXxNZ, at most 16x16; the estimator grid is 32x32.
+    /// Sensor (velocity frame) grid NXxNZ, 2..=16 points per axis.
     #[arg(long = "sensor-grid", value_name = "NXxNZ", default_value = "8x8")]
     pub sensor_grid: String,
+    /// Estimator grid NXxNZ written into the sensor configuration, at most 1024 cells (the
+    /// firmware's capacity).
+    #[arg(long = "estimator-grid", value_name = "NXxNZ", default_value = "32x32")]
+    pub estimator_grid: String,
+    /// Truth grid NXxNZ [default: the scene's grid.cells; 32x32 for the legacy scenes].
+    #[arg(long = "truth-grid", value_name = "NXxNZ")]
+    pub truth_grid: Option<String>,
     /// Velocity noise: standard deviation relative to the scene's largest speed.
     #[arg(long, value_name = "SIGMA", default_value_t = 0.05)]
     pub noise: f64,
-    /// Frame rate [Hz] [default: the scene's].
+    /// Frame rate [Hz] [default: 2 stable estimator substeps per frame; 100 for the legacy
+    /// scenes].
     #[arg(long, value_name = "HZ")]
     pub rate: Option<f64>,
-    /// Number of frames [default: the scene's].
+    /// Number of frames [default: cover the scene's run.t_end, at most 20000].
     #[arg(long, value_name = "N")]
     pub frames: Option<u32>,
     /// Noise seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Override any scene key in dotted form, e.g. --set 'initial.phi=c/2' (repeatable;
+    /// catalogue scenes only).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     /// Recording file to write.
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
@@ -366,27 +390,59 @@ pub fn execute(cli: Cli) -> Result<()> {
     }
 }
 
-/// `sieve record`: checks the options, records in memory, writes the file atomically.
-fn record(a: &RecordArgs) -> Result<()> {
-    let scene = soft_sensor::Scene::from_name(&a.scene).ok_or_else(|| {
-        Error::at(
-            &a.scene,
-            "SCENE",
-            "unknown recording scene: allowed shear-cell, gray-thornton-shear",
-        )
+/// `NXxNZ` of `flag` with `lo..=hi` cells per axis.
+fn two_axes(flag: &str, value: &str, lo: u64, hi: u64) -> Result<[u64; 2]> {
+    let grid = grid_array(value).map_err(|_| {
+        Error::Input(format!(
+            "{flag} {value}: expected NXxNZ with {lo}..={hi} per axis, e.g. 8x8"
+        ))
     })?;
-    let grid = grid_array(&a.sensor_grid)?;
     let dims: Vec<u64> = grid
         .trim_matches(['[', ']'])
         .split(',')
         .filter_map(|p| p.parse().ok())
         .collect();
-    if dims.len() != 2 || dims.iter().any(|&n| !(2..=16).contains(&n)) {
+    if dims.len() != 2 || dims.iter().any(|&n| !(lo..=hi).contains(&n)) {
         return Err(Error::range(
             "command line",
-            "--sensor-grid",
-            &a.sensor_grid,
-            "NXxNZ with 2..=16 cells per axis",
+            flag,
+            value,
+            &format!("NXxNZ with {lo}..={hi} per axis"),
+        ));
+    }
+    Ok([dims[0], dims[1]])
+}
+
+/// The scenes `sieve record` accepts by name: 2D prescribed and frozen-flow built-ins, then
+/// the legacy recorder scenes.
+pub fn record_scene_names() -> Vec<String> {
+    let mut names: Vec<String> = builtin::BUILTINS
+        .iter()
+        .filter(|b| {
+            scene::parse_table(b.name, b.toml)
+                .and_then(|t| scene::deserialize(b.name, t))
+                .is_ok_and(|f| f.dim == 2 && f.model.equations != scene::Equations::Coupled)
+        })
+        .map(|b| b.name.to_string())
+        .collect();
+    names.extend(
+        soft_sensor::Scene::ALL
+            .iter()
+            .map(|s| s.cli_name().to_string()),
+    );
+    names
+}
+
+/// `sieve record`: checks the options, records in memory, writes the file atomically.
+fn record(a: &RecordArgs) -> Result<()> {
+    let sensor = two_axes("--sensor-grid", &a.sensor_grid, 2, 16)?;
+    let est = two_axes("--estimator-grid", &a.estimator_grid, 1, 1024)?;
+    if est[0] * est[1] > soft_sensor::ESTIMATOR_CAPACITY as u64 {
+        return Err(Error::range(
+            "command line",
+            "--estimator-grid",
+            &a.estimator_grid,
+            "at most 1024 cells (e.g. 32x32, 64x16): the firmware's capacity",
         ));
     }
     if !(a.noise.is_finite() && (0.0..=1.0).contains(&a.noise)) {
@@ -397,37 +453,148 @@ fn record(a: &RecordArgs) -> Result<()> {
             "0 <= SIGMA <= 1",
         ));
     }
-    let mut opts = soft_sensor::RecordOptions::new(scene);
-    opts.sensor = [dims[0] as u8, dims[1] as u8];
-    opts.noise = a.noise;
-    opts.seed = a.seed;
-    if let Some(hz) = a.rate {
-        if !(hz.is_finite() && hz > 0.0) {
-            return Err(Error::range("command line", "--rate", hz, "HZ > 0"));
+    let period = match a.rate {
+        Some(hz) if !(hz.is_finite() && hz > 0.0) => {
+            return Err(Error::range("command line", "--rate", hz, "HZ > 0"))
         }
-        opts.period = 1.0 / hz;
-    }
+        Some(hz) => Some(1.0 / hz),
+        None => None,
+    };
     if let Some(n) = a.frames {
         if !(1..=100_000).contains(&n) {
             return Err(Error::range("command line", "--frames", n, "1..=100000"));
         }
-        opts.frames = n;
     }
-    let (bytes, report) = soft_sensor::record_to_bytes(&opts).map_err(|e| {
-        Error::at(
-            "command line",
-            "",
-            format!("cannot record {}: {e}", a.scene),
-        )
-    })?;
+    let start = std::time::Instant::now();
+    let sensor = [sensor[0] as u8, sensor[1] as u8];
+    let estimator_cells = [est[0] as u16, est[1] as u16];
+    if let Some(legacy) = soft_sensor::Scene::from_name(&a.scene) {
+        if !a.set.is_empty() {
+            return Err(Error::at(
+                "command line",
+                "--set",
+                format!(
+                    "{} is a legacy recorder scene without a scene file: --set applies to catalogue scenes",
+                    a.scene
+                ),
+            ));
+        }
+        let mut opts = soft_sensor::RecordOptions::new(legacy);
+        opts.sensor = sensor;
+        opts.estimator_cells = estimator_cells;
+        opts.noise = a.noise;
+        opts.seed = a.seed;
+        if let Some(g) = &a.truth_grid {
+            let t = two_axes("--truth-grid", g, 1, 64)?;
+            opts.truth_cells = [t[0] as u16, t[1] as u16];
+            if t[0] * t[1] > soft_sensor::TRUTH_CAPACITY as u64 {
+                return Err(Error::range(
+                    "command line",
+                    "--truth-grid",
+                    g,
+                    "at most 64x64 for the legacy scenes",
+                ));
+            }
+        }
+        if let Some(p) = period {
+            opts.period = p;
+        }
+        if let Some(n) = a.frames {
+            opts.frames = n;
+        }
+        let (bytes, report) = soft_sensor::record_to_bytes(&opts).map_err(|e| {
+            Error::at(
+                "command line",
+                "",
+                format!("cannot record {}: {e}", a.scene),
+            )
+        })?;
+        crate::output::write_file_atomically(&a.out, &bytes)?;
+        println!(
+            "recorded {} frames ({} bytes) of {} to {}; period {} s, truth {}x{}, estimator {}x{}, sensor {}x{}; final truth psi = {:.4}; {:.2} s",
+            report.frames,
+            report.file_bytes,
+            legacy.cli_name(),
+            a.out.display(),
+            opts.period,
+            opts.truth_cells[0],
+            opts.truth_cells[1],
+            opts.estimator_cells[0],
+            opts.estimator_cells[1],
+            sensor[0],
+            sensor[1],
+            report.final_truth_psi,
+            start.elapsed().as_secs_f64()
+        );
+        return Ok(());
+    }
+    // A catalogue scene.
+    if scene::builtin::find(&a.scene).is_none() && !std::path::Path::new(&a.scene).is_file() {
+        return Err(Error::at(
+            &a.scene,
+            "SCENE",
+            format!(
+                "unknown recording scene: not a built-in scene or scene file; allowed: {}, or a 2D scene TOML file",
+                record_scene_names().join(", ")
+            ),
+        ));
+    }
+    let mut sets = a.set.clone();
+    if let Some(g) = &a.truth_grid {
+        let t = two_axes("--truth-grid", g, 1, 65535)?;
+        sets.push(format!("grid.cells=[{},{}]", t[0], t[1]));
+    }
+    // Dimension and model first: a 3D or coupled scene is refused before its fields are built.
+    let dim = scene_dim(&a.scene, &sets)?;
+    if dim != 2 {
+        return Err(Error::range(
+            &scene::locate(&a.scene)?.label,
+            "dim",
+            dim,
+            "2 (the soft sensor estimates a 2D x-z field)",
+        ));
+    }
+    let (sc, fields) = scene::load(&a.scene, &sets)?;
+    let opts = soft_sensor::SceneRecordOptions {
+        estimator_cells,
+        sensor,
+        noise: a.noise,
+        seed: a.seed,
+        period,
+        frames: a.frames,
+        max_substeps: 4,
+    };
+    let (bytes, report) = soft_sensor::record_scene(&sc, &fields, &opts)?;
     crate::output::write_file_atomically(&a.out, &bytes)?;
+    for n in &report.notes {
+        eprintln!("note: {}: {n}", sc.name);
+    }
+    if let Some(f) = &report.flow {
+        println!(
+            "flow ({}): {} flow steps on {:?} cells in {:.3} s (t = {:.4e} s), frozen; max speed {:.4e} m/s, T in [{:.3e}, {:.3e}]",
+            f.equations, f.flow_steps, f.flow_cells, f.flow_seconds, f.flow_time, f.max_speed, f.t_min, f.t_max
+        );
+    }
+    let r = &report.record;
     println!(
-        "recorded {} frames ({} bytes) of {} to {}; final truth psi = {:.4}",
-        report.frames,
-        report.file_bytes,
-        scene.name(),
+        "recorded {} frames ({} bytes) of {} to {}; period {:.4e} s ({:.2} estimator substeps), t = {:.4e} s, truth {}x{}, estimator {}x{}, sensor {}x{}, c = {:.4}, S0 = {:.4e}; final truth psi = {:.4}; {:.2} s",
+        r.frames,
+        r.file_bytes,
+        sc.name,
         a.out.display(),
-        report.final_truth_psi
+        report.period,
+        report.period / report.estimator_dt,
+        report.period * r.frames as f64,
+        report.truth_cells[0],
+        report.truth_cells[1],
+        estimator_cells[0],
+        estimator_cells[1],
+        sensor[0],
+        sensor[1],
+        report.c,
+        report.sensor_s0,
+        r.final_truth_psi,
+        start.elapsed().as_secs_f64()
     );
     Ok(())
 }

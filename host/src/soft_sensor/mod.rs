@@ -1,32 +1,36 @@
 //! Soft-sensor record and replay on the host (issue 4).
 //!
-//! * [`record`] runs a prescribed-flow scene ([`Scene`]) with the core solver as ground truth
-//!   and writes what a velocity sensor would have sent (noisy frames on a coarser grid, the
-//!   exact COBS byte stream the firmware consumes) plus the truth alongside, in the
-//!   versioned recording format of `sieve_core::sensor::recording`.
+//! * [`record_scene`] records a scene of the host's catalogue (any 2D built-in or TOML scene
+//!   whose model is "prescribed" or "frozen-flow", see [`catalogue`]): the scene's own run is
+//!   the truth, its velocity (prescribed or the frozen flow) averaged onto the sensor grid
+//!   plus noise is what the sensor sends, and the sensor configuration (extent, boundaries,
+//!   c, material, gravity, inflow) comes from the scene.
+//! * [`record`] / [`record_to_bytes`] record one of the two legacy hand-written scenes
+//!   ([`Scene`]: `idealised-shear-cell`, the source of firmware-sim's `shear-cell.rec`, and
+//!   `gray-thornton-sensor`).
+//! * Both write what a velocity sensor would have sent (noisy frames on a coarser grid, the
+//!   exact COBS byte stream the firmware consumes) plus the truth alongside, in the versioned
+//!   recording format of `sieve_core::sensor::recording`.
 //! * [`replay`] runs the soft sensor (f32, the firmware's type and loop) over a recording,
 //!   optionally with the firmware's fault injection, and reports the estimate-against-truth
 //!   error over time and the final state hash, which equals firmware-sim's for the same
 //!   recording and faults.
 //!
-//! Wiring into the CLI (not done here: `host/src/lib.rs` and `main.rs` belong to the CLI):
-//! `pub mod soft_sensor;` in `lib.rs`, then
+//! On the command line (`host/src/cli.rs`): `sieve record SCENE [--sensor-grid NXxNZ]
+//! [--noise SIGMA] [--rate HZ] [--frames N] [--seed S] [--estimator-grid NXxNZ]
+//! [--truth-grid NXxNZ] [--set KEY=VALUE]... --out FILE` and `sieve replay FILE [--faults]
+//! [--every N]`, whose last line `final_state_hash=0x...` is the line firmware-sim prints for
+//! the same recording.
 //!
-//! * `sieve record SCENE --sensor-grid NXxNZ --noise SIGMA --rate HZ --out FILE` ->
-//!   `record(&RecordOptions { sensor: [NX, NZ], noise: SIGMA, period: 1.0 / HZ,
-//!   ..RecordOptions::new(Scene::from_name(SCENE)?) }, FILE)` (SCENE: `shear-cell` or
-//!   `gray-thornton-shear`; SIGMA relative to the scene's largest speed, e.g. 0.05);
-//! * `sieve replay FILE [--faults]` -> `replay(FILE, &ReplayOptions { faults })` with
-//!   `faults = Faults::DEMO` (firmware-sim's faulted pass) or `Faults::NONE`, then
-//!   `print_report(&report, 10, &mut std::io::stdout())`; its last line
-//!   `final_state_hash=0x...` is the line firmware-sim prints for the same recording.
-//!
-//! Errors are plain `String`s (`Result<_, String>`), ready to wrap in the CLI's error type.
+//! The legacy functions return plain `String` errors; [`record_scene`] returns the host's
+//! [`crate::Error`] (input errors name the scene file and key).
 
+pub mod catalogue;
 mod record;
 mod replay;
 mod scene;
 
+pub use catalogue::{record_scene, SceneRecordOptions, SceneRecordReport};
 pub use record::{record, record_to_bytes, RecordOptions, RecordReport};
 pub use replay::{print_report, replay, replay_bytes, ReplayOptions, ReplayReport, ReplayRow};
 pub use scene::{coarsen, Scene, Truth, TRUTH_CAPACITY};

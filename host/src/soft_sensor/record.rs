@@ -1,10 +1,11 @@
 //! Recording: truth simulation + simulated velocity sensor -> recording file.
 
 use super::scene::{coarsen, Scene};
+use sieve_core::diagnose;
 use sieve_core::sensor::frame::{encode, FRAME_WIRE_MAX};
 use sieve_core::sensor::recording::{write_recording, RecordingHeader, TruthRecord};
 use sieve_core::sensor::{VelocityFrame, MAX_SENSOR_POINTS};
-use sieve_core::{diagnose, Real};
+use sieve_core::Real;
 use std::path::Path;
 
 /// What to record.
@@ -92,16 +93,151 @@ impl Noise {
     }
 }
 
-/// Records a scene into bytes (see [`record`]).
+/// Builds a recording frame by frame: the noisy velocity frames (wire bytes) and the truth
+/// records, in the order the legacy recorder has always produced them (frame `k`, then the
+/// truth at the end of period `k`), so the same inputs give the same bytes.
+pub(super) struct Writer {
+    ns: [usize; 2],
+    sensor: [u8; 2],
+    period: f64,
+    sigma: f64,
+    noise: Noise,
+    stream: Vec<u8>,
+    truth_bytes: Vec<u8>,
+    scratch: Vec<u8>,
+    wire: Vec<u8>,
+    frames: u32,
+}
+
+impl Writer {
+    /// A writer for a `sensor` grid, frame `period` [s], noise standard deviation `sigma`
+    /// [m/s] and noise `seed`.
+    pub(super) fn new(sensor: [u8; 2], period: f64, sigma: f64, seed: u64) -> Result<Self, String> {
+        let ns = [sensor[0] as usize, sensor[1] as usize];
+        if ns[0] * ns[1] > MAX_SENSOR_POINTS || ns[0] == 0 || ns[1] == 0 {
+            return Err(format!("sensor grid {ns:?} exceeds 16 x 16"));
+        }
+        if !(period > 0.0 && sigma >= 0.0) {
+            return Err("period must be > 0 and noise >= 0".into());
+        }
+        Ok(Self {
+            ns,
+            sensor,
+            period,
+            sigma,
+            noise: Noise::new(seed),
+            stream: Vec::new(),
+            truth_bytes: Vec::new(),
+            scratch: vec![0u8; FRAME_WIRE_MAX],
+            wire: vec![0u8; FRAME_WIRE_MAX],
+            frames: 0,
+        })
+    }
+
+    /// Frame `k` (1-based): the clean velocity `clean(ix, iz)` at each sensor point (x
+    /// fastest) plus Gaussian noise on each component.
+    pub(super) fn frame(
+        &mut self,
+        k: u32,
+        clean: impl Fn(usize, usize) -> [f64; 2],
+    ) -> Result<(), String> {
+        let mut frame = VelocityFrame {
+            seq: k,
+            time: (k as f64 * self.period) as f32,
+            period: self.period as f32,
+            nx: self.sensor[0],
+            nz: self.sensor[1],
+            u: Default::default(),
+        };
+        for iz in 0..self.ns[1] {
+            for ix in 0..self.ns[0] {
+                for uc in clean(ix, iz) {
+                    let v = (uc + self.sigma * self.noise.gaussian()) as f32;
+                    frame.u.push(v).map_err(|_| "frame capacity")?;
+                }
+            }
+        }
+        let n = encode(&frame, &mut self.scratch, &mut self.wire).map_err(|_| "frame encoding")?;
+        self.stream.extend_from_slice(&self.wire[..n]);
+        self.frames = k;
+        Ok(())
+    }
+
+    /// The truth at the end of period `k`: its time, psi and phihat on the sensor grid.
+    pub(super) fn truth(
+        &mut self,
+        k: u32,
+        time: f64,
+        psi: f64,
+        coarse: &[f64],
+    ) -> Result<(), String> {
+        let mut rec = TruthRecord {
+            seq: k,
+            time: time as f32,
+            psi: psi as f32,
+            phihat: Default::default(),
+        };
+        for &v in coarse {
+            rec.phihat.push(v as f32).map_err(|_| "truth capacity")?;
+        }
+        if !rec.encode_into(|b| self.truth_bytes.extend_from_slice(b)) {
+            return Err("truth encoding".into());
+        }
+        Ok(())
+    }
+
+    /// The recording file bytes and the stream length.
+    pub(super) fn finish(
+        self,
+        config: sieve_core::sensor::SensorConfig<f32>,
+        scene: &str,
+        noise: f64,
+        seed: u64,
+        truth_cells: [u16; 2],
+    ) -> Result<(Vec<u8>, usize), String> {
+        // The header holds 32 bytes of name: longer names are cut at a char boundary.
+        let mut name = sieve_core::sensor::heapless::String::new();
+        for ch in scene.chars() {
+            if name.push(ch).is_err() {
+                break;
+            }
+        }
+        let header = RecordingHeader {
+            config,
+            scene: name,
+            noise: noise as f32,
+            seed,
+            frames: self.frames,
+            truth_cells,
+            truth_coarse: [self.sensor[0] as u16, self.sensor[1] as u16],
+        };
+        let mut out = Vec::new();
+        let mut hscratch = vec![0u8; 4096];
+        write_recording(
+            &header,
+            &self.stream,
+            &self.truth_bytes,
+            &mut hscratch,
+            |b| {
+                out.extend_from_slice(b);
+                Ok::<(), String>(())
+            },
+            "header encoding".to_string(),
+        )?;
+        Ok((out, self.stream.len()))
+    }
+}
+
+/// Records a legacy scene into bytes (see [`record`]).
 pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), String> {
     let scene = opts.scene;
     let ns = [opts.sensor[0] as usize, opts.sensor[1] as usize];
-    if ns[0] * ns[1] > MAX_SENSOR_POINTS || ns[0] == 0 || ns[1] == 0 {
-        return Err(format!("sensor grid {ns:?} exceeds 16 x 16"));
-    }
-    if !(opts.period > 0.0 && opts.noise >= 0.0) {
-        return Err("period must be > 0 and noise >= 0".into());
-    }
+    let mut writer = Writer::new(
+        opts.sensor,
+        opts.period,
+        opts.noise * scene.max_speed(),
+        opts.seed,
+    )?;
     let config = scene.sensor_config(
         opts.estimator_cells,
         opts.sensor,
@@ -115,37 +251,15 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
     let mut truth = scene.truth(opts.truth_cells)?;
     let nf = [opts.truth_cells[0] as usize, opts.truth_cells[1] as usize];
     let e = scene.extent();
-    let sigma = opts.noise * scene.max_speed();
-    let mut noise = Noise::new(opts.seed);
-    let mut stream = Vec::new();
-    let mut truth_bytes = Vec::new();
-    let mut scratch = vec![0u8; FRAME_WIRE_MAX];
-    let mut wire = vec![0u8; FRAME_WIRE_MAX];
     let mut final_psi = 0.0;
     for k in 1..=opts.frames {
         // The sensor measures the flow of period k at its points (cell centres of the sensor
         // grid), with Gaussian noise on each component.
-        let mut frame = VelocityFrame {
-            seq: k,
-            time: (k as f64 * opts.period) as f32,
-            period: opts.period as f32,
-            nx: opts.sensor[0],
-            nz: opts.sensor[1],
-            u: Default::default(),
-        };
-        for iz in 0..ns[1] {
-            for ix in 0..ns[0] {
-                let x = (ix as f64 + 0.5) * e[0] / ns[0] as f64;
-                let z = (iz as f64 + 0.5) * e[1] / ns[1] as f64;
-                let u = scene.velocity(x, z);
-                for uc in u {
-                    let v = (uc + sigma * noise.gaussian()) as f32;
-                    frame.u.push(v).map_err(|_| "frame capacity")?;
-                }
-            }
-        }
-        let n = encode(&frame, &mut scratch, &mut wire).map_err(|_| "frame encoding")?;
-        stream.extend_from_slice(&wire[..n]);
+        writer.frame(k, |ix, iz| {
+            let x = (ix as f64 + 0.5) * e[0] / ns[0] as f64;
+            let z = (iz as f64 + 0.5) * e[1] / ns[1] as f64;
+            scene.velocity(x, z)
+        })?;
         let steps = truth.advance_to(k as f64 * opts.period, 1 << 20);
         if steps >= 1 << 20 {
             return Err("truth did not reach the frame time".into());
@@ -153,46 +267,18 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
         let d = diagnose(&*truth);
         final_psi = d.psi;
         let coarse = coarsen(|i| truth.phi(i) / truth.c(i), nf, ns);
-        let mut rec = TruthRecord {
-            seq: k,
-            time: truth.time() as f32,
-            psi: d.psi as f32,
-            phihat: Default::default(),
-        };
-        for v in coarse {
-            rec.phihat.push(v as f32).map_err(|_| "truth capacity")?;
-        }
-        if !rec.encode_into(|b| truth_bytes.extend_from_slice(b)) {
-            return Err("truth encoding".into());
-        }
+        writer.truth(k, truth.time(), d.psi, &coarse)?;
     }
-    let mut name = sieve_core::sensor::heapless::String::new();
-    let _ = name.push_str(scene.name());
-    let header = RecordingHeader {
+    let (out, stream_bytes) = writer.finish(
         config,
-        scene: name,
-        noise: opts.noise as f32,
-        seed: opts.seed,
-        frames: opts.frames,
-        truth_cells: opts.truth_cells,
-        truth_coarse: [opts.sensor[0] as u16, opts.sensor[1] as u16],
-    };
-    let mut out = Vec::new();
-    let mut hscratch = vec![0u8; 4096];
-    write_recording(
-        &header,
-        &stream,
-        &truth_bytes,
-        &mut hscratch,
-        |b| {
-            out.extend_from_slice(b);
-            Ok::<(), String>(())
-        },
-        "header encoding".to_string(),
+        scene.name(),
+        opts.noise,
+        opts.seed,
+        opts.truth_cells,
     )?;
     let report = RecordReport {
         frames: opts.frames,
-        stream_bytes: stream.len(),
+        stream_bytes,
         file_bytes: out.len(),
         final_truth_psi: final_psi,
     };

@@ -1,5 +1,11 @@
-//! Prescribed-flow scenes for the soft sensor: the ground-truth simulation (the core solver on
-//! the truth grid with the exact velocity) and the sensor configuration that goes with it.
+//! The two legacy recorder scenes: fixed, hand-written prescribed flows with the ground-truth
+//! simulation (the core solver on the truth grid with the exact velocity, T from the shear)
+//! and the sensor configuration that goes with them. They predate the host's scene catalogue
+//! and are kept under names of their own (`idealised-shear-cell`, `gray-thornton-sensor`) so
+//! they cannot be confused with the catalogue's `shear-cell` (the flow shear cell) and
+//! `gray-thornton-shear`; firmware-sim's recording `shear-cell.rec` is the first of them
+//! (its stored scene name stays `shear-cell` so the file is reproduced byte for byte). Every
+//! other scene is recorded by [`super::catalogue`].
 
 use sieve_core::sensor::{Region, SensorConfig};
 use sieve_core::{
@@ -19,7 +25,7 @@ const ETA0: f64 = 1.3e-4;
 const EPS0: f64 = 1477.15;
 const G: f64 = 9.81;
 
-/// The scenes the recorder knows.
+/// The legacy recorder scenes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Scene {
     /// Idealised shear cell (model.md 7.3): 0.025 m box, periodic x, walls in z, c = 0.64,
@@ -32,21 +38,29 @@ pub enum Scene {
 }
 
 impl Scene {
-    /// Name used on the command line and in recordings.
+    /// Both legacy scenes.
+    pub const ALL: [Scene; 2] = [Scene::ShearCell, Scene::GrayThornton];
+
+    /// Name stored in recordings. `shear-cell` for the idealised shear cell: the name
+    /// firmware-sim's committed recording carries (changing it would change those bytes).
     pub fn name(self) -> &'static str {
         match self {
             Scene::ShearCell => "shear-cell",
-            Scene::GrayThornton => "gray-thornton-shear",
+            Scene::GrayThornton => "gray-thornton-sensor",
         }
     }
 
-    /// Parses a scene name (as printed by [`Scene::name`]).
-    pub fn from_name(s: &str) -> Option<Self> {
-        match s {
-            "shear-cell" | "idealised-shear-cell" => Some(Scene::ShearCell),
-            "gray-thornton-shear" | "gray-thornton" => Some(Scene::GrayThornton),
-            _ => None,
+    /// Name on the command line (`sieve record NAME`), distinct from every catalogue scene.
+    pub fn cli_name(self) -> &'static str {
+        match self {
+            Scene::ShearCell => "idealised-shear-cell",
+            Scene::GrayThornton => "gray-thornton-sensor",
         }
+    }
+
+    /// Parses a command-line name (as printed by [`Scene::cli_name`]).
+    pub fn from_name(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|sc| sc.cli_name() == s)
     }
 
     /// Box size (x, z) [m].
