@@ -97,6 +97,7 @@ pub fn segregation_direction<R: Real, const D: usize>(
 /// In 2D `m` is the closed form of [`direction_2d`] with `2 <= m . m <= 4`; in 1D, in 3D and
 /// where the shear vanishes (`fallback`, a unit vector) `m` is a unit vector and `m . m` is
 /// returned as exactly 1, so that dividing by it changes no bit.
+#[inline]
 pub fn segregation_normal<R: Real, const D: usize>(
     g: &[[R; D]; D],
     u: &[R; D],
@@ -162,6 +163,7 @@ pub fn segregation_normal<R: Real, const D: usize>(
 /// needs no `|u|` either: `m1 _|_ m2` gives `|m1.u|^2 + |m2.u|^2 = |m|^2 |u|^2`, so the right
 /// side is `eps |m| |u|` up to a factor in [1, sqrt 2]: the relative round-off level of the
 /// dot products. u = 0 is always a tie, resolved towards `fallback`.
+#[inline]
 fn direction_2d<R: Real>(k: [[R; 2]; 2], u: [R; 2], fallback: [R; 2]) -> Option<[R; 2]> {
     let (a, b, d) = (k[0][0], k[0][1], k[1][1]);
     let half_diff = (a - d) * R::HALF;
