@@ -441,7 +441,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             diffusion_rate += R::TWO * cfg.diffusion / (ha * ha);
         }
         let mut rate = R::ZERO;
-        let fixed_dir = match cfg.direction {
+        // The direction of the Fixed and Gravity modes: the same in every cell, normalised once.
+        let const_dir = match cfg.direction {
             DirectionMode::Fixed(d) => {
                 let dn = norm(&d);
                 let mut out = d;
@@ -484,7 +485,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             // except for the unnormalised 2D normal from the flow (see
             // `direction::segregation_normal`), so the division changes no bit elsewhere.
             let (d, dd) = match cfg.direction {
-                DirectionMode::Fixed(_) | DirectionMode::Gravity => (fixed_dir, R::ONE),
+                DirectionMode::Fixed(_) | DirectionMode::Gravity => (const_dir, R::ONE),
                 DirectionMode::Flow => direction::segregation_normal(&grad, &ui, gravity_dir),
             };
             // S = -S0 sqrt(T) (g . d) d / (d . d)   (model.md 3), signed for the tracked phase.
