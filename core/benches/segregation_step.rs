@@ -6,6 +6,9 @@
 //!   f32 and f64, the three face fluxes;
 //! - `step_2d`: 256 x 256 shear cell (periodic x, walls z, u = (2z - 1, 0), T = 1, c = 0.64), the
 //!   direction from the flow, f32 and f64, the three face fluxes;
+//! - `prepare_2d`: `Segregation::prepare_velocity` on the same 256 x 256 shear cell with the
+//!   soft sensor's configuration (direction from the flow, T from the shear rate), f32 and f64:
+//!   the per-frame cost of deriving T, the segregation direction and the face coefficients;
 //! - `baseline_1d`: the reference, a straight-line loop over plain arrays doing the same
 //!   per-face arithmetic as the 1D modified step (face velocity, upwind transport, modified
 //!   Godunov flux, flux difference) with nothing else: no boundaries, no per-axis dispatch.
@@ -17,6 +20,7 @@ use divan::{black_box, Bencher};
 use sieve_core::segregation::flux;
 use sieve_core::{
     Boundary, DirectionMode, Grid, Phase, Real, Scheme, Segregation, SegregationConfig,
+    TemperatureMode,
 };
 
 #[global_allocator]
@@ -97,6 +101,34 @@ fn step_2d<R: Real>(bencher: Bencher, scheme: Scheme) {
     bencher
         .counter(ItemsCount::new(N2))
         .bench_local(|| s.step(black_box(dt)));
+}
+
+#[divan::bench(types = [f32, f64])]
+fn prepare_2d<R: Real>(bencher: Bencher) {
+    let mut s = boxed::<R, 2, N2>();
+    let grid = Grid::new([SIDE, SIDE], [R::ZERO; 2], [R::ONE; 2], N2).unwrap();
+    let mut cfg = SegregationConfig::new();
+    cfg.direction = DirectionMode::Flow;
+    // Glass beads of model.md 7.4, a = 3/2 (as the soft sensor).
+    cfg.temperature = TemperatureMode::FromShear {
+        heating: R::from_f64(1.5),
+        eta0: R::from_f64(1.3e-4),
+        eps0: R::from_f64(1477.15),
+    };
+    let bc = [[Boundary::Periodic; 2], [Boundary::Wall; 2]];
+    s.setup(grid, bc, cfg).unwrap();
+    let c = R::from_f64(0.64);
+    for i in 0..N2 {
+        let [x, z] = grid.center(i);
+        // A shear cell with a gentle wobble, so that no gradient component is trivially zero.
+        let w = R::from_f64(0.05) * (R::from_f64(std::f64::consts::TAU) * x).sin();
+        let u = [R::TWO * z - R::ONE + w, w * z];
+        s.set_cell(i, c, R::ZERO, u, c * R::HALF);
+    }
+    s.prepare().unwrap();
+    bencher
+        .counter(ItemsCount::new(N2))
+        .bench_local(|| black_box(&mut *s).prepare_velocity().unwrap());
 }
 
 /// Plain arrays of the 1D problem (column b, u = 0, S = 1 up, small phase: k = 1/c).

@@ -4,7 +4,7 @@
 mod common;
 
 use common::{boxed, config};
-use sieve_core::segregation::direction::segregation_direction;
+use sieve_core::segregation::direction::{segregation_direction, segregation_normal};
 use sieve_core::{Boundary, DirectionMode, Grid, Phase, Scheme};
 
 /// |a . b| for unit vectors: 1 when parallel or antiparallel (d_s is defined up to sign).
@@ -239,4 +239,93 @@ fn reversing_the_flow_keeps_the_direction() {
         cols.push((0..17).map(|iz| s.phi(4 * iz)).collect::<Vec<_>>());
     }
     assert_eq!(cols[0], cols[1]);
+}
+
+/// Reference 2D direction: the principal axes of `k = G + G^T` by `atan2` (accurate to
+/// round-off at any angle), the shear-plane normals at `theta +- pi/4`, and the selection rule
+/// of model.md 3 with the tie test of the former closed form (unit normals, `eps |u|`).
+fn direction_2d_reference(g: &[[f64; 2]; 2], u: [f64; 2], fallback: [f64; 2]) -> [f64; 2] {
+    let (a, b, d) = (2.0 * g[0][0], g[0][1] + g[1][0], 2.0 * g[1][1]);
+    let r = (((a - d) * 0.5).powi(2) + b * b).sqrt();
+    if !(r > f64::EPSILON * (a.abs() + b.abs() + d.abs())) || r == 0.0 {
+        return fallback;
+    }
+    let phi = 0.5 * (2.0 * b).atan2(a - d) + std::f64::consts::FRAC_PI_4;
+    let (sin1, cos1) = phi.sin_cos();
+    let (n1, n2) = ([cos1, sin1], [-sin1, cos1]);
+    let dot = |n: [f64; 2], v: [f64; 2]| (n[0] * v[0] + n[1] * v[1]).abs();
+    let speed = (u[0] * u[0] + u[1] * u[1]).sqrt();
+    let (dot1, dot2) = (dot(n1, u), dot(n2, u));
+    if (dot1 - dot2).abs() <= f64::EPSILON * speed {
+        if dot(n2, fallback) > dot(n1, fallback) {
+            n2
+        } else {
+            n1
+        }
+    } else if dot2 < dot1 {
+        n2
+    } else {
+        n1
+    }
+}
+
+/// The solver's unnormalised normal m gives the same `(g . m) m / (m . m)` as the unit
+/// direction `(g . d) d` of the reference, for random gradients and velocities
+/// (shear rates over ten decades, u = 0 ties included), in f64 and f32.
+#[test]
+fn root_free_2d_normal_matches_the_reference() {
+    let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+    let mut rand = move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let grav = [0.3, -0.95];
+    let fallback = [grav[0] / norm(&grav), grav[1] / norm(&grav)];
+    for case in 0..20_000 {
+        let scale = 10f64.powf(5.0 * rand());
+        let g = [
+            [scale * rand(), scale * rand()],
+            [scale * rand(), scale * rand()],
+        ];
+        let u = if case % 10 == 0 {
+            [0.0, 0.0]
+        } else {
+            [rand(), rand()]
+        };
+        let d = direction_2d_reference(&g, u, fallback);
+        let project = |m: [f64; 2], mm: f64| {
+            let gm = grav[0] * m[0] + grav[1] * m[1];
+            [gm * m[0] / mm, gm * m[1] / mm]
+        };
+        let want = project(d, 1.0);
+        let (m, mm) = segregation_normal(&g, &u, fallback);
+        let got = project(m, mm);
+        for a in 0..2 {
+            assert!(
+                (got[a] - want[a]).abs() < 1e-14,
+                "case {case}: g={g:?} u={u:?}: {got:?} vs {want:?}"
+            );
+        }
+        // The public unit direction is the same line.
+        let unit = segregation_direction(&g, &u, fallback);
+        assert!((norm(&unit) - 1.0).abs() < 1e-15);
+        assert!(alignment(&unit, &d) > 1.0 - 1e-14, "case {case}");
+        // f32: the same up to f32 rounding.
+        let g32 = g.map(|row| row.map(|x| x as f32));
+        let u32 = u.map(|x| x as f32);
+        let (m32, mm32) = segregation_normal(&g32, &u32, fallback.map(|x| x as f32));
+        let got32 = project(m32.map(f64::from), f64::from(mm32));
+        let want32 = project(
+            direction_2d_reference(&g32.map(|r| r.map(f64::from)), u32.map(f64::from), fallback),
+            1.0,
+        );
+        for a in 0..2 {
+            assert!(
+                (got32[a] - want32[a]).abs() < 1e-5,
+                "f32 case {case}: g={g32:?} u={u32:?}: {got32:?} vs {want32:?}"
+            );
+        }
+    }
 }

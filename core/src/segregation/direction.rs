@@ -73,16 +73,41 @@ pub fn shear_rate_squared<R: Real, const D: usize>(g: &[[R; D]; D]) -> R {
 /// more nearly orthogonal to `u`. Where the shear vanishes, `fallback` (the gravity direction)
 /// is returned; where both normals are equally orthogonal to `u` (u = 0 in a shear band), the
 /// one closer to `fallback` is taken, so the choice does not depend on the sign of the shear.
+///
+/// This is [`segregation_normal`] normalised; the solver uses that one directly.
 pub fn segregation_direction<R: Real, const D: usize>(
     g: &[[R; D]; D],
     u: &[R; D],
     fallback: [R; D],
 ) -> [R; D] {
+    let (mut m, mm) = segregation_normal(g, u, fallback);
+    if mm != R::ONE {
+        let len = mm.sqrt();
+        m.iter_mut().for_each(|x| *x = *x / len);
+    }
+    m
+}
+
+/// The segregation direction of [`segregation_direction`] as a normal `m` of any length,
+/// with `m . m`: `d_s = +-m / |m|`. `S = -S0 sqrt(T) (g . d_s) d_s` (model.md 3) is even and
+/// of degree 0 in `d_s`, so the solver uses `S = -S0 sqrt(T) (g . m) m / (m . m)` and never
+/// normalises: in 2D that saves the square roots of the normalisation (three of the five per
+/// cell on the soft sensor's Cortex-M4F, where `sqrtf` is a ~66-instruction software routine).
+///
+/// In 2D `m` is the closed form of [`direction_2d`] with `2 <= m . m <= 4`; in 1D, in 3D and
+/// where the shear vanishes (`fallback`, a unit vector) `m` is a unit vector and `m . m` is
+/// returned as exactly 1, so that dividing by it changes no bit.
+#[inline]
+pub fn segregation_normal<R: Real, const D: usize>(
+    g: &[[R; D]; D],
+    u: &[R; D],
+    fallback: [R; D],
+) -> ([R; D], R) {
     match D {
         1 => {
             let mut d = [R::ZERO; D];
             d[0] = R::ONE;
-            d
+            (d, R::ONE)
         }
         2 => {
             let k = [
@@ -90,13 +115,13 @@ pub fn segregation_direction<R: Real, const D: usize>(
                 [g[1][0] + g[0][1], g[1][1] + g[1][1]],
             ];
             match direction_2d(k, [u[0], u[1]], [fallback[0], fallback[1]]) {
-                Some(d) => {
+                Some(m) => {
                     let mut out = [R::ZERO; D];
-                    out[0] = d[0];
-                    out[1] = d[1];
-                    out
+                    out[0] = m[0];
+                    out[1] = m[1];
+                    (out, m[0] * m[0] + m[1] * m[1])
                 }
-                None => fallback,
+                None => (fallback, R::ONE),
             }
         }
         _ => {
@@ -113,17 +138,32 @@ pub fn segregation_direction<R: Real, const D: usize>(
                     for a in 0..3 {
                         out[a] = R::from_f64(d[a]);
                     }
-                    out
+                    (out, R::ONE)
                 }
-                None => fallback,
+                None => (fallback, R::ONE),
             }
         }
     }
 }
 
-/// 2D closed form. For `k = [[a, b], [b, d]]` the principal axes are at angle theta with
-/// `tan 2 theta = 2b / (a - d)`; the planes of largest shear are at `theta +- pi/4`. Their
-/// normals follow from the half-angle formulas, so only square roots are needed.
+/// 2D closed form, one square root. For `k = [[a, b], [b, d]]` the principal axes are at angle
+/// theta with `tan 2 theta = 2b / (a - d)`; the planes of largest shear are at `theta +- pi/4`,
+/// so one of their normals `n1 = (cos phi, sin phi)` has `2 phi = 2 theta + pi/2`:
+/// `cos 2phi = -b / r`, `sin 2phi = (a - d) / 2r`, `r = sqrt(((a - d)/2)^2 + b^2)`. The other
+/// is `n2 = (-sin phi, cos phi)`.
+///
+/// The half-angle identities give `n1` without further roots, up to a factor:
+/// `(1 + cos 2phi, sin 2phi) = 2 cos phi n1` and `(sin 2phi, 1 - cos 2phi) = 2 sin phi n1`.
+/// The first is taken for `cos 2phi >= 0`, the second otherwise, so `1 +- cos 2phi` never
+/// cancels and `m1 . m1 = 2 (1 + |cos 2phi|)` lies in [2, 4] (the sign of the factor does not
+/// matter: `d_s` is defined up to sign). `m2 = (-m1_y, m1_x)` has the same length.
+///
+/// Which normal is more nearly orthogonal to `u`: the smaller of `|m1 . u|` and `|m2 . u|`
+/// (equal lengths, so no normalisation). A tie, `| |m1.u| - |m2.u| | <= eps (|m1.u| + |m2.u|)`,
+/// needs no `|u|` either: `m1 _|_ m2` gives `|m1.u|^2 + |m2.u|^2 = |m|^2 |u|^2`, so the right
+/// side is `eps |m| |u|` up to a factor in [1, sqrt 2]: the relative round-off level of the
+/// dot products. u = 0 is always a tie, resolved towards `fallback`.
+#[inline]
 fn direction_2d<R: Real>(k: [[R; 2]; 2], u: [R; 2], fallback: [R; 2]) -> Option<[R; 2]> {
     let (a, b, d) = (k[0][0], k[0][1], k[1][1]);
     let half_diff = (a - d) * R::HALF;
@@ -131,29 +171,26 @@ fn direction_2d<R: Real>(k: [[R; 2]; 2], u: [R; 2], fallback: [R; 2]) -> Option<
     if !(r > R::EPSILON * (a.abs() + b.abs() + d.abs())) || r == R::ZERO {
         return None;
     }
-    // Double angle of the shear-plane normal: 2 phi = 2 theta + pi/2.
     let cos2 = -(b / r);
     let sin2 = half_diff / r;
-    let cos1 = ((R::ONE + cos2) * R::HALF).max(R::ZERO).sqrt();
-    let mut sin1 = ((R::ONE - cos2) * R::HALF).max(R::ZERO).sqrt();
-    if sin2 < R::ZERO {
-        sin1 = -sin1;
-    }
-    let n1 = [cos1, sin1];
-    let n2 = [-sin1, cos1];
+    let m1 = if cos2 >= R::ZERO {
+        [R::ONE + cos2, sin2]
+    } else {
+        [sin2, R::ONE - cos2]
+    };
+    let m2 = [-m1[1], m1[0]];
     let dot = |n: [R; 2], v: [R; 2]| (n[0] * v[0] + n[1] * v[1]).abs();
-    let speed = (u[0] * u[0] + u[1] * u[1]).sqrt();
-    let (dot1, dot2) = (dot(n1, u), dot(n2, u));
-    Some(if (dot1 - dot2).abs() <= R::EPSILON * speed {
-        if dot(n2, fallback) > dot(n1, fallback) {
-            n2
+    let (dot1, dot2) = (dot(m1, u), dot(m2, u));
+    Some(if (dot1 - dot2).abs() <= R::EPSILON * (dot1 + dot2) {
+        if dot(m2, fallback) > dot(m1, fallback) {
+            m2
         } else {
-            n1
+            m1
         }
     } else if dot2 < dot1 {
-        n2
+        m2
     } else {
-        n1
+        m1
     })
 }
 

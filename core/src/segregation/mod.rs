@@ -441,6 +441,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             diffusion_rate += R::TWO * cfg.diffusion / (ha * ha);
         }
         let mut rate = R::ZERO;
+        // The direction of the Fixed and Gravity modes: the same in every cell, normalised once.
+        let const_dir = match cfg.direction {
+            DirectionMode::Fixed(d) => {
+                let dn = norm(&d);
+                let mut out = d;
+                out.iter_mut().for_each(|x| *x = *x / dn);
+                out
+            }
+            _ => gravity_dir,
+        };
         let needs_gradient = matches!(cfg.direction, DirectionMode::Flow)
             || matches!(cfg.temperature, TemperatureMode::FromShear { .. });
         let cells = self.grid.cells();
@@ -471,19 +481,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             for a in 0..D {
                 ui[a] = self.u[a][i];
             }
-            let d = match cfg.direction {
-                DirectionMode::Fixed(d) => {
-                    let dn = norm(&d);
-                    let mut out = d;
-                    out.iter_mut().for_each(|x| *x = *x / dn);
-                    out
-                }
-                DirectionMode::Gravity => gravity_dir,
-                DirectionMode::Flow => direction::segregation_direction(&grad, &ui, gravity_dir),
+            // d is the segregation direction up to length and sign, dd = d . d: exactly 1
+            // except for the unnormalised 2D normal from the flow (see
+            // `direction::segregation_normal`), so the division changes no bit elsewhere.
+            let (d, dd) = match cfg.direction {
+                DirectionMode::Fixed(_) | DirectionMode::Gravity => (const_dir, R::ONE),
+                DirectionMode::Flow => direction::segregation_normal(&grad, &ui, gravity_dir),
             };
-            // S = -S0 sqrt(T) (g . d) d   (model.md 3), signed for the tracked phase.
+            // S = -S0 sqrt(T) (g . d) d / (d . d)   (model.md 3), signed for the tracked phase.
             let g_dot_d = dot(&g, &d);
-            let s_mag = -(cfg.s0 * self.temp[i].sqrt() * g_dot_d) * sign;
+            let s_mag = -(cfg.s0 * self.temp[i].sqrt() * g_dot_d / dd) * sign;
             let ci = self.c[i];
             let mut cell_rate = diffusion_rate;
             for a in 0..D {
