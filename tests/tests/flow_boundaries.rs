@@ -4,15 +4,7 @@
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
 use sieve_core::Grid;
-
-fn run_big<F: FnOnce() + Send + 'static>(f: F) {
-    std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap();
-}
+use sieve_tests::run_big;
 
 /// A 1D channel without gravity, empty at t = 0, fed at x = 0 with the dilute state
 /// (c, u, T) = (0.3, 0.1 m/s, 0), free outflow at x = 0.1 m: after 3 flow-through times it

@@ -24,6 +24,7 @@
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
 use sieve_core::Grid;
+use sieve_tests::run_big;
 
 const N: usize = 4096;
 
@@ -217,15 +218,6 @@ pub fn collapse(s: Setup) -> Outcome {
         o.seconds
     );
     o
-}
-
-fn run_big<F: FnOnce() + Send + 'static>(f: F) {
-    std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap();
 }
 
 /// Aspect ratio 1 on a 2 mm grid (80 x 16 cells), 1 s. Measured: slope 10.3 deg against the

@@ -6,15 +6,7 @@ use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
 use sieve_core::{diagnose, Boundary, Grid};
-
-fn run_big<F: FnOnce() + Send + 'static>(f: F) {
-    std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap();
-}
+use sieve_tests::run_big;
 
 const NS: usize = 4 * 20;
 

@@ -5,17 +5,9 @@
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
 use sieve_core::{Grid, Real};
+use sieve_tests::run_big;
 
 const N: usize = 400;
-
-fn run_big<F: FnOnce() + Send + 'static>(f: F) {
-    std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap();
-}
 
 struct Record {
     mass_error: f64,

@@ -4,21 +4,13 @@
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
 use sieve_core::{Grid, Real};
+use sieve_tests::run_big;
 
 const N: usize = 64;
 /// Temperature floor of the yield viscosity. The regularised viscosity `eta0 p_y / sqrt(T_min)`
 /// carries part of the load while the bed creeps into its final state; the creep relaxes on the
 /// time scale `eta / (dp/dc)`, about 5 ms here (T_min = 1e-10) but ~1 s with the default 1e-14.
 const T_MIN: f64 = 1e-10;
-
-fn run_big<F: FnOnce() + Send + 'static>(f: F) {
-    std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap();
-}
 
 struct Outcome {
     mass_error: f64,

@@ -20,12 +20,7 @@ const U_BOTTOM: f64 = 0.0007;
 const T_END: f64 = 0.25;
 
 fn run_big<F: FnOnce() + Send + 'static>(f: F) {
-    std::thread::Builder::new()
-        .stack_size(256 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap();
+    sieve_tests::run_with_stack(256, f);
 }
 
 struct Profile {
