@@ -257,6 +257,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// one pass; tracks the running bound violations on the way. `s` is the stride of the
     /// outermost axis: cells `s..n` have an interior face below, cells `0..s` do not.
     fn apply_increment(&mut self, s: usize) {
+        if self.cfg.compensated {
+            return self.apply_increment_compensated(s);
+        }
         let n = self.grid.len();
         let (mut above, mut below) = (self.excess[0], self.excess[1]);
         {
@@ -279,6 +282,40 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 q[i] += dq[i] + f[i];
                 above = above.max(q[i] - c[i]);
                 below = below.max(-q[i]);
+            }
+        }
+        self.excess = [above, below];
+    }
+
+    /// [`Self::apply_increment`] with an exact two-sum per cell (Knuth): `q + d = s + e`
+    /// exactly, `e` carried into the next update of the cell. `d` adds the carry last, so
+    /// the increment itself is formed as in the plain update.
+    fn apply_increment_compensated(&mut self, s: usize) {
+        let n = self.grid.len();
+        let (mut above, mut below) = (self.excess[0], self.excess[1]);
+        // The same two blocks as the plain update: cells without and with a face below.
+        for (lo, hi) in [(0, s), (s, n)] {
+            let (q, e, dq, c) = (
+                &mut self.q[lo..hi],
+                &mut self.carry[lo..hi],
+                &self.rhs[lo..hi],
+                &self.c[lo..hi],
+            );
+            let f = &self.flux[..if lo == 0 { 0 } else { hi - lo }];
+            for i in 0..hi - lo {
+                let inc = if lo == 0 { dq[i] } else { dq[i] + f[i] };
+                let d = inc + e[i];
+                let sum = q[i] + d;
+                let d_part = sum - q[i];
+                let q_part = sum - d_part;
+                let carry = (q[i] - q_part) + (d - d_part);
+                e[i] = carry;
+                q[i] = sum;
+                // bounds of the compensated value (rounded): q alone may sit an ulp past c
+                // while its carry brings it back
+                let v = sum + carry;
+                above = above.max(v - c[i]);
+                below = below.max(-v);
             }
         }
         self.excess = [above, below];

@@ -2,8 +2,8 @@
 //!
 //! Layout: `postcard(SnapshotHeader)`, then `cells` values of the tracked phase fraction `q`
 //! (phi for `Phase::Small`, c - phi for `Phase::Large`: the solver's own state, written and
-//! restored with `set_tracked`, so either phase round-trips bit-exactly) and `2 * sensor points`
-//! values of the smoothed sensor velocity (each a postcard `R`: fixed-width IEEE bits), then
+//! restored with `set_tracked`, so either phase round-trips bit-exactly), `cells` values of the
+//! rounding error the compensated updates carry per cell, and `2 * sensor points` values of the smoothed sensor velocity (each a postcard `R`: fixed-width IEEE bits), then
 //! the CRC-32 of everything before it (4 bytes little endian). Items are written and read one
 //! by one, so no buffer of the size of the state is needed besides the output itself.
 //!
@@ -19,7 +19,7 @@ use postcard::ser_flavors::Flavor;
 use serde::{Deserialize, Serialize};
 
 /// Snapshot format version.
-pub const SNAPSHOT_VERSION: u16 = 2;
+pub const SNAPSHOT_VERSION: u16 = 3;
 
 /// How far outside [0, c] a stored tracked fraction may be. The estimator never clamps, so
 /// phi may leave [0, c] by round-off and by the compression of a noisy measured velocity (of
@@ -29,7 +29,7 @@ pub const SNAPSHOT_PHI_SLACK: f64 = 0.05;
 
 /// Upper bound of a snapshot's size for capacity `N` (f64 values, generous header).
 pub const fn snapshot_capacity(n: usize) -> usize {
-    256 + 8 * (n + MAX_FRAME_VALUES)
+    256 + 8 * (2 * n + MAX_FRAME_VALUES)
 }
 
 #[derive(Serialize, Deserialize)]
@@ -129,6 +129,9 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         for i in 0..self.seg.len() {
             put(out, &mut at, &self.seg.tracked_fraction(i))?;
         }
+        for i in 0..self.seg.len() {
+            put(out, &mut at, &self.seg.carry(i))?;
+        }
         for v in &self.vel[..2 * self.cfg.sensor_points()] {
             put(out, &mut at, v)?;
         }
@@ -171,11 +174,13 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         // Pass 1: validate every value without writing.
         let tol = R::from_f64(SNAPSHOT_PHI_SLACK);
         let mut r = rest;
-        for i in 0..n + nv {
+        for i in 0..2 * n + nv {
             let (v, next): (R, _) =
                 postcard::take_from_bytes(r).map_err(|_| SnapshotError::Decode)?;
             let bad_q = i < n && (v < -tol || v > self.seg.c(i) + tol);
-            if !v.is_finite() || bad_q {
+            // a carry is below half an ulp of q <= 1
+            let bad_carry = (n..2 * n).contains(&i) && v.abs() > R::EPSILON;
+            if !v.is_finite() || bad_q || bad_carry {
                 return Err(SnapshotError::Value);
             }
             r = next;
@@ -188,6 +193,12 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         for i in 0..n {
             if let Ok((v, next)) = postcard::take_from_bytes::<R>(r) {
                 self.seg.set_tracked(i, v);
+                r = next;
+            }
+        }
+        for i in 0..n {
+            if let Ok((v, next)) = postcard::take_from_bytes::<R>(r) {
+                self.seg.set_carry(i, v);
                 r = next;
             }
         }

@@ -245,6 +245,7 @@ impl Scene {
             diffusion: 0.0,
             courant: 0.5,
             vacuum: f64::VACUUM,
+            compensated: false,
         };
         let mut t: Box<Truth> = Box::default();
         t.setup(grid, self.boundaries(), cfg)
