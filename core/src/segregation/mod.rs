@@ -587,6 +587,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     pub fn boundaries(&self) -> &Boundaries<D> {
         &self.bc
     }
+    /// The velocity gradient `g[a][b] = du_a/dx_b` of cell `i`, differenced as the solver does
+    /// for the direction and for T from shear ([`direction::velocity_gradient`]).
+    pub fn velocity_gradient(&self, i: usize) -> [[R; D]; D] {
+        direction::velocity_gradient(&self.grid, &self.bc, &self.u, i)
+    }
     /// The configuration.
     pub fn config(&self) -> &SegregationConfig<R, D> {
         &self.cfg

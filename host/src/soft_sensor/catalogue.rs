@@ -39,6 +39,7 @@ use crate::run::{FlowJob, SolverJob};
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Equations, Fields, Scene};
 use sieve_core::flow::Flow;
+use sieve_core::segregation::direction::shear_rate_squared;
 use sieve_core::sensor::{Region, SensorConfig, SoftSensor, VelocityFrame};
 use sieve_core::{diagnose, Boundary, Real, Segregation};
 
@@ -192,50 +193,6 @@ impl FlowJob for RecordJob<'_> {
     }
 }
 
-/// `sqrt(kappa:kappa)` per cell of a 2D field (central differences, one-sided at
-/// non-periodic sides, wrapped across periodic ones: as the core's `velocity_gradient`).
-fn shear_rates(u: [&[f64]; 2], n: [usize; 2], h: [f64; 2], periodic: [bool; 2]) -> Vec<f64> {
-    let mut out = vec![0.0; n[0] * n[1]];
-    for iz in 0..n[1] {
-        for ix in 0..n[0] {
-            let i = ix + n[0] * iz;
-            let mut k2 = 0.0;
-            for (axis, (&len, &per)) in n.iter().zip(&periodic).enumerate() {
-                if len < 2 {
-                    continue;
-                }
-                let stride = if axis == 0 { 1 } else { n[0] };
-                let c = if axis == 0 { ix } else { iz };
-                let (lo, hi, width) = if c > 0 && c + 1 < len {
-                    (i - stride, i + stride, 2.0)
-                } else if per {
-                    let lo = if c == 0 {
-                        i + (len - 1) * stride
-                    } else {
-                        i - stride
-                    };
-                    let hi = if c + 1 == len {
-                        i - (len - 1) * stride
-                    } else {
-                        i + stride
-                    };
-                    (lo, hi, 2.0)
-                } else if c == 0 {
-                    (i, i + stride, 1.0)
-                } else {
-                    (i - stride, i, 1.0)
-                };
-                for comp in u {
-                    let g = (comp[hi] - comp[lo]) / (width * h[axis]);
-                    k2 += g * g;
-                }
-            }
-            out[i] = k2.sqrt();
-        }
-    }
-    out
-}
-
 fn spread(v: &[f64]) -> (f64, f64) {
     v.iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
@@ -334,10 +291,6 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
         scene.boundaries[0][0] == Boundary::Periodic,
         scene.boundaries[1][0] == Boundary::Periodic,
     ];
-    let h = [
-        (scene.upper[0] - scene.lower[0]) / nf[0] as f64,
-        (scene.upper[1] - scene.lower[1]) / nf[1] as f64,
-    ];
     let extent = [
         scene.upper[0] - scene.lower[0],
         scene.upper[1] - scene.lower[1],
@@ -365,7 +318,10 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
     let sx = coarsen(|i| ux[i], nf, ns);
     let sz = coarsen(|i| uz[i], nf, ns);
     // Material of the sensor's T-from-shear.
-    let gamma = shear_rates([&ux, &uz], nf, h, periodic);
+    // sqrt(kappa:kappa) per cell, differenced as the solver does
+    let gamma: Vec<f64> = (0..n)
+        .map(|i| shear_rate_squared(&s.velocity_gradient(i)).to_f64().sqrt())
+        .collect();
     let (heating, eta0, eps0, s0) = match (&scene.flow, scene.temperature) {
         (Some(fm), _) => (fm.heating, fm.eta0, fm.eps0, scene.s0),
         (
@@ -592,18 +548,6 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn shear_rate_of_simple_shear_is_exact() {
-        let n = [4, 5];
-        let h = [0.5, 0.25];
-        let ux: Vec<f64> = (0..20)
-            .map(|i| 3.0 * ((i / 4) as f64 + 0.5) * h[1])
-            .collect();
-        let uz = vec![0.0; 20];
-        let g = shear_rates([&ux, &uz], n, h, [true, false]);
-        assert!(g.iter().all(|&x| (x - 3.0).abs() < 1e-12), "{g:?}");
-    }
 
     #[test]
     fn period_rounding() {
