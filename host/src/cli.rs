@@ -468,67 +468,89 @@ fn record(a: &RecordArgs) -> Result<()> {
     let start = std::time::Instant::now();
     let sensor = [sensor[0] as u8, sensor[1] as u8];
     let estimator_cells = [est[0] as u16, est[1] as u16];
-    if let Some(legacy) = soft_sensor::Scene::from_name(&a.scene) {
-        if !a.set.is_empty() {
-            return Err(Error::at(
+    match soft_sensor::Scene::from_name(&a.scene) {
+        Some(legacy) => record_legacy(a, legacy, sensor, estimator_cells, period, start),
+        None => record_catalogue(a, sensor, estimator_cells, period, start),
+    }
+}
+
+/// `sieve record` of a legacy hand-written recorder scene.
+fn record_legacy(
+    a: &RecordArgs,
+    legacy: soft_sensor::Scene,
+    sensor: [u8; 2],
+    estimator_cells: [u16; 2],
+    period: Option<f64>,
+    start: std::time::Instant,
+) -> Result<()> {
+    if !a.set.is_empty() {
+        return Err(Error::at(
+            "command line",
+            "--set",
+            format!(
+                "{} is a legacy recorder scene without a scene file: --set applies to catalogue scenes",
+                a.scene
+            ),
+        ));
+    }
+    let mut opts = soft_sensor::RecordOptions::new(legacy);
+    opts.sensor = sensor;
+    opts.estimator_cells = estimator_cells;
+    opts.noise = a.noise;
+    opts.seed = a.seed;
+    if let Some(g) = &a.truth_grid {
+        let t = two_axes("--truth-grid", g, 1, 64)?;
+        opts.truth_cells = [t[0] as u16, t[1] as u16];
+        if t[0] * t[1] > soft_sensor::TRUTH_CAPACITY as u64 {
+            return Err(Error::range(
                 "command line",
-                "--set",
-                format!(
-                    "{} is a legacy recorder scene without a scene file: --set applies to catalogue scenes",
-                    a.scene
-                ),
+                "--truth-grid",
+                g,
+                "at most 64x64 for the legacy scenes",
             ));
         }
-        let mut opts = soft_sensor::RecordOptions::new(legacy);
-        opts.sensor = sensor;
-        opts.estimator_cells = estimator_cells;
-        opts.noise = a.noise;
-        opts.seed = a.seed;
-        if let Some(g) = &a.truth_grid {
-            let t = two_axes("--truth-grid", g, 1, 64)?;
-            opts.truth_cells = [t[0] as u16, t[1] as u16];
-            if t[0] * t[1] > soft_sensor::TRUTH_CAPACITY as u64 {
-                return Err(Error::range(
-                    "command line",
-                    "--truth-grid",
-                    g,
-                    "at most 64x64 for the legacy scenes",
-                ));
-            }
-        }
-        if let Some(p) = period {
-            opts.period = p;
-        }
-        if let Some(n) = a.frames {
-            opts.frames = n;
-        }
-        let (bytes, report) = soft_sensor::record_to_bytes(&opts).map_err(|e| {
-            Error::at(
-                "command line",
-                "",
-                format!("cannot record {}: {e}", a.scene),
-            )
-        })?;
-        crate::output::write_file_atomically(&a.out, &bytes)?;
-        println!(
-            "recorded {} frames ({} bytes) of {} to {}; period {} s, truth {}x{}, estimator {}x{}, sensor {}x{}; final truth psi = {:.4}; {:.2} s",
-            report.frames,
-            report.file_bytes,
-            legacy.cli_name(),
-            a.out.display(),
-            opts.period,
-            opts.truth_cells[0],
-            opts.truth_cells[1],
-            opts.estimator_cells[0],
-            opts.estimator_cells[1],
-            sensor[0],
-            sensor[1],
-            report.final_truth_psi,
-            start.elapsed().as_secs_f64()
-        );
-        return Ok(());
     }
-    // A catalogue scene.
+    if let Some(p) = period {
+        opts.period = p;
+    }
+    if let Some(n) = a.frames {
+        opts.frames = n;
+    }
+    let (bytes, report) = soft_sensor::record_to_bytes(&opts).map_err(|e| {
+        Error::at(
+            "command line",
+            "",
+            format!("cannot record {}: {e}", a.scene),
+        )
+    })?;
+    crate::output::write_file_atomically(&a.out, &bytes)?;
+    println!(
+        "recorded {} frames ({} bytes) of {} to {}; period {} s, truth {}x{}, estimator {}x{}, sensor {}x{}; final truth psi = {:.4}; {:.2} s",
+        report.frames,
+        report.file_bytes,
+        legacy.cli_name(),
+        a.out.display(),
+        opts.period,
+        opts.truth_cells[0],
+        opts.truth_cells[1],
+        opts.estimator_cells[0],
+        opts.estimator_cells[1],
+        sensor[0],
+        sensor[1],
+        report.final_truth_psi,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// `sieve record` of a catalogue scene (built-in or TOML file).
+fn record_catalogue(
+    a: &RecordArgs,
+    sensor: [u8; 2],
+    estimator_cells: [u16; 2],
+    period: Option<f64>,
+    start: std::time::Instant,
+) -> Result<()> {
     if scene::builtin::find(&a.scene).is_none() && !std::path::Path::new(&a.scene).is_file() {
         return Err(Error::at(
             &a.scene,
