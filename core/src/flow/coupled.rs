@@ -137,9 +137,18 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
         }
     }
 
+    /// In a rotating frame the segregation sees the frame's turning gravity (percolation is
+    /// driven by gravity alone; [`crate::frame`]). In the lab frame its own gravity stays.
+    fn sync_gravity(&mut self) {
+        if self.flow.config().frame.rotation().is_some() {
+            self.seg.set_gravity(self.flow.frame_gravity());
+        }
+    }
+
     /// Hands `c, T, u` of the flow and the current `phi` (clipped into `[0, c]`, the clipped
     /// amount counted) to the segregation solver and prepares it.
     pub fn hand_over(&mut self) -> Result<(), CouplingError> {
+        self.sync_gravity();
         let vol = self.flow.grid().cell_volume();
         for i in 0..self.flow.len() {
             let c = self.flow.c(i);
@@ -162,6 +171,7 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     /// carrying phi. The small-phase mass changes by `sum phihat dc |C|` (reported by
     /// [`Self::freeze`]); the segregation then conserves it.
     pub fn hand_over_keeping_composition(&mut self) -> Result<(), CouplingError> {
+        self.sync_gravity();
         let vac = self.flow.config().vacuum;
         for i in 0..self.flow.len() {
             let (c_old, c) = (self.seg.c(i), self.flow.c(i));

@@ -67,6 +67,7 @@ mod step;
 
 use crate::boundary::{check_periodic_pairs, Boundary};
 use crate::closure::{self, Material};
+use crate::frame::Frame;
 use crate::grid::Grid;
 use crate::real::Real;
 
@@ -185,6 +186,10 @@ pub struct FlowConfig<R, const D: usize> {
     /// at t = 0, after which the thin surface cells jitter at ~1e-3 m/s), which the resting
     /// pile tests were tuned without.
     pub free_surface_push: bool,
+    /// The frame of reference (model.md 2, "rotating container"): the lab (default), or a
+    /// frame turning with a drum, with rotating gravity, centrifugal and Coriolis forces
+    /// ([`crate::frame`]). `gravity` above is always the lab's.
+    pub frame: Frame<R, D>,
 }
 
 impl<R: Real, const D: usize> FlowConfig<R, D> {
@@ -205,6 +210,7 @@ impl<R: Real, const D: usize> FlowConfig<R, D> {
             cg_tolerance: R::from_f64(1e-10).max(R::EPSILON * R::from_f64(64.0)),
             cg_max_iterations: 2000,
             free_surface_push: false,
+            frame: Frame::Lab,
         }
     }
 }
@@ -288,6 +294,8 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     ap: [R; N],
     pre: [R; N],
     line: [R; N],
+    /// Gravity of the current step as seen in the frame (the lab's in the lab frame).
+    g_now: [R; D],
     prepared: bool,
     time: R,
     steps: u64,
@@ -325,6 +333,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 cg_tolerance: R::VACUUM,
                 cg_max_iterations: 1,
                 free_surface_push: false,
+                frame: Frame::Lab,
             },
             c: z,
             m: zd,
@@ -348,6 +357,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             ap: z,
             pre: z,
             line: z,
+            g_now: [R::ZERO; D],
             prepared: false,
             time: R::ZERO,
             steps: 0,
@@ -395,6 +405,18 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if cfg.gravity.iter().any(|g| !g.is_finite()) {
             return Err(FlowError::Parameter("gravity"));
         }
+        if let Frame::Rotating(rot) = &cfg.frame {
+            rot.validate()
+                .map_err(|_| FlowError::Parameter("rotating frame"))?;
+            // Centrifugal forces are not periodic: the rotation plane must be bounded.
+            for a in 0..D {
+                if rot.in_plane(a) && bc[a][0].kind == Boundary::Periodic {
+                    return Err(FlowError::Parameter(
+                        "rotating frame: periodic axis in the rotation plane",
+                    ));
+                }
+            }
+        }
         for sides in bc.iter() {
             for s in sides {
                 if let Slip::Friction(tan) = s.slip {
@@ -436,6 +458,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         self.c_rcp[..n].fill(cfg.material.phi_rcp);
         self.c_rlp[..n].fill(cfg.material.phi_rlp);
+        self.g_now = cfg.frame.gravity(cfg.gravity, R::ZERO);
         self.prepared = false;
         self.time = R::ZERO;
         self.steps = 0;
@@ -496,6 +519,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
         }
+        self.g_now = self.cfg.frame.gravity(self.cfg.gravity, self.time);
         self.primitives();
         self.pressures();
         self.prepared = true;
@@ -509,13 +533,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let m = &self.cfg.material;
         // Free fall: a velocity gained within the step must not break the Courant limit,
         // |g| dt^2 / h <= C^2, i.e. a rate sqrt(|g_a| / h_a) per axis.
+        let body = self.body_bound();
         let mut rate = R::ZERO;
         for i in 0..n {
             let (c, rcp, rlp) = (self.c_eff(i), self.c_rcp[i], self.c_rlp[i]);
             let a_s = closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt();
             let mut r = R::ZERO;
             for a in 0..D {
-                r += (self.u[a][i].abs() + a_s) / h[a] + (self.cfg.gravity[a].abs() / h[a]).sqrt();
+                r += (self.u[a][i].abs() + a_s) / h[a] + (body[a] / h[a]).sqrt();
             }
             rate = rate.max(r);
         }
@@ -524,6 +549,48 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         } else {
             R::MAX
         }
+    }
+
+    /// Bound of the body acceleration along each axis over the box and all times: `|g_a|` in
+    /// the lab frame; in a rotating frame `|g|` (gravity turns) plus the largest centrifugal
+    /// acceleration `omega^2 |x_a - center_a|` on the box for the axes of the rotation plane.
+    fn body_bound(&self) -> [R; D] {
+        let g = self.cfg.gravity;
+        let mut b = [R::ZERO; D];
+        match &self.cfg.frame {
+            Frame::Lab => {
+                for a in 0..D {
+                    b[a] = g[a].abs();
+                }
+            }
+            Frame::Rotating(rot) => {
+                let (lo, h, cells) = (self.grid.origin(), self.grid.spacing(), self.grid.cells());
+                let mut plane_g2 = R::ZERO;
+                for a in 0..D {
+                    if rot.in_plane(a) {
+                        plane_g2 += g[a] * g[a];
+                    }
+                }
+                for a in 0..D {
+                    b[a] = if rot.in_plane(a) {
+                        let hi = lo[a] + h[a] * R::from_usize(cells[a]);
+                        let r = rot
+                            .centrifugal(a, lo[a])
+                            .abs()
+                            .max(rot.centrifugal(a, hi).abs());
+                        plane_g2.sqrt() + r
+                    } else {
+                        g[a].abs()
+                    };
+                }
+            }
+        }
+        b
+    }
+
+    /// Gravity at the flow's current time as seen in its frame (the lab's in the lab frame).
+    pub fn frame_gravity(&self) -> [R; D] {
+        self.cfg.frame.gravity(self.cfg.gravity, self.time)
     }
 
     /// `c` clamped to `c_max` of its cell (only differs after a packing change).

@@ -4,6 +4,7 @@ use super::cg::{self, Scratch, Stencil, Stop};
 use super::{Flow, FlowSide, Slip};
 use crate::boundary::Boundary;
 use crate::closure;
+use crate::frame::{turn_by, Frame};
 use crate::real::Real;
 
 /// What the viscous flux of one velocity component sees at a non-periodic boundary face.
@@ -31,6 +32,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         for a in 0..D {
             self.u_prev[a][..n].copy_from_slice(&self.u[a][..n]);
         }
+        self.g_now = self.cfg.frame.gravity(self.cfg.gravity, self.time);
         self.transport(dt);
         self.pressures(); // new c, old T: forward-backward acoustics
         self.pressure_and_gravity(dt);
@@ -198,7 +200,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     #[inline(always)]
     fn interior_flux(&self, a: usize, l: usize, r: usize, dt: R, cap: R, vac: R) -> R {
         let (cl, cr) = (self.c[l], self.c[r]);
-        let (ff, _) = self.face_force(a, cl, self.p[l], cr, self.p[r]);
+        let (ff, _) = self.face_force(a, self.face_body(a, l), cl, self.p[l], cr, self.p[r]);
         let cf = (cl + cr) * R::HALF;
         let acc = |i: usize| {
             if self.c[i] > vac {
@@ -254,17 +256,41 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 
     /// Compact face force per volume along `a` between a left and a right state `(c, p)`:
-    /// `w (-(p_R - p_L)/h + g_a (c_L + c_R)/2)`, with the fade weight
-    /// `w = min(1, min(c_L, c_R)/surface)` (the free-surface condition `p -> 0` next to a nearly
-    /// empty cell, so such a cell is not blown away by a dense neighbour). Returns `(F, w)`.
+    /// `w (-(p_R - p_L)/h + b_a (c_L + c_R)/2)`, with the body acceleration `b_a` of the face
+    /// (gravity, plus the centrifugal part in a rotating frame: [`Self::face_body`]) and the
+    /// fade weight `w = min(1, min(c_L, c_R)/surface)` (the free-surface condition `p -> 0`
+    /// next to a nearly empty cell, so such a cell is not blown away by a dense neighbour).
+    /// Returns `(F, w)`.
     #[inline(always)]
-    fn face_force(&self, a: usize, cl: R, pl: R, cr: R, pr: R) -> (R, R) {
+    fn face_force(&self, a: usize, b: R, cl: R, pl: R, cr: R, pr: R) -> (R, R) {
         let w = (cl.min(cr) / self.cfg.surface).min(R::ONE);
         let h = self.grid.spacing()[a];
-        (
-            w * ((pl - pr) / h + self.cfg.gravity[a] * (cl + cr) * R::HALF),
-            w,
-        )
+        (w * ((pl - pr) / h + b * (cl + cr) * R::HALF), w)
+    }
+
+    /// Body acceleration along `a` at the high face of cell `l` (`l` = the last cell of a line:
+    /// its box or wrap face): the frame's gravity, plus in a rotating frame the centrifugal
+    /// acceleration at the face (a potential force, so it belongs in the compact face force
+    /// and a bed in relative equilibrium is in exact discrete balance).
+    #[inline(always)]
+    fn face_body(&self, a: usize, l: usize) -> R {
+        match &self.cfg.frame {
+            Frame::Lab => self.g_now[a],
+            Frame::Rotating(rot) => {
+                let k = R::from_usize(self.grid.coord(l, a) + 1);
+                let x = self.grid.origin()[a] + k * self.grid.spacing()[a];
+                self.g_now[a] + rot.centrifugal(a, x)
+            }
+        }
+    }
+
+    /// Body acceleration along `a` at the low box face of a line (see [`Self::face_body`]).
+    #[inline(always)]
+    fn low_face_body(&self, a: usize) -> R {
+        match &self.cfg.frame {
+            Frame::Lab => self.g_now[a],
+            Frame::Rotating(rot) => self.g_now[a] + rot.centrifugal(a, self.grid.origin()[a]),
+        }
     }
 
     /// Face force of the boundary face of cell `i` (`other`: the other end of its line).
@@ -277,6 +303,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         side: &FlowSide<R, D>,
     ) -> (R, R) {
         let (ci, pi) = (self.c[i], self.p[i]);
+        let b = if high {
+            self.face_body(a, i)
+        } else {
+            self.low_face_body(a)
+        };
         let (cg, pg) = match side.kind {
             // Hydrostatic ghost (c_i, p_i -+ h c_i g_a): the wall carries its half exactly.
             Boundary::Wall => return (R::ZERO, R::ONE),
@@ -294,9 +325,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             Boundary::Outflow => (ci, pi),
         };
         if high {
-            self.face_force(a, ci, pi, cg, pg)
+            self.face_force(a, b, ci, pi, cg, pg)
         } else {
-            self.face_force(a, cg, pg, ci, pi)
+            self.face_force(a, b, cg, pg, ci, pi)
         }
     }
 
@@ -308,10 +339,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     fn cell_forces(&mut self, with_direct_gravity: bool) {
         let n = self.grid.len();
         let grid = self.grid;
-        let mut g = self.cfg.gravity;
-        if !with_direct_gravity {
-            g = [R::ZERO; D];
-        }
+        // The body force of faded faces acts directly on their cells (only if asked for).
+        let direct = |b: R| if with_direct_gravity { b } else { R::ZERO };
         let h = self.grid.spacing();
         for a in 0..D {
             self.kf[a][..n].fill(R::ZERO);
@@ -327,8 +356,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 let l0 = b * fb.block_stride;
                 for l in l0..l0 + fb.block_len {
                     let r = l + s;
-                    let (f, w) = self.face_force(a, self.c[l], self.p[l], self.c[r], self.p[r]);
-                    let rest = R::HALF * (R::ONE - w) * g[a];
+                    let b = self.face_body(a, l);
+                    let (f, w) = self.face_force(a, b, self.c[l], self.p[l], self.c[r], self.p[r]);
+                    let rest = R::HALF * (R::ONE - w) * direct(b);
                     let push = (R::ONE - w) * open;
                     self.kf[a][l] += R::HALF * f + rest * self.c[l] + push * self.p[l];
                     self.kf[a][r] += R::HALF * f + rest * self.c[r] - push * self.p[r];
@@ -340,7 +370,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
                 grid.for_each_boundary_cell(a, high, |i, other| {
                     let (f, w) = self.boundary_face_force(a, i, other, high, &side);
-                    let rest = R::HALF * (R::ONE - w) * g[a];
+                    let b = if high {
+                        self.face_body(a, i)
+                    } else {
+                        self.low_face_body(a)
+                    };
+                    let rest = R::HALF * (R::ONE - w) * direct(b);
                     self.kf[a][i] += R::HALF * f + rest * self.c[i];
                     if side.kind == Boundary::Periodic {
                         // the wrap face is an interior face: `i` is its high-side (last) cell
@@ -361,6 +396,22 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         for a in 0..D {
             for i in 0..n {
                 self.m[a][i] += dt * self.kf[a][i];
+            }
+        }
+        if let Frame::Rotating(rot) = self.cfg.frame {
+            // Coriolis `-2 Omega x u`: the exact rotation of the momentum by `-2 omega dt`
+            // (length-preserving, so no energy gain and no time-step limit).
+            let angle = -(R::TWO * rot.omega * dt);
+            let (sn, cs) = (angle.sin(), angle.cos());
+            let (p, q) = rot.plane();
+            for i in 0..n {
+                let mut v = [R::ZERO; D];
+                for a in 0..D {
+                    v[a] = self.m[a][i];
+                }
+                let v = turn_by(v, (p, q), sn, cs);
+                self.m[p][i] = v[p];
+                self.m[q][i] = v[q];
             }
         }
         self.wall_contact();

@@ -311,6 +311,13 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         Ok(())
     }
 
+    /// Sets gravity (m/s^2), e.g. the turning gravity of a rotating frame ([`crate::frame`]);
+    /// takes effect on the next [`Self::prepare`] (direction and coefficients depend on it).
+    pub fn set_gravity(&mut self, g: [R; D]) {
+        self.cfg.gravity = g;
+        self.prepared = false;
+    }
+
     /// Sets the state of cell `i`: volume fraction `c`, temperature `t` (ignored if derived
     /// from shear), velocity `u`, and small-phase fraction `phi`.
     pub fn set_cell(&mut self, i: usize, c: R, t: R, u: [R; D], phi: R) {
