@@ -17,6 +17,7 @@ pub mod closure;
 pub mod diagnostics;
 pub mod exact;
 pub mod flow;
+pub mod geometry;
 pub mod grid;
 pub mod hash;
 pub mod real;
