@@ -18,6 +18,7 @@ pub mod diagnostics;
 pub mod exact;
 pub mod flow;
 pub mod frame;
+pub mod geometry;
 pub mod grid;
 pub mod hash;
 pub mod real;
