@@ -59,7 +59,9 @@ pub struct FlowSummary {
     pub residual: f64,
     /// Steady-state tolerance [1/s].
     pub steady_tolerance: f64,
-    /// Small-phase mass clipped into [0, c] on hand-over (coupled; 0 when frozen).
+    /// Tracked-phase volume lifted into [0, c] by the round-off guard of the carried
+    /// transport (coupled; 0 when the percolation stage keeps the bounds exactly, and when
+    /// frozen). phi is no longer clipped: it rides on the flow's mass fluxes.
     pub clipped_mass: f64,
 }
 
@@ -388,10 +390,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
                 .stable_dt()
                 .min(cpl.seg.stable_dt())
                 .min(target - cpl.seg.time());
-            cpl.flow.step(dt);
-            cpl.seg.step(dt);
-            cpl.apply_packing();
-            cpl.hand_over().map_err(fail)?;
+            cpl.step_with(dt).map_err(fail)?;
             stats.steps += 1;
             if stats.steps % 256 == 0 {
                 progress.set_position((cpl.seg.time().to_f64() / scene.t_end * 1000.0) as u64);
@@ -414,7 +413,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     }
     stats.segregation_time = timer.time();
     stats.record_bounds(cpl.seg);
-    let clipped = cpl.clipped_mass().to_f64();
+    let clipped = cpl.guarded_mass().to_f64();
     let summary = summary_of(cpl.flow, fm, flow_seconds, None, clipped);
     Ok(CoupledStats { stats, summary })
 }

@@ -65,11 +65,12 @@ pub mod cg;
 pub mod coupled;
 mod step;
 
-use crate::boundary::{check_periodic_pairs, Boundary};
+use crate::boundary::{check_periodic_pairs, Boundary, Openings};
 use crate::closure::{self, Material};
 use crate::frame::Frame;
 use crate::grid::Grid;
 use crate::real::Real;
+use crate::segregation::MassFluxes;
 
 /// Tangential condition of a solid wall (model.md 2).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -83,11 +84,33 @@ pub enum Slip<R> {
     Friction(R),
 }
 
+/// Pressure of the ghost cell behind an opening in a wall ([`FlowSide::openings`]); the rest
+/// of the outlet ghost is always zero-gradient (model.md 2, "outflow (silo orifice)").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum OutletPressure {
+    /// `p = 0` outside (free outflow into air): the face pushes the cell out with its own
+    /// pressure, the finite-volume form of `p = 0` on the orifice plane.
+    #[default]
+    Zero,
+    /// `p_ghost = p_cell`: no pressure difference across the face; only gravity pulls the
+    /// grains out (the face carries none of the cell's weight).
+    ZeroGradient,
+}
+
 /// One side of the box for the flow.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FlowSide<R, const D: usize> {
     /// Wall, inflow, outflow or periodic.
     pub kind: Boundary,
+    /// Openings (outlets) of a wall side: grains leave through them freely. Per boundary face
+    /// the open fraction of its area ([`Openings::fraction`]) is outlet, the rest wall.
+    /// The outlet ghost state is zero-gradient in `c`, `u` and `T` with inflow blocked (the
+    /// face velocity is the cell's outward normal velocity, or 0 if it points inwards), and
+    /// the pressure chosen by [`Self::outlet`]: mass, momentum and energy leave with the
+    /// donor cell's state, the viscous and conductive fluxes through the open part are 0.
+    pub openings: Openings<R, D>,
+    /// Ghost pressure of the openings.
+    pub outlet: OutletPressure,
     /// Tangential condition if `kind` is a wall.
     pub slip: Slip<R>,
     /// Wall velocity (its normal component is ignored: walls do not move normally), or the
@@ -108,6 +131,8 @@ impl<R: Real, const D: usize> FlowSide<R, D> {
             velocity: [R::ZERO; D],
             c: R::ZERO,
             t: R::ZERO,
+            openings: Openings::none(),
+            outlet: OutletPressure::Zero,
         }
     }
     /// A no-slip wall moving tangentially with `velocity`.
@@ -118,6 +143,8 @@ impl<R: Real, const D: usize> FlowSide<R, D> {
             velocity,
             c: R::ZERO,
             t: R::ZERO,
+            openings: Openings::none(),
+            outlet: OutletPressure::Zero,
         }
     }
     /// A periodic side (set on both sides of the axis).
@@ -128,6 +155,8 @@ impl<R: Real, const D: usize> FlowSide<R, D> {
             velocity: [R::ZERO; D],
             c: R::ZERO,
             t: R::ZERO,
+            openings: Openings::none(),
+            outlet: OutletPressure::Zero,
         }
     }
     /// Zero-gradient outflow.
@@ -138,6 +167,8 @@ impl<R: Real, const D: usize> FlowSide<R, D> {
             velocity: [R::ZERO; D],
             c: R::ZERO,
             t: R::ZERO,
+            openings: Openings::none(),
+            outlet: OutletPressure::Zero,
         }
     }
     /// Dirichlet inflow of the state `(c, u, T)`.
@@ -148,6 +179,8 @@ impl<R: Real, const D: usize> FlowSide<R, D> {
             velocity,
             c,
             t,
+            openings: Openings::none(),
+            outlet: OutletPressure::Zero,
         }
     }
 }
@@ -280,8 +313,18 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     /// Packing limits per cell (constants, or back-coupled).
     c_rcp: [R; N],
     c_rlp: [R; N],
-    /// Scratch: face mass fluxes per axis (high face of each cell), then face coefficients.
+    /// Face mass fluxes per axis at the left cell of each face (at the last cell of a line:
+    /// its high boundary face, positive = out of the box, or the wrap face): during the
+    /// transport stage the raw flux, after it the applied (limited) amount of the step in
+    /// content units (`dt / h` times the flux), positive along the axis.
     flux: [[R; N]; D],
+    /// The applied amount of each low boundary face (at the first cell of a line; positive
+    /// = into the box; 0 on closed walls and periodic axes).
+    flux_low: [[R; N]; D],
+    /// Grain volume that left through each side `[axis][low, high]`, since setup.
+    discharged: [[R; 2]; D],
+    /// Grain volume that left through each side in the last step.
+    discharge_step: [[R; 2]; D],
     kf: [[R; N]; D],
     /// Velocity at the start of the step (residual, lagged wall friction).
     u_prev: [[R; N]; D],
@@ -347,6 +390,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             c_rcp: z,
             c_rlp: z,
             flux: zd,
+            flux_low: zd,
+            discharged: [[R::ZERO; 2]; D],
+            discharge_step: [[R::ZERO; 2]; D],
             kf: zd,
             u_prev: zd,
             inflow: z,
@@ -424,6 +470,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         return Err(FlowError::Parameter("wall friction"));
                     }
                 }
+                if !s.openings.is_empty() && s.kind != Boundary::Wall {
+                    return Err(FlowError::Parameter(
+                        "openings on a side that is not a wall",
+                    ));
+                }
                 if s.velocity.iter().any(|v| !v.is_finite()) || !s.c.is_finite() {
                     return Err(FlowError::Parameter("boundary state"));
                 }
@@ -455,7 +506,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             self.m[a][..n].fill(R::ZERO);
             self.u[a][..n].fill(R::ZERO);
             self.u_prev[a][..n].fill(R::ZERO);
+            self.flux[a][..n].fill(R::ZERO);
+            self.flux_low[a][..n].fill(R::ZERO);
         }
+        self.discharged = [[R::ZERO; 2]; D];
+        self.discharge_step = [[R::ZERO; 2]; D];
         self.c_rcp[..n].fill(cfg.material.phi_rcp);
         self.c_rlp[..n].fill(cfg.material.phi_rlp);
         self.g_now = cfg.frame.gravity(cfg.gravity, R::ZERO);
@@ -726,6 +781,33 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Simulated time.
     pub fn time(&self) -> R {
         self.time
+    }
+    /// The face mass fluxes the last step applied (time-integrated, limited, in content
+    /// units): what the segregation solver's carried transport moves phi with.
+    pub fn mass_fluxes(&self) -> MassFluxes<'_, R, D, N> {
+        MassFluxes {
+            faces: &self.flux,
+            low: &self.flux_low,
+        }
+    }
+    /// Grain volume (volume fraction times cell volume, summed) that left through each side
+    /// `[axis][low, high]` since setup (negative if it came in).
+    pub fn discharged(&self) -> [[R; 2]; D] {
+        self.discharged
+    }
+    /// Grain volume that left through each side in the last step.
+    pub fn last_discharge(&self) -> [[R; 2]; D] {
+        self.discharge_step
+    }
+    /// Open fraction of the boundary face of cell `i` on side `high` of axis `a` (0 unless
+    /// the side is a wall with openings).
+    #[inline]
+    pub fn open_fraction(&self, a: usize, high: bool, i: usize) -> R {
+        let side = &self.bc[a][usize::from(high)];
+        if side.kind != Boundary::Wall || side.openings.is_empty() {
+            return R::ZERO;
+        }
+        side.openings.fraction(&self.grid, a, i)
     }
     /// Steps taken.
     pub fn steps(&self) -> u64 {

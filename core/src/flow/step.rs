@@ -1,11 +1,12 @@
 //! One time step of the flow (the scheme of the module docs of [`super`]).
 
 use super::cg::{self, Scratch, Stencil, Stop};
-use super::{Flow, FlowSide, Slip};
+use super::{Flow, FlowSide, OutletPressure, Slip};
 use crate::boundary::Boundary;
 use crate::closure;
 use crate::frame::{turn_by, Frame};
 use crate::real::Real;
+use crate::segregation::flux::transport as upwind;
 
 /// What the viscous flux of one velocity component sees at a non-periodic boundary face.
 #[derive(Clone, Copy)]
@@ -16,12 +17,6 @@ enum Face<R> {
     Stress(R),
     /// Zero flux (slip wall tangential, outflow).
     Free,
-}
-
-/// Upwind mass flux with face velocity `un` (the segregation transport rule).
-#[inline(always)]
-fn upwind<R: Real>(cl: R, cr: R, un: R) -> R {
-    un.max(R::ZERO) * cl + un.min(R::ZERO) * cr
 }
 
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
@@ -55,10 +50,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 
     /// Mass flux through the low boundary face of `first` along `a` (positive = into the cell).
+    /// An opening in a wall is an outflow face scaled by its open fraction.
     fn low_flux(&self, a: usize, first: usize, side: &FlowSide<R, D>) -> R {
         match side.kind {
             Boundary::Inflow => upwind(side.c, self.c[first], side.velocity[a]),
             Boundary::Outflow => upwind(R::ZERO, self.c[first], self.u[a][first].min(R::ZERO)),
+            Boundary::Wall if !side.openings.is_empty() => {
+                let open = self.open_fraction(a, false, first);
+                open * upwind(R::ZERO, self.c[first], self.u[a][first].min(R::ZERO))
+            }
             _ => R::ZERO,
         }
     }
@@ -66,6 +66,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Mass flux through the high boundary face of `last` along `a` (positive = out of the cell).
     fn high_flux(&self, a: usize, last: usize, first: usize, side: &FlowSide<R, D>) -> R {
         match side.kind {
+            Boundary::Wall if !side.openings.is_empty() => {
+                let open = self.open_fraction(a, true, last);
+                open * upwind(self.c[last], R::ZERO, self.u[a][last].max(R::ZERO))
+            }
             Boundary::Wall => R::ZERO,
             Boundary::Periodic => upwind(
                 self.c[last],
@@ -124,7 +128,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     self.diag[last] += lam * f;
                 }
             });
-            if matches!(lo.kind, Boundary::Inflow | Boundary::Outflow) {
+            if open_low(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
                     let f = self.low_flux(a, first, &lo);
                     if f > R::ZERO {
@@ -151,7 +155,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 R::ONE
             };
         }
-        // Pass 2: apply.
+        // Pass 2: apply, and keep each applied amount in `flux` / `flux_low` (the step's
+        // face mass fluxes, see `Flow::mass_fluxes`).
+        let vol = grid.cell_volume();
+        self.discharge_step = [[R::ZERO; 2]; D];
         for a in 0..D {
             let lam = dt / h[a];
             let fb = grid.face_blocks(a);
@@ -163,34 +170,49 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
             let (lo, hi) = (self.bc[a][0], self.bc[a][1]);
-            grid.for_each_boundary_cell(a, true, |last, first| match hi.kind {
-                Boundary::Periodic => self.exchange(a, last, first, lam),
-                Boundary::Wall => {}
-                _ => {
-                    let f = self.flux[a][last];
-                    if f > R::ZERO {
-                        // out of the box: the interior state leaves
-                        let f = f * self.diag[last];
-                        let (u, t) = (self.velocity(last), self.t[last]);
-                        self.add_flux(last, -lam * f, u, t);
-                    } else if f < R::ZERO {
-                        let f = f * self.inflow[last];
-                        self.add_flux(last, -lam * f, hi.velocity, hi.t);
-                    }
+            grid.for_each_boundary_cell(a, true, |last, first| {
+                if hi.kind == Boundary::Periodic {
+                    return self.exchange(a, last, first, lam);
                 }
+                // (0 on a closed wall)
+                let f = self.flux[a][last];
+                let mut df = R::ZERO;
+                if f > R::ZERO {
+                    // out of the box: the interior state leaves
+                    let f = f * self.diag[last];
+                    let (u, t) = (self.velocity(last), self.t[last]);
+                    df = lam * f;
+                    self.add_flux(last, -df, u, t);
+                } else if f < R::ZERO {
+                    let f = f * self.inflow[last];
+                    df = lam * f;
+                    self.add_flux(last, -df, hi.velocity, hi.t);
+                }
+                self.flux[a][last] = df;
+                self.discharge_step[a][1] += df * vol;
             });
-            if matches!(lo.kind, Boundary::Inflow | Boundary::Outflow) {
+            if open_low(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
                     let f = self.low_flux(a, first, &lo);
+                    let mut df = R::ZERO;
                     if f > R::ZERO {
                         let f = f * self.inflow[first];
-                        self.add_flux(first, lam * f, lo.velocity, lo.t);
+                        df = lam * f;
+                        self.add_flux(first, df, lo.velocity, lo.t);
                     } else if f < R::ZERO {
                         let f = f * self.diag[first];
                         let (u, t) = (self.velocity(first), self.t[first]);
-                        self.add_flux(first, lam * f, u, t);
+                        df = lam * f;
+                        self.add_flux(first, df, u, t);
                     }
+                    self.flux_low[a][first] = df;
+                    self.discharge_step[a][0] -= df * vol;
                 });
+            }
+        }
+        for a in 0..D {
+            for side in 0..2 {
+                self.discharged[a][side] += self.discharge_step[a][side];
             }
         }
     }
@@ -229,21 +251,24 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 
     /// Moves the stored flux of face (l, r) along `a`, scaled by the smaller limiter factor
-    /// of donor (outflow, in `diag`) and receiver (inflow, in `inflow`).
+    /// of donor (outflow, in `diag`) and receiver (inflow, in `inflow`); stores the amount
+    /// moved in its place.
     #[inline(always)]
     fn exchange(&mut self, a: usize, l: usize, r: usize, lam: R) {
         let f = self.flux[a][l];
+        let mut df = R::ZERO;
         if f > R::ZERO {
-            let df = lam * f * self.inflow[r].min(self.diag[l]);
+            df = lam * f * self.inflow[r].min(self.diag[l]);
             let (u, t) = (self.velocity(l), self.t[l]);
             self.add_flux(l, -df, u, t);
             self.add_flux(r, df, u, t);
         } else if f < R::ZERO {
-            let df = lam * f * self.inflow[l].min(self.diag[r]);
+            df = lam * f * self.inflow[l].min(self.diag[r]);
             let (u, t) = (self.velocity(r), self.t[r]);
             self.add_flux(l, -df, u, t);
             self.add_flux(r, df, u, t);
         }
+        self.flux[a][l] = df;
     }
 
     #[inline(always)]
@@ -310,7 +335,25 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         };
         let (cg, pg) = match side.kind {
             // Hydrostatic ghost (c_i, p_i -+ h c_i g_a): the wall carries its half exactly.
-            Boundary::Wall => return (R::ZERO, R::ONE),
+            Boundary::Wall if side.openings.is_empty() => return (R::ZERO, R::ONE),
+            // An opening: the outlet ghost (c_i, p_ghost) on the open fraction of the face,
+            // the wall's (0, 1) on the rest.
+            Boundary::Wall => {
+                let open = self.open_fraction(a, high, i);
+                if open == R::ZERO {
+                    return (R::ZERO, R::ONE);
+                }
+                let pg = match side.outlet {
+                    OutletPressure::Zero => R::ZERO,
+                    OutletPressure::ZeroGradient => pi,
+                };
+                let (f, w) = if high {
+                    self.face_force(a, ci, pi, ci, pg)
+                } else {
+                    self.face_force(a, ci, pg, ci, pi)
+                };
+                return (open * f, (R::ONE - open) + open * w);
+            }
             Boundary::Periodic => (self.c[other], self.p[other]),
             Boundary::Inflow => (
                 side.c,
@@ -456,8 +499,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     if !(into && stuck) {
                         return;
                     }
-                    let impulse = m.abs();
-                    self.m[a][i] = R::ZERO;
+                    // only the closed part of the face stops grains (an opening lets them go)
+                    let open = self.open_fraction(a, high, i);
+                    let impulse = m.abs() * (R::ONE - open);
+                    self.m[a][i] = if open > R::ZERO { m * open } else { R::ZERO };
                     for b in 0..D {
                         if b == a {
                             continue;
@@ -604,13 +649,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 let k2 = R::TWO / (h[axis] * h[axis]);
                 for (high, side) in [(false, self.bc[axis][0]), (true, self.bc[axis][1])] {
                     grid.for_each_boundary_cell(axis, high, |i, _| {
+                        // the closed share of the face (the open share is free: zero gradient)
+                        let shut = R::ONE - self.open_fraction(axis, high, i);
                         match self.wall_face(comp, &side, i, axis) {
                             Face::Value(v) => {
-                                let k = k2 * self.eta[i];
+                                let k = k2 * self.eta[i] * shut;
                                 self.diag[i] += k;
                                 self.rhs[i] += k * v;
                             }
-                            Face::Stress(tau) => self.rhs[i] += tau / h[axis],
+                            Face::Stress(tau) => self.rhs[i] += tau * shut / h[axis],
                             Face::Free => {}
                         }
                     });
@@ -687,6 +734,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let k4 = R::from_f64(4.0) / (h[a] * h[a]);
             for (high, side) in [(false, self.bc[a][0]), (true, self.bc[a][1])] {
                 grid.for_each_boundary_cell(a, high, |i, _| {
+                    let shut = R::ONE - self.open_fraction(a, high, i);
                     let mut w = R::ZERO;
                     for comp in 0..D {
                         w += match self.wall_face(comp, &side, i, a) {
@@ -698,7 +746,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                             Face::Free => R::ZERO,
                         };
                     }
-                    self.inflow[i] += R::HALF * w;
+                    self.inflow[i] += R::HALF * w * shut;
                 });
             }
         }
@@ -804,4 +852,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         du / (dt * umax.max(u_ref))
     }
+}
+
+/// Whether the low side of an axis has boundary faces that move mass (inflow, outflow, or a
+/// wall with openings).
+fn open_low<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
+    matches!(side.kind, Boundary::Inflow | Boundary::Outflow)
+        || (side.kind == Boundary::Wall && !side.openings.is_empty())
 }

@@ -7,10 +7,12 @@
 //! direction, `k = S.n / c`, the stable time step); [`Segregation::step`] advances.
 //! Memory is fixed by the capacity `N` and the dimension `D`; nothing allocates.
 
+mod carried;
 pub mod direction;
 pub mod flux;
 mod step;
 
+pub use carried::{Discharge, MassFluxes};
 pub use flux::Scheme;
 
 use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};

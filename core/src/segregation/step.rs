@@ -9,6 +9,7 @@ use super::flux::{self, Scheme};
 use super::Segregation;
 use crate::boundary::Boundary;
 use crate::real::Real;
+use core::marker::PhantomData;
 
 /// One side of a face: tracked fraction, volume fraction, segregation coefficient, temperature,
 /// normal velocity.
@@ -23,7 +24,21 @@ struct Side<R> {
 
 /// A numerical segregation flux as a zero-sized type, so the face loop is monomorphised.
 trait Kernel<R: Real> {
+    /// Whether the face flux includes the solver's own upwind transport `q u.n` (not when
+    /// the transport is carried by the flow's mass fluxes: [`Percolation`]).
+    const TRANSPORT: bool = true;
     fn segregation(l: Side<R>, r: Side<R>, vacuum: R) -> R;
+}
+
+/// The segregation flux of `K` alone, without transport ([`Segregation::step_percolation`]).
+struct Percolation<K>(PhantomData<K>);
+
+impl<R: Real, K: Kernel<R>> Kernel<R> for Percolation<K> {
+    const TRANSPORT: bool = false;
+    #[inline(always)]
+    fn segregation(l: Side<R>, r: Side<R>, vacuum: R) -> R {
+        K::segregation(l, r, vacuum)
+    }
 }
 
 struct Modified;
@@ -87,8 +102,12 @@ struct AxisConst<R> {
 /// Total normal flux through one face times dt/h: transport + segregation (+ diffusion).
 #[inline(always)]
 fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(l: Side<R>, r: Side<R>, ax: AxisConst<R>) -> R {
-    let un = (l.u + r.u) * R::HALF;
-    let mut f = flux::transport(l.q, r.q, un) + K::segregation(l, r, ax.vacuum);
+    let mut f = if K::TRANSPORT {
+        let un = (l.u + r.u) * R::HALF;
+        flux::transport(l.q, r.q, un) + K::segregation(l, r, ax.vacuum)
+    } else {
+        K::segregation(l, r, ax.vacuum)
+    };
     if DIFFUSE && l.c > ax.vacuum && r.c > ax.vacuum {
         let c_face = (l.c + r.c) * R::HALF;
         f -= ax.diffusion * c_face * (r.q / r.c - l.q / l.c);
@@ -111,6 +130,27 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             (Scheme::Godunov, true) => self.step_with::<Godunov, true>(dt),
             (Scheme::Upwind, false) => self.step_with::<Upwind, false>(dt),
             (Scheme::Upwind, true) => self.step_with::<Upwind, true>(dt),
+        }
+        self.time += dt;
+        self.steps += 1;
+    }
+
+    /// One step of the segregation (and diffusion) flux alone, without transport: the
+    /// percolation stage of the carried transport (see [`Self::carry_mass_fluxes`]), which
+    /// moves phi with the flow's own face mass fluxes instead. Keeps `0 <= phi <= c` under
+    /// the same Courant condition as [`Self::step`]. Adds `dt` to the clock.
+    pub fn step_percolation(&mut self, dt: R) {
+        debug_assert!(
+            self.prepared,
+            "prepare() must follow any change of u, c or T"
+        );
+        match (self.cfg.scheme, self.cfg.diffusion > R::ZERO) {
+            (Scheme::Modified, false) => self.step_with::<Percolation<Modified>, false>(dt),
+            (Scheme::Modified, true) => self.step_with::<Percolation<Modified>, true>(dt),
+            (Scheme::Godunov, false) => self.step_with::<Percolation<Godunov>, false>(dt),
+            (Scheme::Godunov, true) => self.step_with::<Percolation<Godunov>, true>(dt),
+            (Scheme::Upwind, false) => self.step_with::<Percolation<Upwind>, false>(dt),
+            (Scheme::Upwind, true) => self.step_with::<Percolation<Upwind>, true>(dt),
         }
         self.time += dt;
         self.steps += 1;

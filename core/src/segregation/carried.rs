@@ -1,0 +1,236 @@
+//! Carried transport: phi moved by the flow's own face mass fluxes (issue 10; model.md 3, 5).
+//!
+//! In a coupled run the flow moves `c` with conservative, limited face mass fluxes. If the
+//! segregation solver transported phi with its own upwind rule it would not see the flow's
+//! limiter cuts, and `phi <= c` would break wherever a cut was made. Instead each face carries
+//! `F phihat_donor` of the small phase and `F (1 - phihat_donor)` of the large one, where `F`
+//! is the flow's applied amount of the face in the step (content units: `dt / h` times the
+//! face flux, after the limiters; [`MassFluxes`]) and `phihat = phi / c` of the donor cell (an
+//! inflow face takes the inflow's phihat).
+//!
+//! **Bounds by construction.** Let `O_i <= c_i` be the amount leaving cell `i` over all its
+//! faces (the flow's donor limiter guarantees `c_i - O_i >= 0`). The cell keeps the share
+//! `s_i = (c_i - O_i) / c_i` in `[0, 1]` of both phases and receives non-negative amounts of
+//! each from its donors:
+//!
+//! ```text
+//! phi_i' = s_i phi_i + sum_in F_f phihat_d        >= 0
+//! psi_i' = s_i psi_i + sum_in F_f (1 - phihat_d)  >= 0      (psi = c - phi)
+//! c_i'   = phi_i' + psi_i'                        >= phi_i'
+//! ```
+//!
+//! Every term is a product or sum of non-negative numbers, and rounding is monotone, so both
+//! inequalities hold exactly in floating point, not only in exact arithmetic: `phi >= 0` and
+//! `psi >= 0` are sums of non-negative terms, and `fl(phi + psi) >= phi` because `psi >= 0`.
+//! In exact arithmetic `c_i'` equals the flow's new `c` (same `O_i`, same inflows); in floating
+//! point the two differ by round-off (the flow adds the fluxes one by one), so the segregation
+//! solver keeps its own `c' = phi' + psi'` (see [`crate::flow::coupled`]). A donor loses
+//! `phi_i (1 - s_i) = phihat_i O_i` and its receivers gain `sum F_f phihat_i`: the same amount
+//! up to round-off, so each phase's mass is conserved to round-off (plus what leaves the box,
+//! which is returned).
+
+use super::{Phase, Segregation};
+use crate::boundary::Boundary;
+use crate::real::Real;
+
+/// The face mass fluxes one flow step applied (time-integrated, in content units: the change
+/// of `c` they make in a cell), as the flow stores them ([`crate::flow::Flow::mass_fluxes`]).
+#[derive(Clone, Copy, Debug)]
+pub struct MassFluxes<'a, R, const D: usize, const N: usize> {
+    /// Per axis, at the left cell `l` of each face: the amount moved from `l` to its right
+    /// neighbour (negative: from the right to `l`). At the last cell of a line: its high
+    /// boundary face (positive = out of the box), or, on a periodic axis, the wrap face from
+    /// the last cell to the first.
+    pub faces: &'a [[R; N]; D],
+    /// Per axis, at the first cell of each line: the amount through the low boundary face,
+    /// positive = into the box (0 on periodic axes and closed walls).
+    pub low: &'a [[R; N]; D],
+}
+
+/// What left the box through each side `[axis][low, high]` in one carried transport
+/// (volume: content times cell volume; negative if it came in).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Discharge<R, const D: usize> {
+    /// Small grains.
+    pub small: [[R; 2]; D],
+    /// All grains.
+    pub total: [[R; 2]; D],
+    /// Round-off guard: tracked-phase volume added to lift a cell that the percolation
+    /// stage left outside `[0, c]` by round-off back into it before transport (0 if the
+    /// percolation kept the bounds exactly, which is what the tests assert).
+    pub guarded: R,
+}
+
+impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
+    /// Sets temperature and velocity of cell `i` only (c and phi are carried: see
+    /// [`Self::carry_mass_fluxes`]); call [`Self::prepare`] after.
+    pub fn set_flow_state(&mut self, i: usize, t: R, u: [R; D]) {
+        self.temp[i] = t;
+        for (a, ua) in u.iter().enumerate() {
+            self.u[a][i] = *ua;
+        }
+        self.prepared = false;
+    }
+
+    /// Moves both phases with the flow's face mass fluxes of one step (module docs), sets
+    /// `c` to the carried `phi + psi`, and returns what left through each side. Does not
+    /// advance the clock (the percolation stage does: [`Self::step_percolation`]). The face
+    /// coefficients are used as scratch: call [`Self::prepare`] before the next step.
+    pub fn carry_mass_fluxes(&mut self, fx: MassFluxes<'_, R, D, N>) -> Discharge<R, D> {
+        let n = self.grid.len();
+        let grid = self.grid;
+        let vol = grid.cell_volume();
+        let mut out = Discharge {
+            small: [[R::ZERO; 2]; D],
+            total: [[R::ZERO; 2]; D],
+            guarded: R::ZERO,
+        };
+        // Pass A: O_i, the amount leaving each cell, into `rhs`.
+        self.rhs[..n].fill(R::ZERO);
+        for a in 0..D {
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            let periodic = self.bc[a][0] == Boundary::Periodic;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let f = fx.faces[a][l];
+                    if f > R::ZERO {
+                        self.rhs[l] += f;
+                    } else if f < R::ZERO {
+                        self.rhs[l + s] -= f;
+                    }
+                }
+            }
+            let rhs = &mut self.rhs;
+            grid.for_each_boundary_cell(a, true, |last, first| {
+                let f = fx.faces[a][last];
+                if f > R::ZERO {
+                    rhs[last] += f;
+                } else if f < R::ZERO && periodic {
+                    rhs[first] -= f;
+                }
+            });
+            if !periodic {
+                grid.for_each_boundary_cell(a, false, |first, _| {
+                    let g = fx.low[a][first];
+                    if g < R::ZERO {
+                        rhs[first] -= g;
+                    }
+                });
+            }
+        }
+        // Pass B: each cell keeps the share s_i of both phases. Tracked fraction q (phi or
+        // psi) stays in `q`, the untracked one `c - q` goes to `k[0]` (scratch), the donor's
+        // qhat to `flux`.
+        let mut guarded = R::ZERO;
+        for i in 0..n {
+            let c = self.c[i];
+            let mut q = self.q[i] + self.carry[i];
+            self.carry[i] = R::ZERO;
+            if q < R::ZERO {
+                guarded -= q;
+                q = R::ZERO;
+            } else if q > c {
+                guarded += c - q;
+                q = c;
+            }
+            let r = c - q;
+            let (qhat, keep) = if c > R::ZERO {
+                ((q / c).min(R::ONE), ((c - self.rhs[i]) / c).max(R::ZERO))
+            } else {
+                (R::ZERO, R::ONE)
+            };
+            self.flux[i] = qhat;
+            self.q[i] = q * keep;
+            self.k[0][i] = r * keep;
+        }
+        out.guarded = guarded * vol;
+        // Pass C: what each cell receives, in the same face order.
+        let small = self.cfg.phase == Phase::Small;
+        for a in 0..D {
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            let periodic = self.bc[a][0] == Boundary::Periodic;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let f = fx.faces[a][l];
+                    if f > R::ZERO {
+                        self.receive(l + s, f, self.flux[l]);
+                    } else if f < R::ZERO {
+                        self.receive(l, -f, self.flux[l + s]);
+                    }
+                }
+            }
+            grid.for_each_boundary_cell(a, true, |last, first| {
+                let f = fx.faces[a][last];
+                if periodic {
+                    if f > R::ZERO {
+                        self.receive(first, f, self.flux[last]);
+                    } else if f < R::ZERO {
+                        self.receive(last, -f, self.flux[first]);
+                    }
+                } else if f > R::ZERO {
+                    out.small[a][1] += small_part(small, f, self.flux[last]) * vol;
+                    out.total[a][1] += f * vol;
+                } else if f < R::ZERO {
+                    let qhat = self.inflow_fraction(last);
+                    self.receive(last, -f, qhat);
+                    out.small[a][1] -= small_part(small, -f, qhat) * vol;
+                    out.total[a][1] += f * vol;
+                }
+            });
+            if !periodic {
+                grid.for_each_boundary_cell(a, false, |first, _| {
+                    let g = fx.low[a][first];
+                    if g < R::ZERO {
+                        out.small[a][0] += small_part(small, -g, self.flux[first]) * vol;
+                        out.total[a][0] -= g * vol;
+                    } else if g > R::ZERO {
+                        let qhat = self.inflow_fraction(first);
+                        self.receive(first, g, qhat);
+                        out.small[a][0] -= small_part(small, g, qhat) * vol;
+                        out.total[a][0] -= g * vol;
+                    }
+                });
+            }
+        }
+        // Pass D: c = tracked + untracked.
+        for i in 0..n {
+            self.c[i] = self.q[i] + self.k[0][i];
+        }
+        self.prepared = false;
+        out
+    }
+
+    /// Cell `i` receives `f >= 0` of donor fraction `qhat` in `[0, 1]`.
+    #[inline(always)]
+    fn receive(&mut self, i: usize, f: R, qhat: R) {
+        self.q[i] += f * qhat;
+        self.k[0][i] += f * (R::ONE - qhat);
+    }
+
+    /// Tracked fraction `q / c` of the inflow state at boundary cell `i` (its Dirichlet phi
+    /// over the cell's c, as the solver's own inflow faces read it), in `[0, 1]`.
+    fn inflow_fraction(&self, i: usize) -> R {
+        let c = self.c[i];
+        if c > R::ZERO {
+            (self.inflow_tracked(i) / c).max(R::ZERO).min(R::ONE)
+        } else {
+            R::ZERO
+        }
+    }
+}
+
+/// The small-phase part of an amount `f >= 0` with tracked fraction `qhat` (the tracked phase
+/// is the small one if `small`, else the large one).
+#[inline(always)]
+fn small_part<R: Real>(small: bool, f: R, qhat: R) -> R {
+    let q = f * qhat;
+    if small {
+        q
+    } else {
+        f * (R::ONE - qhat)
+    }
+}
