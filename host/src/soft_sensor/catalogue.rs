@@ -33,8 +33,8 @@
 use super::record::{RecordReport, Writer};
 use super::scene::coarsen;
 use super::ESTIMATOR_CAPACITY;
+use crate::data::FlowSummary;
 use crate::error::{Error, Result};
-use crate::flow::FlowSummary;
 use crate::run::{FlowJob, SolverJob};
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Equations, Fields, Scene};
