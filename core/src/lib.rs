@@ -19,6 +19,7 @@ pub mod exact;
 pub mod flow;
 pub mod grid;
 pub mod hash;
+mod messages;
 pub mod real;
 pub mod segregation;
 pub mod sensor;

@@ -17,7 +17,7 @@ use crate::data::{
 };
 use crate::error::{Error, Result};
 use crate::scene::validate::{FlowModel, WallSlip};
-use crate::scene::{BackCoupling, Equations, Fields, Scene, SpinUp};
+use crate::scene::{solver_errors, BackCoupling, Equations, Fields, Scene, SpinUp};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, Slip};
@@ -123,10 +123,10 @@ fn setup<R: Real, const D: usize, const N: usize>(
     let nx = scene.cells[0];
     let extent: [R; D] = core::array::from_fn(|a| R::from_f64(scene.upper[a] - scene.lower[a]));
     let lower: [R; D] = core::array::from_fn(|a| R::from_f64(scene.lower[a]));
-    let grid = Grid::new(cells, lower, extent, N)
-        .map_err(|e| Error::at(&scene.label, "grid", format!("{e:?}")))?;
+    let grid =
+        Grid::new(cells, lower, extent, N).map_err(|e| solver_errors::grid_error(scene, &e))?;
     flow.setup(grid, boundaries(scene, fm), config(scene, fm))
-        .map_err(|e| Error::at(&scene.label, "flow", format!("flow setup failed: {e:?}")))?;
+        .map_err(|e| solver_errors::flow_error(scene, &e))?;
     let mat = material::<R>(scene, fm);
     let pk = packing(fm.back_coupling);
     for i in 0..grid.len() {
@@ -144,13 +144,8 @@ fn setup<R: Real, const D: usize, const N: usize>(
             flow.set_packing(i, rcp, rlp);
         }
     }
-    flow.prepare().map_err(|e| {
-        Error::at(
-            &scene.label,
-            "initial",
-            format!("rejected by the flow solver: {e:?}"),
-        )
-    })
+    flow.prepare()
+        .map_err(|e| solver_errors::flow_error(scene, &e))
 }
 
 /// A steady flow, frozen, on the full grid (solver cell order).
@@ -301,7 +296,7 @@ pub fn hand_over_frozen<R: Real, const D: usize, const N: usize>(
     }
     seg.prepare().map_err(|e| {
         Error::failure(format!(
-            "{}: the segregation solver rejected the frozen flow: {e:?}",
+            "{}: the segregation solver rejected the frozen flow: {e}",
             scene.label
         ))
     })
@@ -334,7 +329,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     let mut cc = CouplingConfig::new(Mode::Coupled);
     cc.packing = packing(fm.back_coupling);
     cc.steady_tolerance = R::from_f64(fm.steady_tolerance);
-    let fail = |e| Error::failure(format!("{}: coupled step failed: {e:?}", scene.label));
+    let fail = |e| Error::failure(format!("{}: coupled step failed: {e}", scene.label));
     let mut cpl = Coupled::new(flow, seg, cc).map_err(fail)?;
     let times = output_times(scene.t_end, scene.output_interval);
     let mut stats = LoopStats {

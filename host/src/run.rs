@@ -9,7 +9,7 @@
 use crate::data::{output_times, LoopStats, SegregationTimer, SeriesRow, Snapshot};
 use crate::error::{Error, Result};
 use crate::scene::validate::{Direction, Temperature};
-use crate::scene::{Fields, Precision, Scene};
+use crate::scene::{solver_errors, Fields, Precision, Scene};
 use indicatif::ProgressBar;
 use sieve_core::flow::Flow;
 use sieve_core::segregation::SegregationConfig;
@@ -131,7 +131,7 @@ pub fn load<R: Real, const D: usize, const N: usize>(
     let cells: [usize; D] = core::array::from_fn(|a| scene.cells[a]);
     let extent: [R; D] = core::array::from_fn(|a| R::from_f64(scene.upper[a] - scene.lower[a]));
     let grid = Grid::new(cells, v(&scene.lower), extent, N)
-        .map_err(|e| Error::at(&scene.label, "grid", format!("{e:?}")))?;
+        .map_err(|e| solver_errors::grid_error(scene, &e))?;
     let bc: [[sieve_core::Boundary; 2]; D] = core::array::from_fn(|a| scene.boundaries[a]);
     let mut cfg = SegregationConfig::<R, D>::new();
     cfg.scheme = scene.scheme;
@@ -158,7 +158,7 @@ pub fn load<R: Real, const D: usize, const N: usize>(
     cfg.diffusion = R::from_f64(scene.diffusion);
     cfg.courant = R::from_f64(scene.courant);
     s.setup(grid, bc, cfg)
-        .map_err(|e| Error::at(&scene.label, "", format!("solver setup failed: {e:?}")))?;
+        .map_err(|e| solver_errors::setup_error(scene, &e))?;
     for i in 0..scene.len() {
         let u: [R; D] = core::array::from_fn(|a| R::from_f64(fields.u[a][i]));
         s.set_cell(
@@ -177,13 +177,8 @@ pub fn load<R: Real, const D: usize, const N: usize>(
             }
         }
     }
-    s.prepare().map_err(|e| {
-        Error::at(
-            &scene.label,
-            "initial",
-            format!("rejected by the solver: {e:?}"),
-        )
-    })
+    s.prepare()
+        .map_err(|e| solver_errors::setup_error(scene, &e))
 }
 
 /// Advances `s` from 0 to `scene.t_end`, stopping at every output time to record diagnostics
