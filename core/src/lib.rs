@@ -21,6 +21,7 @@ pub mod frame;
 pub mod geometry;
 pub mod grid;
 pub mod hash;
+mod messages;
 pub mod real;
 pub mod segregation;
 pub mod sensor;

@@ -23,10 +23,11 @@
 //! evaluations. An S0 whose bed has not re-segregated by `4 target` is multiplied by 4 (at most
 //! 8 times); if no S0 reaches the target the level reports "not reached" and no number.
 
+use crate::data::{Profiles, SegregationTimer, SeriesRow, Snapshot};
 use crate::error::{Error, Result};
 use crate::flow::{hand_over_frozen, spin_up, Frozen};
 use crate::output::{num, plot, write_file, Staging};
-use crate::run::{load, with_flow_solvers, FlowJob, SegregationTimer, SeriesRow};
+use crate::run::{load, with_flow_solvers, FlowJob};
 use crate::scene::{self, Equations, Fields, Scene};
 use serde::Serialize;
 use sieve_core::flow::Flow;
@@ -121,7 +122,7 @@ struct FitJob<'a> {
 struct LevelOutcome {
     fit: LevelFit,
     psi: Vec<SeriesRow>,
-    profiles: crate::flow::Profiles,
+    profiles: Profiles,
 }
 
 /// Runs the segregation with `s0` on the frozen flow until Psi crosses the threshold or
@@ -272,7 +273,7 @@ impl FlowJob for FitJob<'_> {
             ));
         }
         // Profiles of the frozen flow.
-        let snap = crate::run::Snapshot {
+        let snap = Snapshot {
             t: 0.0,
             c: frozen.c.clone(),
             phi: vec![0.0; frozen.c.len()],

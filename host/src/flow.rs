@@ -12,11 +12,12 @@
 //! bed's unfinished compaction when the residual test stops the spin-up) is set to 0: the
 //! segregation transport then keeps `phi <= c` on the frozen `c`.
 
+use crate::data::{
+    output_times, FlowSummary, LoopStats, Profiles, SegregationTimer, SeriesRow, Snapshot,
+};
 use crate::error::{Error, Result};
-use crate::run::{SeriesRow, Snapshot};
 use crate::scene::validate::{FlowModel, WallSlip};
-use crate::scene::{BackCoupling, Equations, Fields, Scene, SpinUp};
-use serde::Serialize;
+use crate::scene::{solver_errors, BackCoupling, Equations, Fields, Scene, SpinUp};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, Slip};
@@ -25,45 +26,6 @@ use std::time::Instant;
 
 /// Columns of the x-reduced spin-up grid (periodic x needs a few cells for the stencils).
 pub const SPIN_UP_COLUMNS: usize = 4;
-
-/// The `flow` block of summary.json.
-#[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct FlowSummary {
-    /// "frozen-flow" or "coupled".
-    pub equations: String,
-    /// "off", "r0" or "half".
-    pub back_coupling: String,
-    /// Flow steps to the steady state (frozen-flow; null when coupled).
-    pub flow_steps_to_steady: Option<u64>,
-    /// Flow steps in total.
-    pub flow_steps: u64,
-    /// Conjugate-gradient iterations of all implicit solves (velocity components and T).
-    pub cg_iterations: u64,
-    /// Physical time of the flow solve [s] (spin-up time when frozen).
-    pub flow_time: f64,
-    /// Wall time of the flow solve [s].
-    pub flow_seconds: f64,
-    /// Cells of the grid the flow was solved on (the spin-up grid when reduced).
-    pub flow_cells: Vec<usize>,
-    /// max c / c_rcp over cells (< 1 by construction).
-    pub max_packing: f64,
-    /// Smallest T over cells [m^2/s^2].
-    pub t_min: f64,
-    /// Largest T over filled cells [m^2/s^2].
-    pub t_max: f64,
-    /// Largest speed over filled cells [m/s].
-    pub max_speed: f64,
-    /// Kinetic energy sum c |u|^2 / 2 |C| (per unit grain density).
-    pub kinetic_energy: f64,
-    /// Steady-state residual of the last flow step [1/s].
-    pub residual: f64,
-    /// Steady-state tolerance [1/s].
-    pub steady_tolerance: f64,
-    /// Tracked-phase volume lifted into [0, c] by the round-off guard of the carried
-    /// transport (coupled; 0 when the percolation stage keeps the bounds exactly, and when
-    /// frozen). phi is no longer clipped: it rides on the flow's mass fluxes.
-    pub clipped_mass: f64,
-}
 
 /// The material of the flow.
 pub fn material<R: Real>(scene: &Scene, fm: &FlowModel) -> Material<R> {
@@ -161,10 +123,10 @@ fn setup<R: Real, const D: usize, const N: usize>(
     let nx = scene.cells[0];
     let extent: [R; D] = core::array::from_fn(|a| R::from_f64(scene.upper[a] - scene.lower[a]));
     let lower: [R; D] = core::array::from_fn(|a| R::from_f64(scene.lower[a]));
-    let grid = Grid::new(cells, lower, extent, N)
-        .map_err(|e| Error::at(&scene.label, "grid", format!("{e:?}")))?;
+    let grid =
+        Grid::new(cells, lower, extent, N).map_err(|e| solver_errors::grid_error(scene, &e))?;
     flow.setup(grid, boundaries(scene, fm), config(scene, fm))
-        .map_err(|e| Error::at(&scene.label, "flow", format!("flow setup failed: {e:?}")))?;
+        .map_err(|e| solver_errors::flow_error(scene, &e))?;
     let mat = material::<R>(scene, fm);
     let pk = packing(fm.back_coupling);
     for i in 0..grid.len() {
@@ -182,13 +144,8 @@ fn setup<R: Real, const D: usize, const N: usize>(
             flow.set_packing(i, rcp, rlp);
         }
     }
-    flow.prepare().map_err(|e| {
-        Error::at(
-            &scene.label,
-            "initial",
-            format!("rejected by the flow solver: {e:?}"),
-        )
-    })
+    flow.prepare()
+        .map_err(|e| solver_errors::flow_error(scene, &e))
 }
 
 /// A steady flow, frozen, on the full grid (solver cell order).
@@ -339,7 +296,7 @@ pub fn hand_over_frozen<R: Real, const D: usize, const N: usize>(
     }
     seg.prepare().map_err(|e| {
         Error::failure(format!(
-            "{}: the segregation solver rejected the frozen flow: {e:?}",
+            "{}: the segregation solver rejected the frozen flow: {e}",
             scene.label
         ))
     })
@@ -348,7 +305,7 @@ pub fn hand_over_frozen<R: Real, const D: usize, const N: usize>(
 /// What the coupled loop measured beyond the segregation series.
 pub struct CoupledStats {
     /// Segregation-side statistics.
-    pub stats: crate::run::LoopStats,
+    pub stats: LoopStats,
     /// Flow block.
     pub summary: FlowSummary,
 }
@@ -372,14 +329,14 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     let mut cc = CouplingConfig::new(Mode::Coupled);
     cc.packing = packing(fm.back_coupling);
     cc.steady_tolerance = R::from_f64(fm.steady_tolerance);
-    let fail = |e| Error::failure(format!("{}: coupled step failed: {e:?}", scene.label));
+    let fail = |e| Error::failure(format!("{}: coupled step failed: {e}", scene.label));
     let mut cpl = Coupled::new(flow, seg, cc).map_err(fail)?;
-    let times = crate::run::output_times(scene.t_end, scene.output_interval);
-    let mut stats = crate::run::LoopStats {
+    let times = output_times(scene.t_end, scene.output_interval);
+    let mut stats = LoopStats {
         dt: cpl.seg.stable_dt().to_f64(),
         ..Default::default()
     };
-    let mut timer = crate::run::SegregationTimer::new(scene.psi_threshold);
+    let mut timer = SegregationTimer::new(scene.psi_threshold);
     let mut flow_seconds = 0.0;
     for (k, &t) in times.iter().enumerate() {
         let target = R::from_f64(t);
@@ -416,21 +373,6 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     let clipped = cpl.guarded_mass().to_f64();
     let summary = summary_of(cpl.flow, fm, flow_seconds, None, clipped);
     Ok(CoupledStats { stats, summary })
-}
-
-/// Horizontally averaged flow profiles over the vertical (last) axis.
-#[derive(Debug, Clone, Default)]
-pub struct Profiles {
-    /// Cell-centre heights.
-    pub z: Vec<f64>,
-    /// Mean horizontal velocity u_x (the vertical velocity in 1D).
-    pub u: Vec<f64>,
-    /// Mean T.
-    pub t: Vec<f64>,
-    /// |d u_x / d z| (central differences; one-sided to a wall's velocity).
-    pub shear: Vec<f64>,
-    /// sqrt(a eta0 / eps0): sqrt(T)/shear of steady uniform shear (model.md 2).
-    pub ratio_theory: f64,
 }
 
 /// The profiles of a snapshot.

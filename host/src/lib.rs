@@ -9,6 +9,7 @@
 
 pub mod cli;
 pub mod converge;
+pub mod data;
 pub mod error;
 pub mod fit;
 pub mod flow;

@@ -6,16 +6,15 @@
 //! [`CAPACITY`](crate::scene::validate::CAPACITY)) times two precisions is dispatched by
 //! generic functions; a grid smaller than the capacity uses only its first cells.
 
+use crate::data::{output_times, LoopStats, SegregationTimer, SeriesRow, Snapshot};
 use crate::error::{Error, Result};
 use crate::scene::validate::{Direction, Temperature};
-use crate::scene::{Fields, Precision, Scene};
+use crate::scene::{solver_errors, Fields, Precision, Scene};
 use indicatif::ProgressBar;
 use sieve_core::flow::Flow;
 use sieve_core::segregation::SegregationConfig;
-use sieve_core::{
-    diagnose, DirectionMode, Grid, Real, Segregation, SegregationClock, TemperatureMode,
-};
-use std::time::{Duration, Instant};
+use sieve_core::{diagnose, DirectionMode, Grid, Real, Segregation, TemperatureMode};
+use std::time::Instant;
 
 const CAP_1D: usize = crate::scene::validate::CAPACITY[0];
 const CAP_2D: usize = crate::scene::validate::CAPACITY[1];
@@ -132,7 +131,7 @@ pub fn load<R: Real, const D: usize, const N: usize>(
     let cells: [usize; D] = core::array::from_fn(|a| scene.cells[a]);
     let extent: [R; D] = core::array::from_fn(|a| R::from_f64(scene.upper[a] - scene.lower[a]));
     let grid = Grid::new(cells, v(&scene.lower), extent, N)
-        .map_err(|e| Error::at(&scene.label, "grid", format!("{e:?}")))?;
+        .map_err(|e| solver_errors::grid_error(scene, &e))?;
     let bc: [[sieve_core::Boundary; 2]; D] = core::array::from_fn(|a| scene.boundaries[a]);
     let mut cfg = SegregationConfig::<R, D>::new();
     cfg.scheme = scene.scheme;
@@ -159,7 +158,7 @@ pub fn load<R: Real, const D: usize, const N: usize>(
     cfg.diffusion = R::from_f64(scene.diffusion);
     cfg.courant = R::from_f64(scene.courant);
     s.setup(grid, bc, cfg)
-        .map_err(|e| Error::at(&scene.label, "", format!("solver setup failed: {e:?}")))?;
+        .map_err(|e| solver_errors::setup_error(scene, &e))?;
     for i in 0..scene.len() {
         let u: [R; D] = core::array::from_fn(|a| R::from_f64(fields.u[a][i]));
         s.set_cell(
@@ -178,117 +177,8 @@ pub fn load<R: Real, const D: usize, const N: usize>(
             }
         }
     }
-    s.prepare().map_err(|e| {
-        Error::at(
-            &scene.label,
-            "initial",
-            format!("rejected by the solver: {e:?}"),
-        )
-    })
-}
-
-/// One row of `series.csv`: diagnostics at an output time.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SeriesRow {
-    /// Time.
-    pub t: f64,
-    /// Mixing index Psi.
-    pub psi: f64,
-    /// Mass of the small phase, sum phi |C|.
-    pub mass: f64,
-    /// max(0, phi - c) over cells.
-    pub overshoot_max: f64,
-    /// max(0, -phi) over cells.
-    pub undershoot_max: f64,
-}
-
-/// What the time loop measured.
-#[derive(Debug, Clone, Default)]
-pub struct LoopStats {
-    /// Steps taken.
-    pub steps: u64,
-    /// Wall time of the stepping alone (no diagnostics, no output).
-    pub stepping: Duration,
-    /// One row per output time, t = 0 first.
-    pub series: Vec<SeriesRow>,
-    /// Segregation time (see [`SegregationTimer`]).
-    pub segregation_time: Option<f64>,
-    /// The stable time step of the prepared state.
-    pub dt: f64,
-    /// The solver's running bound violations `(max(phi - c), max(-phi))` over every cell after
-    /// every step ([`sieve_core::Segregation::bound_violations`]), not only at output times.
-    pub every_step: (f64, f64),
-}
-
-impl LoopStats {
-    /// Largest overshoot over all cells, steps and output times.
-    pub fn overshoot_max(&self) -> f64 {
-        self.series
-            .iter()
-            .map(|r| r.overshoot_max)
-            .fold(self.every_step.0, f64::max)
-    }
-    /// Largest undershoot over all cells, steps and output times.
-    pub fn undershoot_max(&self) -> f64 {
-        self.series
-            .iter()
-            .map(|r| r.undershoot_max)
-            .fold(self.every_step.1, f64::max)
-    }
-    /// Records the solver's running bound violations at the end of a loop.
-    pub fn record_bounds<R: Real, const D: usize, const N: usize>(
-        &mut self,
-        s: &Segregation<R, D, N>,
-    ) {
-        let (above, below) = s.bound_violations();
-        self.every_step = (above.to_f64().max(0.0), below.to_f64().max(0.0));
-    }
-}
-
-/// Segregation time: the first time Psi falls below the threshold, counted only once Psi has
-/// been at or above it, so that a bed that starts segregated the wrong way round (Psi = 0,
-/// inversely graded) reports when it has re-segregated, not t = 0.
-#[derive(Debug, Clone, Copy)]
-pub struct SegregationTimer {
-    armed: bool,
-    clock: SegregationClock<f64>,
-}
-
-impl SegregationTimer {
-    /// A timer for `Psi < threshold`.
-    pub fn new(threshold: f64) -> Self {
-        Self {
-            armed: false,
-            clock: SegregationClock::new(threshold),
-        }
-    }
-    /// Feeds a sample in time order.
-    pub fn sample(&mut self, t: f64, psi: f64) {
-        if !self.armed && psi >= self.clock.threshold() {
-            self.armed = true;
-        }
-        if self.armed {
-            self.clock.sample(t, psi);
-        }
-    }
-    /// The segregation time, if reached.
-    pub fn time(&self) -> Option<f64> {
-        self.clock.time()
-    }
-}
-
-/// The output times `0, dt_out, 2 dt_out, ..., t_end` (the last one clipped to `t_end`).
-pub fn output_times(t_end: f64, interval: f64) -> Vec<f64> {
-    let k_max = (t_end / interval * (1.0 - 1e-12)).ceil().max(1.0) as usize;
-    (0..=k_max)
-        // Rounded to 12 significant digits so that 6 * 0.1 is written as 0.6, not
-        // 0.6000000000000001 (a shift of ~1e-16 in the stop time).
-        .map(|k| round12(k as f64 * interval).min(t_end))
-        .collect()
-}
-
-fn round12(x: f64) -> f64 {
-    format!("{x:.11e}").parse().unwrap_or(x)
+    s.prepare()
+        .map_err(|e| solver_errors::setup_error(scene, &e))
 }
 
 /// Advances `s` from 0 to `scene.t_end`, stopping at every output time to record diagnostics
@@ -333,64 +223,6 @@ pub fn time_loop<R: Real, const D: usize, const N: usize>(
     Ok(stats)
 }
 
-/// The state of every cell in f64, physical axis order (x, y, z).
-#[derive(Debug, Clone, Default)]
-pub struct Snapshot {
-    /// Time.
-    pub t: f64,
-    /// c per cell.
-    pub c: Vec<f64>,
-    /// phi per cell.
-    pub phi: Vec<f64>,
-    /// T per cell.
-    pub temp: Vec<f64>,
-    /// Velocity (ux, uy, uz) per cell; components of absent axes are 0.
-    pub u: Vec<[f64; 3]>,
-    /// Pressure per cell, for scenes that solve a flow (written as the extra column/array p).
-    pub p: Option<Vec<f64>>,
-}
-
-impl Snapshot {
-    /// Takes the state of `s`.
-    pub fn of<R: Real, const D: usize, const N: usize>(
-        s: &Segregation<R, D, N>,
-        scene: &Scene,
-    ) -> Self {
-        let n = s.len();
-        let axes = crate::scene::validate::physical_axes(D);
-        let mut snap = Snapshot {
-            t: s.time().to_f64(),
-            c: Vec::with_capacity(n),
-            phi: Vec::with_capacity(n),
-            temp: Vec::with_capacity(n),
-            u: Vec::with_capacity(n),
-            p: None,
-        };
-        debug_assert_eq!(n, scene.len());
-        for i in 0..n {
-            snap.c.push(s.c(i).to_f64());
-            snap.phi.push(s.phi(i).to_f64());
-            snap.temp.push(s.temperature(i).to_f64());
-            let v = s.velocity(i);
-            let mut u = [0.0; 3];
-            for (a, &p) in axes.iter().enumerate() {
-                u[p] = v[a].to_f64();
-            }
-            snap.u.push(u);
-        }
-        snap
-    }
-
-    /// phihat = phi / c (0 in empty cells).
-    pub fn phihat(&self) -> Vec<f64> {
-        self.phi
-            .iter()
-            .zip(&self.c)
-            .map(|(&p, &c)| if c > 1e-6 { p / c } else { 0.0 })
-            .collect()
-    }
-}
-
 /// A progress bar on stderr when it is a terminal and not quiet; otherwise a hidden one.
 pub fn progress_bar(quiet: bool, label: &str) -> ProgressBar {
     use std::io::IsTerminal;
@@ -423,8 +255,8 @@ struct RunOutcome {
     pvd: Vec<(f64, String)>,
     hash: u64,
     exact_l1: Option<f64>,
-    flow: Option<crate::flow::FlowSummary>,
-    profiles: Option<crate::flow::Profiles>,
+    flow: Option<crate::data::FlowSummary>,
+    profiles: Option<crate::data::Profiles>,
 }
 
 struct RunJob<'a> {

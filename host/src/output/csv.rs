@@ -1,8 +1,8 @@
 //! `series.csv` (diagnostics per output time) and `final.csv` (the final state per cell).
 
 use super::{num, write_file};
+use crate::data::{SeriesRow, Snapshot};
 use crate::error::Result;
-use crate::run::{SeriesRow, Snapshot};
 use crate::scene::Scene;
 use std::fmt::Write;
 use std::path::Path;

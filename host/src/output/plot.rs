@@ -2,8 +2,8 @@
 //! and phihat at output times: profiles phihat(z) in 1D, colour maps in 2D, the mid-plane
 //! (y = middle) x-z slice in 3D.
 
+use crate::data::{Profiles, SeriesRow};
 use crate::error::{Error, Result};
-use crate::run::SeriesRow;
 use crate::scene::Scene;
 use plotters::prelude::*;
 use std::path::Path;
@@ -353,7 +353,7 @@ fn tick(x: f64, log: bool) -> String {
 /// The flow profiles of a run: `flow_velocity.png` (mean u_x(z)), `flow_temperature.png`
 /// (mean T(z), log scale) and `flow_shear_ratio.png` (sqrt(T)/shear rate over its steady
 /// uniform shear value sqrt(a eta0/eps0), rows with T > 1e-12 only).
-pub fn flow_profiles(dir: &Path, name: &str, p: &crate::flow::Profiles) -> Result<()> {
+pub fn flow_profiles(dir: &Path, name: &str, p: &Profiles) -> Result<()> {
     let one = |v: &[f64]| -> Vec<(String, Vec<(f64, f64)>)> {
         vec![(
             name.to_string(),
@@ -384,7 +384,7 @@ pub fn flow_profiles(dir: &Path, name: &str, p: &crate::flow::Profiles) -> Resul
 }
 
 /// `sqrt(T)/shear / sqrt(a eta0/eps0)` per row; NaN where T <= 1e-12 or no shear.
-pub fn shear_ratio(p: &crate::flow::Profiles) -> Vec<f64> {
+pub fn shear_ratio(p: &Profiles) -> Vec<f64> {
     p.t.iter()
         .zip(&p.shear)
         .map(|(&t, &g)| {

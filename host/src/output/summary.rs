@@ -78,7 +78,7 @@ pub struct Summary {
     pub exact: Option<ExactComparison>,
     /// Flow diagnostics, for scenes that solve a flow (absent for prescribed scenes).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub flow: Option<crate::flow::FlowSummary>,
+    pub flow: Option<crate::data::FlowSummary>,
 }
 
 impl Summary {

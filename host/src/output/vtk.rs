@@ -3,8 +3,8 @@
 //! along z, 2D scenes an image in the x-z plane, 3D scenes a volume.
 
 use super::write_file;
+use crate::data::Snapshot;
 use crate::error::Result;
-use crate::run::Snapshot;
 use crate::scene::validate::physical_axes;
 use crate::scene::Scene;
 use std::fmt::Write;

@@ -8,6 +8,7 @@
 
 pub mod builtin;
 pub mod expr;
+pub mod solver_errors;
 pub mod validate;
 
 use crate::error::{Error, Result};

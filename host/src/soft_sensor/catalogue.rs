@@ -33,8 +33,8 @@
 use super::record::{RecordReport, Writer};
 use super::scene::coarsen;
 use super::ESTIMATOR_CAPACITY;
+use crate::data::FlowSummary;
 use crate::error::{Error, Result};
-use crate::flow::FlowSummary;
 use crate::run::{FlowJob, SolverJob};
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Equations, Fields, Scene};
@@ -253,7 +253,7 @@ fn estimator_dt(cfg: &SensorConfig<f32>, clean: &[f32]) -> Result<f64> {
     let mut sensor: Box<SoftSensor<f32, ESTIMATOR_CAPACITY>> = Box::default();
     sensor
         .configure(&probe)
-        .map_err(|e| Error::failure(format!("sensor configuration: {e:?}")))?;
+        .map_err(|e| Error::failure(format!("sensor configuration: {e}")))?;
     let mut frame = VelocityFrame {
         seq: 1,
         time: 1e-6,
@@ -270,7 +270,7 @@ fn estimator_dt(cfg: &SensorConfig<f32>, clean: &[f32]) -> Result<f64> {
     }
     sensor
         .submit(&frame)
-        .map_err(|e| Error::failure(format!("probe frame rejected: {e:?}")))?;
+        .map_err(|e| Error::failure(format!("probe frame rejected: {e}")))?;
     sensor.finish_tick();
     Ok(sensor.segregation().stable_dt() as f64)
 }
@@ -457,7 +457,7 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
             label,
             "",
             format!(
-                "cannot make a sensor configuration from this scene ({e:?}; the estimator holds at most {ESTIMATOR_CAPACITY} cells)"
+                "cannot make a sensor configuration from this scene ({e}; the estimator holds at most {ESTIMATOR_CAPACITY} cells)"
             ),
         )
     })?;

@@ -247,7 +247,7 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
     );
     config
         .validate(super::ESTIMATOR_CAPACITY)
-        .map_err(|e| format!("sensor configuration: {e:?}"))?;
+        .map_err(|e| format!("sensor configuration: {e}"))?;
     let mut truth = scene.truth(opts.truth_cells)?;
     let nf = [opts.truth_cells[0] as usize, opts.truth_cells[1] as usize];
     let e = scene.extent();

@@ -75,12 +75,12 @@ pub struct ReplayReport {
 
 /// Replays recording bytes.
 pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, String> {
-    let rec = Recording::parse(bytes).map_err(|e| format!("recording: {e:?}"))?;
+    let rec = Recording::parse(bytes).map_err(|e| format!("recording: {e}"))?;
     let truth: Vec<TruthRecord> = rec.truth().collect();
     let mut sensor: Box<SoftSensor<f32, ESTIMATOR_CAPACITY>> = Box::default();
     sensor
         .configure(&rec.header.config)
-        .map_err(|e| format!("configuration: {e:?}"))?;
+        .map_err(|e| format!("configuration: {e}"))?;
     let mut decoder: Box<FrameDecoder<FRAME_WIRE_MAX>> = Box::default();
     let mut feeder = Box::new(Feeder::new(rec.stream, opts.faults));
     let cfg = rec.header.config.clone();

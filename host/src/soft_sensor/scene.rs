@@ -230,7 +230,7 @@ impl Scene {
             e,
             TRUTH_CAPACITY,
         )
-        .map_err(|err| format!("truth grid: {err:?}"))?;
+        .map_err(|err| format!("truth grid: {err}"))?;
         let cfg = SegregationConfig {
             scheme: Scheme::Modified,
             phase: Phase::Small,
@@ -249,7 +249,7 @@ impl Scene {
         };
         let mut t: Box<Truth> = Box::default();
         t.setup(grid, self.boundaries(), cfg)
-            .map_err(|err| format!("truth setup: {err:?}"))?;
+            .map_err(|err| format!("truth setup: {err}"))?;
         let c = 0.64;
         let ph = self.initial_phihat();
         for i in 0..grid.len() {
@@ -257,8 +257,7 @@ impl Scene {
             t.set_cell(i, c, 0.0, self.velocity(x[0], x[1]), ph * c);
             t.set_inflow(i, ph * c);
         }
-        t.prepare()
-            .map_err(|err| format!("truth prepare: {err:?}"))?;
+        t.prepare().map_err(|err| format!("truth prepare: {err}"))?;
         Ok(t)
     }
 }

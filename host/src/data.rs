@@ -1,0 +1,227 @@
+//! The run's plain data: what the time loops measure and what the outputs write (series rows,
+//! loop statistics, snapshots of the state, the flow block of summary.json, flow profiles).
+//!
+//! A leaf below `run`, `flow` and `output`: the loops fill these types, the writers read them,
+//! and neither side imports the other (data flows one way, scene -> state -> step ->
+//! diagnostics -> output).
+
+use crate::scene::Scene;
+use serde::Serialize;
+use sieve_core::{Real, Segregation, SegregationClock};
+use std::time::Duration;
+
+/// One row of `series.csv`: diagnostics at an output time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SeriesRow {
+    /// Time.
+    pub t: f64,
+    /// Mixing index Psi.
+    pub psi: f64,
+    /// Mass of the small phase, sum phi |C|.
+    pub mass: f64,
+    /// max(0, phi - c) over cells.
+    pub overshoot_max: f64,
+    /// max(0, -phi) over cells.
+    pub undershoot_max: f64,
+}
+
+/// What the time loop measured.
+#[derive(Debug, Clone, Default)]
+pub struct LoopStats {
+    /// Steps taken.
+    pub steps: u64,
+    /// Wall time of the stepping alone (no diagnostics, no output).
+    pub stepping: Duration,
+    /// One row per output time, t = 0 first.
+    pub series: Vec<SeriesRow>,
+    /// Segregation time (see [`SegregationTimer`]).
+    pub segregation_time: Option<f64>,
+    /// The stable time step of the prepared state.
+    pub dt: f64,
+    /// The solver's running bound violations `(max(phi - c), max(-phi))` over every cell after
+    /// every step ([`sieve_core::Segregation::bound_violations`]), not only at output times.
+    pub every_step: (f64, f64),
+}
+
+impl LoopStats {
+    /// Largest overshoot over all cells, steps and output times.
+    pub fn overshoot_max(&self) -> f64 {
+        self.series
+            .iter()
+            .map(|r| r.overshoot_max)
+            .fold(self.every_step.0, f64::max)
+    }
+    /// Largest undershoot over all cells, steps and output times.
+    pub fn undershoot_max(&self) -> f64 {
+        self.series
+            .iter()
+            .map(|r| r.undershoot_max)
+            .fold(self.every_step.1, f64::max)
+    }
+    /// Records the solver's running bound violations at the end of a loop.
+    pub fn record_bounds<R: Real, const D: usize, const N: usize>(
+        &mut self,
+        s: &Segregation<R, D, N>,
+    ) {
+        let (above, below) = s.bound_violations();
+        self.every_step = (above.to_f64().max(0.0), below.to_f64().max(0.0));
+    }
+}
+
+/// Segregation time: the first time Psi falls below the threshold, counted only once Psi has
+/// been at or above it, so that a bed that starts segregated the wrong way round (Psi = 0,
+/// inversely graded) reports when it has re-segregated, not t = 0.
+#[derive(Debug, Clone, Copy)]
+pub struct SegregationTimer {
+    armed: bool,
+    clock: SegregationClock<f64>,
+}
+
+impl SegregationTimer {
+    /// A timer for `Psi < threshold`.
+    pub fn new(threshold: f64) -> Self {
+        Self {
+            armed: false,
+            clock: SegregationClock::new(threshold),
+        }
+    }
+    /// Feeds a sample in time order.
+    pub fn sample(&mut self, t: f64, psi: f64) {
+        if !self.armed && psi >= self.clock.threshold() {
+            self.armed = true;
+        }
+        if self.armed {
+            self.clock.sample(t, psi);
+        }
+    }
+    /// The segregation time, if reached.
+    pub fn time(&self) -> Option<f64> {
+        self.clock.time()
+    }
+}
+
+/// The output times `0, dt_out, 2 dt_out, ..., t_end` (the last one clipped to `t_end`).
+pub fn output_times(t_end: f64, interval: f64) -> Vec<f64> {
+    let k_max = (t_end / interval * (1.0 - 1e-12)).ceil().max(1.0) as usize;
+    (0..=k_max)
+        // Rounded to 12 significant digits so that 6 * 0.1 is written as 0.6, not
+        // 0.6000000000000001 (a shift of ~1e-16 in the stop time).
+        .map(|k| round12(k as f64 * interval).min(t_end))
+        .collect()
+}
+
+fn round12(x: f64) -> f64 {
+    format!("{x:.11e}").parse().unwrap_or(x)
+}
+
+/// The state of every cell in f64, physical axis order (x, y, z).
+#[derive(Debug, Clone, Default)]
+pub struct Snapshot {
+    /// Time.
+    pub t: f64,
+    /// c per cell.
+    pub c: Vec<f64>,
+    /// phi per cell.
+    pub phi: Vec<f64>,
+    /// T per cell.
+    pub temp: Vec<f64>,
+    /// Velocity (ux, uy, uz) per cell; components of absent axes are 0.
+    pub u: Vec<[f64; 3]>,
+    /// Pressure per cell, for scenes that solve a flow (written as the extra column/array p).
+    pub p: Option<Vec<f64>>,
+}
+
+impl Snapshot {
+    /// Takes the state of `s`.
+    pub fn of<R: Real, const D: usize, const N: usize>(
+        s: &Segregation<R, D, N>,
+        scene: &Scene,
+    ) -> Self {
+        let n = s.len();
+        let axes = crate::scene::validate::physical_axes(D);
+        let mut snap = Snapshot {
+            t: s.time().to_f64(),
+            c: Vec::with_capacity(n),
+            phi: Vec::with_capacity(n),
+            temp: Vec::with_capacity(n),
+            u: Vec::with_capacity(n),
+            p: None,
+        };
+        debug_assert_eq!(n, scene.len());
+        for i in 0..n {
+            snap.c.push(s.c(i).to_f64());
+            snap.phi.push(s.phi(i).to_f64());
+            snap.temp.push(s.temperature(i).to_f64());
+            let v = s.velocity(i);
+            let mut u = [0.0; 3];
+            for (a, &p) in axes.iter().enumerate() {
+                u[p] = v[a].to_f64();
+            }
+            snap.u.push(u);
+        }
+        snap
+    }
+
+    /// phihat = phi / c (0 in empty cells).
+    pub fn phihat(&self) -> Vec<f64> {
+        self.phi
+            .iter()
+            .zip(&self.c)
+            .map(|(&p, &c)| if c > 1e-6 { p / c } else { 0.0 })
+            .collect()
+    }
+}
+
+/// The `flow` block of summary.json.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct FlowSummary {
+    /// "frozen-flow" or "coupled".
+    pub equations: String,
+    /// "off", "r0" or "half".
+    pub back_coupling: String,
+    /// Flow steps to the steady state (frozen-flow; null when coupled).
+    pub flow_steps_to_steady: Option<u64>,
+    /// Flow steps in total.
+    pub flow_steps: u64,
+    /// Conjugate-gradient iterations of all implicit solves (velocity components and T).
+    pub cg_iterations: u64,
+    /// Physical time of the flow solve [s] (spin-up time when frozen).
+    pub flow_time: f64,
+    /// Wall time of the flow solve [s].
+    pub flow_seconds: f64,
+    /// Cells of the grid the flow was solved on (the spin-up grid when reduced).
+    pub flow_cells: Vec<usize>,
+    /// max c / c_rcp over cells (< 1 by construction).
+    pub max_packing: f64,
+    /// Smallest T over cells [m^2/s^2].
+    pub t_min: f64,
+    /// Largest T over filled cells [m^2/s^2].
+    pub t_max: f64,
+    /// Largest speed over filled cells [m/s].
+    pub max_speed: f64,
+    /// Kinetic energy sum c |u|^2 / 2 |C| (per unit grain density).
+    pub kinetic_energy: f64,
+    /// Steady-state residual of the last flow step [1/s].
+    pub residual: f64,
+    /// Steady-state tolerance [1/s].
+    pub steady_tolerance: f64,
+    /// Tracked-phase volume lifted into [0, c] by the round-off guard of the carried
+    /// transport (coupled; 0 when the percolation stage keeps the bounds exactly, and when
+    /// frozen). phi is no longer clipped: it rides on the flow's mass fluxes.
+    pub clipped_mass: f64,
+}
+
+/// Horizontally averaged flow profiles over the vertical (last) axis.
+#[derive(Debug, Clone, Default)]
+pub struct Profiles {
+    /// Cell-centre heights.
+    pub z: Vec<f64>,
+    /// Mean horizontal velocity u_x (the vertical velocity in 1D).
+    pub u: Vec<f64>,
+    /// Mean T.
+    pub t: Vec<f64>,
+    /// |d u_x / d z| (central differences; one-sided to a wall's velocity).
+    pub shear: Vec<f64>,
+    /// sqrt(a eta0 / eps0): sqrt(T)/shear of steady uniform shear (model.md 2).
+    pub ratio_theory: f64,
+}
