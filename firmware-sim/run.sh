@@ -8,9 +8,16 @@
 #   --no-host   skip the host build of the loop
 #   --native    also run the host build with RUSTFLAGS="-C target-cpu=native" (own target dir)
 # Environment: SIEVE_RECORDING=/path/file.rec embeds another recording (golden file next to it,
-#   same name with .golden, if present); QEMU_TIMEOUT seconds (default 300).
+#   same name with .golden, if present); QEMU_TIMEOUT seconds (default 300);
+#   SIEVE_QEMU_INSTALL = what to do if qemu-system-arm is not on PATH (see "QEMU" below):
+#     auto (default)  system-wide apt install if root (or passwordless sudo) and it removes
+#                     nothing, else a private copy in firmware-sim/target/qemu
+#     system          only the system-wide install (refused if apt would remove a package)
+#     local           only the private copy (apt-get download + dpkg-deb -x; no root needed)
+#     no              install nothing; exit 11 with instructions
 #
-# Exit codes: 0 ok | 10 Rust target install failed | 11 qemu install failed | 12 build failed
+# Exit codes: 0 ok | 2 bad option | 10 Rust target install failed | 11 no QEMU (install refused
+#             or failed) | 12 build failed
 #             13 QEMU run failed or timed out | 14 hash differs from golden | 15 host differs
 set -u
 cd "$(dirname "$0")"
@@ -34,14 +41,114 @@ if ! rustup target list --installed 2>/dev/null | grep -qx "$TARGET"; then
     exit 10
   fi
 fi
-if ! command -v qemu-system-arm >/dev/null 2>&1; then
-  echo "firmware-sim: installing qemu-system-arm"
-  SUDO=""
-  if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-  if ! { $SUDO apt-get update && $SUDO apt-get install -y qemu-system-arm; }; then
-    loud "installing QEMU failed: apt-get install -y qemu-system-arm"
-    exit 11
+# QEMU: qemu-system-arm with the mps2-an386 machine (QEMU >= 6.0). Used from PATH if there;
+# else from a private copy unpacked earlier into target/qemu; else installed as SIEVE_QEMU_INSTALL
+# says. Whatever it does, this script says what before it does it, installs only Debian's
+# qemu-system-arm and the libraries it needs (--no-install-recommends: 25 packages, 15.8 MB
+# download, 68.5 MB on disk on Debian 12, against 165 packages + 7 upgrades, 157 MB download
+# and 855 MB on disk with recommends),
+# and never removes a package: the apt-get simulation runs first, and if apt would remove
+# anything (e.g. a newer qemu-utils from backports Breaks qemu-system-common 7.2), the system
+# install is refused.
+QEMU_LOCAL="$PWD/target/qemu"
+qemu_local_ready() { [ -x "$QEMU_LOCAL/bin/qemu-system-arm" ]; }
+as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo -n "$@"; fi; }
+can_root() { [ "$(id -u)" -eq 0 ] || { command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; }; }
+# Packages `apt-get install --no-install-recommends qemu-system-arm` would install (one per line),
+# and the packages it would remove (in $QEMU_REMOVALS).
+qemu_plan() {
+  local sim
+  if ! sim=$(apt-get -s install -y --no-install-recommends qemu-system-arm 2>&1); then
+    echo "$sim" | tail -n 5 >&2
+    return 1
   fi
+  QEMU_PACKAGES=$(echo "$sim" | awk '/^Inst /{print $2}')
+  QEMU_REMOVALS=$(echo "$sim" | awk '/^Remv /{print $2}')
+}
+qemu_sizes() { # download and installed size of the planned packages, from apt-cache
+  # shellcheck disable=SC2086
+  apt-cache show --no-all-versions $QEMU_PACKAGES 2>/dev/null | awk '
+    /^Size:/ {d += $2} /^Installed-Size:/ {i += $2}
+    END {printf "%.1f MB to download, %.1f MB on disk", d / 1e6, i * 1024 / 1e6}'
+}
+qemu_install_local() {
+  echo "firmware-sim: unpacking a private QEMU into firmware-sim/target/qemu (apt-get download +"
+  echo "  dpkg-deb -x: nothing is installed into or removed from the system; cargo clean removes it):"
+  echo "  $(echo "$QEMU_PACKAGES" | wc -w) packages ($(qemu_sizes)):" $QEMU_PACKAGES
+  local tmp
+  tmp=$(mktemp -d) || return 1
+  # shellcheck disable=SC2086
+  if ! (cd "$tmp" && apt-get download $QEMU_PACKAGES); then
+    rm -rf "$tmp"
+    return 1
+  fi
+  rm -rf "$QEMU_LOCAL"
+  mkdir -p "$QEMU_LOCAL/bin" "$QEMU_LOCAL/root"
+  for deb in "$tmp"/*.deb; do dpkg-deb -x "$deb" "$QEMU_LOCAL/root" || { rm -rf "$tmp"; return 1; }; done
+  rm -rf "$tmp"
+  rm -f "$QEMU_LOCAL/root/usr/bin/qemu-system-aarch64" # 40 MB we do not run
+  cat >"$QEMU_LOCAL/bin/qemu-system-arm" <<WRAP
+#!/bin/sh
+# Private QEMU unpacked by firmware-sim/run.sh: its libraries come from here, not the system.
+R="$QEMU_LOCAL/root"
+LD_LIBRARY_PATH="\$R/usr/lib/x86_64-linux-gnu:\$R/lib/x86_64-linux-gnu\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH}" \\
+  exec "\$R/usr/bin/qemu-system-arm" -L "\$R/usr/share/qemu" "\$@"
+WRAP
+  chmod +x "$QEMU_LOCAL/bin/qemu-system-arm"
+  "$QEMU_LOCAL/bin/qemu-system-arm" -machine help | grep -q mps2-an386
+}
+qemu_missing() {
+  loud "$1"
+  cat >&2 <<'HELP'
+firmware-sim needs qemu-system-arm (QEMU >= 6.0, machine mps2-an386) on PATH. Either
+  - install it yourself (Debian/Ubuntu: apt-get install --no-install-recommends qemu-system-arm;
+    first check with apt-get -s that it removes nothing), or
+  - let this script unpack a private copy: SIEVE_QEMU_INSTALL=local bash firmware-sim/run.sh
+    (apt-get download + dpkg-deb -x into firmware-sim/target/qemu; no root, nothing removed).
+HELP
+  exit 11
+}
+if ! command -v qemu-system-arm >/dev/null 2>&1; then
+  if qemu_local_ready; then
+    echo "firmware-sim: using the private QEMU in firmware-sim/target/qemu"
+  else
+    mode="${SIEVE_QEMU_INSTALL:-auto}"
+    case "$mode" in
+      auto | system | local) ;;
+      no) qemu_missing "qemu-system-arm is not on PATH and SIEVE_QEMU_INSTALL=no" ;;
+      *) echo "firmware-sim/run.sh: SIEVE_QEMU_INSTALL=$mode: allowed auto, system, local, no" >&2; exit 2 ;;
+    esac
+    command -v apt-get >/dev/null 2>&1 || qemu_missing "qemu-system-arm is not on PATH and this is not a Debian/Ubuntu system (no apt-get)"
+    if can_root; then
+      echo "firmware-sim: qemu-system-arm is not on PATH; refreshing the package lists (apt-get update)"
+      as_root apt-get update -qq || qemu_missing "apt-get update failed"
+    fi
+    qemu_plan || qemu_missing "apt-get cannot plan an install of qemu-system-arm"
+    [ -n "$QEMU_PACKAGES" ] || qemu_missing "apt-get plans no package for qemu-system-arm, yet it is not on PATH"
+    if [ -n "$QEMU_REMOVALS" ]; then
+      echo "firmware-sim: a system-wide install would REMOVE" $QEMU_REMOVALS "(apt-get -s); refusing it, nothing was changed" >&2
+      [ "$mode" = system ] && qemu_missing "refusing SIEVE_QEMU_INSTALL=system: apt would remove $(echo $QEMU_REMOVALS)"
+      mode=local
+    fi
+    if [ "$mode" = auto ]; then
+      if can_root; then mode=system; else mode=local; fi
+    fi
+    if [ "$mode" = system ] && ! can_root; then
+      qemu_missing "SIEVE_QEMU_INSTALL=system needs root or passwordless sudo"
+    fi
+    if [ "$mode" = system ]; then
+      echo "firmware-sim: installing qemu-system-arm system-wide: apt-get install -y --no-install-recommends qemu-system-arm"
+      echo "  $(echo "$QEMU_PACKAGES" | wc -w) new packages ($(qemu_sizes)), none removed:" $QEMU_PACKAGES
+      if ! as_root apt-get install -y --no-install-recommends qemu-system-arm; then
+        qemu_missing "installing QEMU failed: apt-get install -y --no-install-recommends qemu-system-arm"
+      fi
+    else
+      qemu_install_local || qemu_missing "unpacking a private QEMU into firmware-sim/target/qemu failed"
+    fi
+  fi
+fi
+if ! command -v qemu-system-arm >/dev/null 2>&1 && qemu_local_ready; then
+  export PATH="$QEMU_LOCAL/bin:$PATH"
 fi
 qemu-system-arm --version | head -n 1
 

@@ -1,6 +1,6 @@
 //! # sieve-core
 //!
-//! Size segregation in bi-disperse granular flows (see `shared/model.md`): finite volumes on
+//! Size segregation in bi-disperse granular flows (see `docs/model.md`): finite volumes on
 //! static structured grids, generic over `f32`/`f64`, with no standard library, no allocator
 //! and no `unsafe`. Memory is fixed at compile time by const generics (`D` dimensions, `N`
 //! cells of capacity) and a step allocates nothing, so the same code runs in the desktop CLI,
