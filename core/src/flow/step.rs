@@ -348,9 +348,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     OutletPressure::ZeroGradient => pi,
                 };
                 let (f, w) = if high {
-                    self.face_force(a, ci, pi, ci, pg)
+                    self.face_force(a, b, ci, pi, ci, pg)
                 } else {
-                    self.face_force(a, ci, pg, ci, pi)
+                    self.face_force(a, b, ci, pg, ci, pi)
                 };
                 return (open * f, (R::ONE - open) + open * w);
             }
