@@ -8,6 +8,7 @@
 //! Memory is fixed by the capacity `N` and the dimension `D`; nothing allocates.
 
 pub mod direction;
+mod embedded;
 pub mod flux;
 mod step;
 

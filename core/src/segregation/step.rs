@@ -13,22 +13,22 @@ use crate::real::Real;
 /// One side of a face: tracked fraction, volume fraction, segregation coefficient, temperature,
 /// normal velocity.
 #[derive(Clone, Copy)]
-struct Side<R> {
-    q: R,
-    c: R,
-    k: R,
-    t: R,
-    u: R,
+pub(super) struct Side<R> {
+    pub(super) q: R,
+    pub(super) c: R,
+    pub(super) k: R,
+    pub(super) t: R,
+    pub(super) u: R,
 }
 
 /// A numerical segregation flux as a zero-sized type, so the face loop is monomorphised.
-trait Kernel<R: Real> {
+pub(super) trait Kernel<R: Real> {
     fn segregation(l: Side<R>, r: Side<R>, vacuum: R) -> R;
 }
 
-struct Modified;
-struct Godunov;
-struct Upwind;
+pub(super) struct Modified;
+pub(super) struct Godunov;
+pub(super) struct Upwind;
 
 impl<R: Real> Kernel<R> for Modified {
     #[inline(always)]
@@ -76,17 +76,21 @@ impl<R: Real> Kernel<R> for Upwind {
 
 /// Coefficients of the face loop that do not vary between faces of one axis.
 #[derive(Clone, Copy)]
-struct AxisConst<R> {
+pub(super) struct AxisConst<R> {
     /// dt / h
-    lambda: R,
+    pub(super) lambda: R,
     /// D / h (the diffusive flux is `-(D/h) c_face (qhat_R - qhat_L)`)
-    diffusion: R,
-    vacuum: R,
+    pub(super) diffusion: R,
+    pub(super) vacuum: R,
 }
 
 /// Total normal flux through one face times dt/h: transport + segregation (+ diffusion).
 #[inline(always)]
-fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(l: Side<R>, r: Side<R>, ax: AxisConst<R>) -> R {
+pub(super) fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
+    l: Side<R>,
+    r: Side<R>,
+    ax: AxisConst<R>,
+) -> R {
     let un = (l.u + r.u) * R::HALF;
     let mut f = flux::transport(l.q, r.q, un) + K::segregation(l, r, ax.vacuum);
     if DIFFUSE && l.c > ax.vacuum && r.c > ax.vacuum {
@@ -136,7 +140,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     }
 
     #[inline(always)]
-    fn side(&self, axis: usize, i: usize) -> Side<R> {
+    pub(super) fn side(&self, axis: usize, i: usize) -> Side<R> {
         Side {
             q: self.q[i],
             c: self.c[i],
@@ -149,7 +153,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// The ghost side of boundary cell `i`: its own coefficients, with the Dirichlet value for
     /// inflow or its own value (zero gradient) for outflow.
     #[inline(always)]
-    fn ghost_side(&self, axis: usize, i: usize, kind: Boundary) -> Side<R> {
+    pub(super) fn ghost_side(&self, axis: usize, i: usize, kind: Boundary) -> Side<R> {
         let mut s = self.side(axis, i);
         if kind == Boundary::Inflow {
             s.q = self.inflow_tracked(i);
