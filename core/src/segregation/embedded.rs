@@ -36,9 +36,10 @@
 //!   shrink the step: in the tested drums (cells down to 9e-7 of a cell) the step is the box
 //!   step (measured in tests/tests/segregation_embedded.rs).
 //!
+//! - Compensated updates ([`super::SegregationConfig::compensated`]) are not used here.
+//!
 //! [`prepare_embedded`]: Segregation::prepare_embedded
 //! [`stable_dt_embedded`]: Segregation::stable_dt_embedded
-//! Compensated updates ([`super::SegregationConfig::compensated`]) are not used here.
 
 use super::step::{face, AxisConst, Godunov, Kernel, Modified, Side, Upwind};
 use super::{Scheme, Segregation, SetupError};
