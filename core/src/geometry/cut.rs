@@ -869,6 +869,12 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
     pub fn is_cut(&self, i: usize) -> bool {
         self.vol[i] > R::ZERO && self.vol[i] < R::ONE
     }
+    /// True if other cells are merged into cell `i` (it is the master of a group of two or
+    /// more cells).
+    #[inline]
+    pub fn has_merged(&self, i: usize) -> bool {
+        self.merged[i] != 0
+    }
     /// True if cell `i` is merged into another cell.
     #[inline]
     pub fn is_merged(&self, i: usize) -> bool {

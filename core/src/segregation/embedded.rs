@@ -15,7 +15,7 @@
 //! # What holds, and why
 //!
 //! - **Fluxes through apertures**: every face flux (transport, segregation, diffusion) is
-//!   multiplied by its face's open fraction in one place, [`aperture_flux`]; the cut wall
+//!   multiplied by its face's open fraction in one place, `aperture_flux`; the cut wall
 //!   itself carries nothing (it is not a face); solid cells have closed faces and are never
 //!   updated.
 //! - **Mass to round-off**: a face flux leaves one cell with the value it enters the other;
@@ -41,14 +41,16 @@
 //! [`prepare_embedded`]: Segregation::prepare_embedded
 //! [`stable_dt_embedded`]: Segregation::stable_dt_embedded
 
-use super::step::{face, AxisConst, Godunov, Kernel, Modified, Side, Upwind};
+use super::step::{face, AxisConst, Godunov, Kernel, Modified, Side, Slices, Upwind};
 use super::{Scheme, Segregation, SetupError};
 use crate::boundary::Boundary;
 use crate::geometry::CutCells;
 use crate::real::Real;
 
 /// A face flux weighted by its open fraction: the one place where the aperture enters the
-/// segregation step (a closed face is not evaluated at all).
+/// segregation step. A closed face gives `0 * flux = 0` (the flux of a validated state is
+/// finite, solid cells included), without a branch, so the face loop vectorises; a full
+/// face gives the box flux to the bit (`f * 1 = f`).
 #[inline(always)]
 fn aperture_flux<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
     aperture: R,
@@ -56,10 +58,31 @@ fn aperture_flux<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
     r: Side<R>,
     ax: AxisConst<R>,
 ) -> R {
-    if aperture > R::ZERO {
-        face::<R, K, DIFFUSE>(l, r, ax) * aperture
-    } else {
-        R::ZERO
+    face::<R, K, DIFFUSE>(l, r, ax) * aperture
+}
+
+/// The interior faces of one block (as the box step's `interior_block`, with apertures):
+/// stores each weighted face flux and subtracts it from its left cell.
+#[inline(never)]
+fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool>(
+    out: &mut [R],
+    rhs: &mut [R],
+    ap: &[R],
+    left: Slices<'_, R>,
+    right: Slices<'_, R>,
+    ax: AxisConst<R>,
+) {
+    let len = out.len();
+    let (rhs, ap) = (&mut rhs[..len], &ap[..len]);
+    let (left, right) = (left.truncated(len), right.truncated(len));
+    for j in 0..len {
+        let f = aperture_flux::<R, K, DIFFUSE>(ap[j], left.get(j), right.get(j), ax);
+        out[j] = f;
+        if FIRST {
+            rhs[j] = -f;
+        } else {
+            rhs[j] -= f;
+        }
     }
 }
 
@@ -105,34 +128,58 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     pub fn stable_dt_embedded(&self, geo: &CutCells<R, D, N>) -> R {
         let n = self.grid.len();
         let h = self.grid.spacing();
+        let cells = self.grid.cells();
         let dcoef = self.cfg.diffusion;
         let mut rate = R::ZERO;
+        // the rate of one member's faces along a, given its open outer aperture sum
+        let face_rate = |a: usize, j: usize, open: R| {
+            let s = (self.k[a][j] * self.c[j]).abs();
+            open * R::HALF * (self.u[a][j].abs() + s) / h[a] + open * dcoef / (h[a] * h[a])
+        };
+        // integer coordinates advanced like an odometer (no division per cell)
+        let mut coords = [0usize; D];
         for m in 0..n {
+            let here = coords;
+            for a in 0..D {
+                coords[a] += 1;
+                if coords[a] < cells[a] {
+                    break;
+                }
+                coords[a] = 0;
+            }
             if geo.is_solid(m) || geo.is_merged(m) {
                 continue;
             }
-            let (members, len) = geo.group(m);
             let mut sum = R::ZERO;
-            for &j in &members[..len] {
+            if !geo.has_merged(m) {
                 for a in 0..D {
-                    // the group's outer faces only: fluxes between its members cancel
-                    let mut open = R::ZERO;
-                    for high in [false, true] {
-                        let inner = len > 1
-                            && geo
+                    let low = if here[a] > 0 {
+                        geo.apertures(a)[m - self.grid.stride(a)]
+                    } else {
+                        geo.aperture_low(a, m)
+                    };
+                    sum += face_rate(a, m, low + geo.aperture(a, m));
+                }
+            } else {
+                let (members, len) = geo.group(m);
+                for &j in &members[..len] {
+                    for a in 0..D {
+                        // the group's outer faces only: fluxes between its members cancel
+                        let mut open = R::ZERO;
+                        for high in [false, true] {
+                            let inner = geo
                                 .neighbour(j, a, high)
                                 .is_some_and(|nb| geo.master(nb) == m);
-                        if !inner {
-                            open += if high {
-                                geo.aperture(a, j)
-                            } else {
-                                geo.aperture_low(a, j)
-                            };
+                            if !inner {
+                                open += if high {
+                                    geo.aperture(a, j)
+                                } else {
+                                    geo.aperture_low(a, j)
+                                };
+                            }
                         }
+                        sum += face_rate(a, j, open);
                     }
-                    let s = (self.k[a][j] * self.c[j]).abs();
-                    sum += open * R::HALF * (self.u[a][j].abs() + s) / h[a]
-                        + open * dcoef / (h[a] * h[a]);
                 }
             }
             rate = rate.max(sum / geo.group_volume(m));
@@ -222,19 +269,25 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let ap = geo.apertures(axis);
         for b in 0..fb.blocks {
             let l0 = b * fb.block_stride;
-            for l in l0..l0 + fb.block_len {
-                let f = aperture_flux::<R, K, DIFFUSE>(
-                    ap[l],
-                    self.side(axis, l),
-                    self.side(axis, l + s),
-                    ax,
-                );
-                self.flux[l] = f;
-                if first {
-                    self.rhs[l] = -f;
-                } else {
-                    self.rhs[l] -= f;
-                }
+            let len = fb.block_len;
+            let slices = |at: usize| {
+                Slices::new(
+                    &self.q,
+                    &self.c,
+                    &self.k[axis],
+                    &self.temp,
+                    &self.u[axis],
+                    at,
+                    len,
+                )
+            };
+            let (left, right) = (slices(l0), slices(l0 + s));
+            let (out, rhs) = (&mut self.flux[l0..l0 + len], &mut self.rhs[l0..l0 + len]);
+            let ap = &ap[l0..l0 + len];
+            if first {
+                interior_block::<R, K, DIFFUSE, true>(out, rhs, ap, left, right, ax);
+            } else {
+                interior_block::<R, K, DIFFUSE, false>(out, rhs, ap, left, right, ax);
             }
         }
         let high = self.bc[axis][1];
@@ -279,8 +332,13 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
         for b in 0..fb.blocks {
             let l0 = b * fb.block_stride;
-            for l in l0..l0 + fb.block_len {
-                self.rhs[l + s] += self.flux[l];
+            let len = fb.block_len;
+            let (src, dst) = (
+                &self.flux[l0..l0 + len],
+                &mut self.rhs[l0 + s..l0 + s + len],
+            );
+            for (dq, f) in dst.iter_mut().zip(src.iter()) {
+                *dq += *f;
             }
         }
     }

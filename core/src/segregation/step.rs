@@ -328,7 +328,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
 /// Equal-length views of the cell arrays starting at one offset.
 #[derive(Clone, Copy)]
-struct Slices<'a, R> {
+pub(super) struct Slices<'a, R> {
     q: &'a [R],
     c: &'a [R],
     k: &'a [R],
@@ -338,7 +338,7 @@ struct Slices<'a, R> {
 
 impl<'a, R: Real> Slices<'a, R> {
     #[inline(always)]
-    fn new(
+    pub(super) fn new(
         q: &'a [R],
         c: &'a [R],
         k: &'a [R],
@@ -357,7 +357,7 @@ impl<'a, R: Real> Slices<'a, R> {
         }
     }
     #[inline(always)]
-    fn get(&self, j: usize) -> Side<R> {
+    pub(super) fn get(&self, j: usize) -> Side<R> {
         Side {
             q: self.q[j],
             c: self.c[j],
@@ -395,7 +395,7 @@ fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool>
 
 impl<'a, R: Real> Slices<'a, R> {
     #[inline(always)]
-    fn truncated(self, len: usize) -> Self {
+    pub(super) fn truncated(self, len: usize) -> Self {
         Self {
             q: &self.q[..len],
             c: &self.c[..len],
