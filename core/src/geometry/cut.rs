@@ -913,7 +913,9 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
 
     /// Replaces the state of every group by its volume-weighted mean `sum V_j q_j / V_group`
     /// (content kept to round-off); call once on an initial state so that merged cells agree
-    /// with their masters.
+    /// with their masters. Groups that are already uniform are left alone, so calling it
+    /// again changes no bit; the rounded mean is monotone, so `phi <= c` per cell stays
+    /// `phi <= c` per group.
     pub fn average_groups(&self, q: &mut [R]) {
         let n = self.grid.len();
         for i in 0..n {
@@ -922,6 +924,10 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
                 continue;
             }
             let (idx, len) = self.group_members(i, mask);
+            // already uniform: leave it (so that repeated calls change no bit)
+            if idx[..len].iter().all(|&k| q[k] == q[i]) {
+                continue;
+            }
             let mut content = R::ZERO;
             for &k in &idx[..len] {
                 content += self.vol[k] * q[k];

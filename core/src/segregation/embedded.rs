@@ -108,17 +108,34 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     pub fn prepare_embedded(&mut self, geo: &CutCells<R, D, N>) -> Result<(), SetupError> {
         self.check_geometry(geo)?;
         let n = self.grid.len();
-        // phi, not the tracked fraction: for the large phase psi = c - phi must follow c
-        for i in 0..n {
-            self.rhs[i] = self.phi(i);
-        }
-        geo.average_groups(&mut self.c[..n]);
-        geo.average_groups(&mut self.rhs[..n]);
-        for i in 0..n {
-            if geo.is_merged(i) || geo.group(i).1 > 1 {
-                let phi = self.rhs[i];
-                self.q[i] = self.tracked(phi, self.c[i]);
+        for m in 0..n {
+            if !geo.has_merged(m) {
+                continue;
             }
+            let (members, len) = geo.group(m);
+            let members = &members[..len];
+            // already one state (a repeated prepare): change no bit
+            if members
+                .iter()
+                .all(|&j| self.c[j] == self.c[m] && self.q[j] == self.q[m])
+            {
+                continue;
+            }
+            // phi, not the tracked fraction: for the large phase psi = c - phi follows c.
+            // The rounded means are monotone, so 0 <= phi <= c per cell gives it per group.
+            let (mut content_c, mut content_phi) = (R::ZERO, R::ZERO);
+            for &j in members {
+                content_c += geo.volume(j) * self.c[j];
+                content_phi += geo.volume(j) * self.phi(j);
+            }
+            let c = content_c / geo.group_volume(m);
+            let phi = content_phi / geo.group_volume(m);
+            for &j in members {
+                self.c[j] = c;
+                self.q[j] = self.tracked(phi, c);
+            }
+        }
+        for i in 0..n {
             self.carry[i] = R::ZERO;
         }
         self.prepare()
