@@ -22,6 +22,7 @@ pub mod hash;
 pub mod real;
 pub mod segregation;
 pub mod sensor;
+pub mod sum;
 
 pub use boundary::{Boundaries, Boundary};
 pub use diagnostics::{diagnose, state_hash, Diagnostics, SegregationClock};

@@ -1,6 +1,6 @@
 //! One time step of the flow (the scheme of the module docs of [`super`]).
 
-use super::cg::{self, Scratch, Stencil, Stop};
+use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
 use super::{Flow, FlowSide, Slip};
 use crate::boundary::Boundary;
 use crate::closure;
@@ -584,11 +584,17 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     ap: &mut self.ap,
                     pre: &mut self.pre,
                     line: &mut self.line,
+                    // `inflow` and `flux` are dead between the transport and the next step
+                    // (the heating is written after the velocity solves, and read into `rhs`
+                    // before the temperature solve).
+                    tmp: &mut self.inflow,
+                    coarse: self.flux.as_flattened_mut(),
                 },
                 Stop {
                     relative: self.cfg.cg_tolerance,
                     floor,
                     max_iterations: self.cfg.cg_max_iterations,
+                    preconditioner: Preconditioner::Auto,
                 },
             );
             self.last_cg[comp.min(2)] = res.iterations;
@@ -710,11 +716,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 ap: &mut self.ap,
                 pre: &mut self.pre,
                 line: &mut self.line,
+                tmp: &mut self.inflow,
+                coarse: self.flux.as_flattened_mut(),
             },
             Stop {
                 relative: self.cfg.cg_tolerance,
                 floor,
                 max_iterations: self.cfg.cg_max_iterations,
+                preconditioner: Preconditioner::Auto,
             },
         );
         self.last_cg[3] = res.iterations;
