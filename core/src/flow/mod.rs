@@ -321,6 +321,8 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     /// The applied amount of each low boundary face (at the first cell of a line; positive
     /// = into the box; 0 on closed walls and periodic axes).
     flux_low: [[R; N]; D],
+    /// Coarse levels of the multigrid preconditioner ([`cg`]); scratch of the implicit solves.
+    coarse: [[R; N]; D],
     /// Grain volume that left through each side `[axis][low, high]`, since setup.
     discharged: [[R; 2]; D],
     /// Grain volume that left through each side in the last step.
@@ -391,6 +393,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             c_rlp: z,
             flux: zd,
             flux_low: zd,
+            coarse: zd,
             discharged: [[R::ZERO; 2]; D],
             discharge_step: [[R::ZERO; 2]; D],
             kf: zd,

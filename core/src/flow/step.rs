@@ -1,6 +1,6 @@
 //! One time step of the flow (the scheme of the module docs of [`super`]).
 
-use super::cg::{self, Scratch, Stencil, Stop};
+use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
 use super::{Flow, FlowSide, OutletPressure, Slip};
 use crate::boundary::Boundary;
 use crate::closure;
@@ -682,11 +682,18 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     ap: &mut self.ap,
                     pre: &mut self.pre,
                     line: &mut self.line,
+                    // `inflow` is dead between the transport and the heating (written after
+                    // the velocity solves, read into `rhs` before the temperature solve).
+                    // `flux` is not: it holds the step's applied face mass fluxes, which the
+                    // coupled driver carries phi with after the step.
+                    tmp: &mut self.inflow,
+                    coarse: self.coarse.as_flattened_mut(),
                 },
                 Stop {
                     relative: self.cfg.cg_tolerance,
                     floor,
                     max_iterations: self.cfg.cg_max_iterations,
+                    preconditioner: Preconditioner::Auto,
                 },
             );
             self.last_cg[comp.min(2)] = res.iterations;
@@ -809,11 +816,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 ap: &mut self.ap,
                 pre: &mut self.pre,
                 line: &mut self.line,
+                tmp: &mut self.inflow,
+                coarse: self.coarse.as_flattened_mut(),
             },
             Stop {
                 relative: self.cfg.cg_tolerance,
                 floor,
                 max_iterations: self.cfg.cg_max_iterations,
+                preconditioner: Preconditioner::Auto,
             },
         );
         self.last_cg[3] = res.iterations;
