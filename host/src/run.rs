@@ -257,6 +257,7 @@ struct RunOutcome {
     exact_l1: Option<f64>,
     flow: Option<crate::data::FlowSummary>,
     profiles: Option<crate::data::Profiles>,
+    discharge: Option<crate::silo::DischargeSeries>,
 }
 
 struct RunJob<'a> {
@@ -358,6 +359,7 @@ impl SolverJob for RunJob<'_> {
             exact_l1,
             flow: None,
             profiles: None,
+            discharge: None,
         })
     }
 }
@@ -376,6 +378,7 @@ impl FlowJob for RunJob<'_> {
         let mut frames = Vec::new();
         let mut pvd = Vec::new();
         let equations = scene.flow.as_ref().map(|m| m.equations);
+        let mut discharge = None;
         let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
             let cs = crate::flow::coupled_loop(f, s, scene, self.fields, &bar, |k, t, s, f| {
                 let mut snap = Snapshot::of(s, scene);
@@ -383,6 +386,7 @@ impl FlowJob for RunJob<'_> {
                 self.output(k, t, &snap, &mut frames, &mut pvd)
             })?;
             let p: Vec<f64> = (0..f.len()).map(|i| f.pressure(i).to_f64()).collect();
+            discharge = cs.discharge;
             (cs.stats, cs.summary, p)
         } else {
             let frozen = crate::flow::spin_up(f, scene, self.fields)?;
@@ -406,6 +410,7 @@ impl FlowJob for RunJob<'_> {
             exact_l1,
             flow: Some(summary),
             profiles: Some(crate::flow::profiles(scene, &snap)),
+            discharge,
         })
     }
 }
@@ -443,6 +448,9 @@ pub fn run_scene(
     let stats = &out.stats;
     output::csv::write_series(&staging.path().join("series.csv"), &stats.series)?;
     output::vtk::write_pvd(&fields_dir.join("series.pvd"), &out.pvd)?;
+    if let Some(d) = &out.discharge {
+        output::write_file(&staging.path().join("discharge.csv"), d.csv().as_bytes())?;
+    }
     plot::psi(
         &plots_dir.join("psi.png"),
         &stats.series,

@@ -86,6 +86,8 @@ pub struct WallSide {
     pub slip: WallSlip,
     /// Wall velocity, solver axis order (normal component 0).
     pub velocity: Vec<f64>,
+    /// An opening in the wall (grains leave through it).
+    pub outlet: Option<super::outlet::Outlet>,
 }
 
 /// The validated flow part of a scene (`model.equations` other than "prescribed").
@@ -555,7 +557,14 @@ impl Scene {
             ));
         }
         let flow = if has_flow {
-            Some(validate_flow(l, &f, dim, phi_rcp, &boundaries)?)
+            Some(validate_flow(
+                l,
+                &f,
+                dim,
+                phi_rcp,
+                &boundaries,
+                (&lower, &upper),
+            )?)
         } else {
             None
         };
@@ -826,10 +835,12 @@ fn wall_side(
     kind: sieve_core::Boundary,
     axis: usize,
     dim: usize,
+    (box_lower, box_upper): (&[f64], &[f64]),
 ) -> Result<WallSide> {
     let mut side = WallSide {
         slip: WallSlip::NoSlip,
         velocity: vec![0.0; dim],
+        outlet: None,
     };
     let Some(spec) = spec else {
         return Ok(side);
@@ -897,6 +908,11 @@ fn wall_side(
         }
         side.velocity = v;
     }
+    if let Some(o) = &spec.outlet {
+        side.outlet = Some(super::outlet::validate(
+            l, key, o, axis, dim, box_lower, box_upper,
+        )?);
+    }
     Ok(side)
 }
 
@@ -906,6 +922,7 @@ fn validate_flow(
     dim: usize,
     phi_rcp: f64,
     boundaries: &[[sieve_core::Boundary; 2]],
+    extent: (&[f64], &[f64]),
 ) -> Result<FlowModel> {
     let m = &f.material;
     let eta0 = positive(l, "material.eta0", m.eta0, "[m]")?;
@@ -968,6 +985,7 @@ fn validate_flow(
                     boundaries[a][0],
                     a,
                     dim,
+                    extent,
                 )?,
                 wall_side(
                     l,
@@ -976,6 +994,7 @@ fn validate_flow(
                     boundaries[a][1],
                     a,
                     dim,
+                    extent,
                 )?,
             ]),
             None if lo.is_some() || hi.is_some() => {
