@@ -284,7 +284,9 @@ impl Scene {
         let run = run::check(&mut p, l, &f.run);
         let flow = if has_flow {
             let bc = bounds.as_ref().map(|(b, _)| b.as_slice());
-            let extent = grid.as_ref().map(|g| (g.lower.as_slice(), g.upper.as_slice()));
+            let extent = grid
+                .as_ref()
+                .map(|g| (g.lower.as_slice(), g.upper.as_slice()));
             flow::check(&mut p, l, &f, dim, mat.map(|m| m.2), bc, extent)
         } else {
             None
