@@ -117,11 +117,59 @@ pub fn sum<R: Real>(x: &[R]) -> R {
     reduce(x.len(), |i| x[i])
 }
 
-/// `sum_i a_i b_i` over the common length.
+/// `sum_i a_i b_i` over the common length (the bits of `reduce(n, |i| a[i] * b[i])`, written
+/// with chunked slices so that no index is checked in the loop).
 pub fn dot<R: Real>(a: &[R], b: &[R]) -> R {
     let n = a.len().min(b.len());
-    let (a, b) = (&a[..n], &b[..n]);
-    reduce(n, |i| a[i] * b[i])
+    let mut total = R::ZERO;
+    for (ab, bb) in a[..n].chunks(BLOCK).zip(b[..n].chunks(BLOCK)) {
+        let mut l = [R::ZERO; LANES];
+        let (ac, bc) = (ab.chunks_exact(LANES), bb.chunks_exact(LANES));
+        let (ar, br) = (ac.remainder(), bc.remainder());
+        for (x, y) in ac.zip(bc) {
+            for k in 0..LANES {
+                l[k] += x[k] * y[k];
+            }
+        }
+        for (k, (x, y)) in ar.iter().zip(br).enumerate() {
+            l[k] += *x * *y;
+        }
+        total += combine(&l);
+    }
+    total
+}
+
+/// The conjugate-gradient update `x += alpha p; r -= alpha q`, returning `sum r_i^2` with the
+/// bits of [`reduce`] (one pass over the four vectors).
+pub fn update<R: Real>(alpha: R, p: &[R], q: &[R], x: &mut [R], r: &mut [R]) -> R {
+    let n = x.len().min(r.len()).min(p.len()).min(q.len());
+    let mut total = R::ZERO;
+    let blocks = x[..n]
+        .chunks_mut(BLOCK)
+        .zip(r[..n].chunks_mut(BLOCK))
+        .zip(p[..n].chunks(BLOCK).zip(q[..n].chunks(BLOCK)));
+    for ((xb, rb), (pb, qb)) in blocks {
+        let mut l = [R::ZERO; LANES];
+        let mut xc = xb.chunks_exact_mut(LANES);
+        let mut rc = rb.chunks_exact_mut(LANES);
+        let (pc, qc) = (pb.chunks_exact(LANES), qb.chunks_exact(LANES));
+        let (pr, qr) = (pc.remainder(), qc.remainder());
+        for ((xs, rs), (ps, qs)) in xc.by_ref().zip(rc.by_ref()).zip(pc.zip(qc)) {
+            for k in 0..LANES {
+                xs[k] += alpha * ps[k];
+                rs[k] -= alpha * qs[k];
+                l[k] += rs[k] * rs[k];
+            }
+        }
+        let (xr, rr) = (xc.into_remainder(), rc.into_remainder());
+        for k in 0..xr.len() {
+            xr[k] += alpha * pr[k];
+            rr[k] -= alpha * qr[k];
+            l[k] += rr[k] * rr[k];
+        }
+        total += combine(&l);
+    }
+    total
 }
 
 /// A bound on `|reduce(x) - sum x|` for `n` terms: `gamma_k sum |x_i|` with

@@ -351,6 +351,18 @@ proptest! {
         }
         prop_assert_eq!(k, partials.len());
         prop_assert_eq!(sum::fold(&partials).to_bits(), whole.to_bits());
+        // the slice kernels are the generic scheme
+        prop_assert_eq!(sum::reduce(n, |i| x[i] * y[i]).to_bits(), whole.to_bits());
+        let (mut xu, mut ru) = (y.clone(), x.clone());
+        let (mut xv, mut rv) = (y.clone(), x.clone());
+        let fused = sum::update(0.37, &y, &x, &mut xu, &mut ru);
+        let generic = sum::reduce(n, |i| {
+            xv[i] += 0.37 * y[i];
+            rv[i] -= 0.37 * x[i];
+            rv[i] * rv[i]
+        });
+        prop_assert_eq!(fused.to_bits(), generic.to_bits());
+        prop_assert!(xu == xv && ru == rv);
         // f32: against the f64 sum of the same (exactly widened) values
         let xf: Vec<f32> = x.iter().map(|v| *v as f32).collect();
         let sf = sum::sum(&xf);

@@ -421,8 +421,13 @@ fn restrict<R: Real, const D: usize>(
     let n0 = cells[0];
     for_each_line(cells, sc, |i0, j0| {
         let (f, c) = (&fine[i0..i0 + n0], &mut coarse[j0..j0 + n0.div_ceil(2)]);
-        for (k, v) in f.iter().enumerate() {
-            c[k >> 1] += *v;
+        let pairs = f.chunks_exact(2);
+        if let [last] = pairs.remainder() {
+            c[n0 / 2] += *last;
+        }
+        for (cj, fp) in c.iter_mut().zip(pairs) {
+            *cj += fp[0];
+            *cj += fp[1];
         }
     });
 }
@@ -437,8 +442,13 @@ fn prolong<R: Real, const D: usize>(
     let n0 = cells[0];
     for_each_line(cells, sc, |i0, j0| {
         let (f, c) = (&mut fine[i0..i0 + n0], &coarse[j0..j0 + n0.div_ceil(2)]);
-        for (k, v) in f.iter_mut().enumerate() {
-            *v += c[k >> 1];
+        let mut pairs = f.chunks_exact_mut(2);
+        for (fp, cj) in pairs.by_ref().zip(c) {
+            fp[0] += *cj;
+            fp[1] += *cj;
+        }
+        if let [last] = pairs.into_remainder() {
+            *last += c[n0 / 2];
         }
     });
 }
@@ -910,11 +920,7 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
             break; // breakdown (only with an exact solution or a broken operator)
         }
         let alpha = rz / pap;
-        rr = sum::reduce(n, |i| {
-            x[i] += alpha * p[i];
-            r[i] -= alpha * ap[i];
-            r[i] * r[i]
-        });
+        rr = sum::update(alpha, p, ap, x, r);
         let rn = rr.sqrt();
         if rn <= target {
             break;
