@@ -84,7 +84,9 @@ pub struct DischargeSummary {
     pub steady_fines_fraction: f64,
     /// Small-grain fraction of the discharge in the last output interval with outflow.
     pub final_fines_fraction: f64,
-    /// True if the run stopped because the box was empty (< 1e-3 of the grains left).
+    /// True if the run stopped because the discharge ended: the box is empty (< 1e-3 of the
+    /// grains left), or more than half has left and the rate fell below 1e-3 of its peak
+    /// (a flat floor keeps a resting heap beside the orifice: the stagnant corners).
     pub emptied: bool,
 }
 
@@ -95,6 +97,7 @@ pub struct DischargeSeries {
     pub rows: Vec<DischargeRow>,
     initial: [f64; 2],
     errors: [f64; 2],
+    peak: f64,
     /// See [`DischargeSummary::emptied`].
     pub emptied: bool,
 }
@@ -138,7 +141,8 @@ impl DischargeSeries {
             out_small,
             surface: surface_height(cpl),
         });
-        if mass < 1e-3 * m0 {
+        self.peak = self.peak.max(rate);
+        if mass < 1e-3 * m0 || (out > 0.5 * m0 && rate < 1e-3 * self.peak) {
             self.emptied = true;
         }
     }
