@@ -167,21 +167,33 @@ fn cases() -> Vec<(&'static str, u64)> {
         "coupled-collapse-2d",
         host_run(
             "column-collapse",
-            &["grid.cells=[40, 8]", "run.t_end=0.02", "run.output_interval=0.01"],
+            &[
+                "grid.cells=[40, 8]",
+                "run.t_end=0.02",
+                "run.output_interval=0.01",
+            ],
         ),
     ));
     v.push((
         "frozen-shear-cell-2d",
         host_run(
             "shear-cell",
-            &["grid.cells=[16, 16]", "run.t_end=20", "run.output_interval=10"],
+            &[
+                "grid.cells=[16, 16]",
+                "run.t_end=20",
+                "run.output_interval=10",
+            ],
         ),
     ));
     v.push((
         "prescribed-2d-gray-thornton",
         host_run(
             "gray-thornton-plug",
-            &["grid.cells=[40, 20]", "run.t_end=1", "run.output_interval=0.5"],
+            &[
+                "grid.cells=[40, 20]",
+                "run.t_end=1",
+                "run.output_interval=0.5",
+            ],
         ),
     ));
     v.push(("prescribed-3d-shear", host_run(&box3_path, &[])));
