@@ -663,9 +663,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             );
             self.last_cg[comp.min(2)] = res.iterations;
             self.cg_iterations += u64::from(res.iterations);
-            if emb {
-                self.walls.group_mean(n, &mut self.u[comp], &mut self.line);
-            }
             for i in 0..n {
                 if self.c[i] > vac {
                     self.m[comp][i] = self.c[i] * self.u[comp][i];
@@ -827,9 +824,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         );
         self.last_cg[3] = res.iterations;
         self.cg_iterations += u64::from(res.iterations);
-        if emb {
-            self.walls.group_mean(n, &mut self.t, &mut self.line);
-        }
         for i in 0..n {
             // The exact solution is >= 0 (M-matrix, rhs >= 0); clip the solver's round-off.
             if self.c[i] > vac {
