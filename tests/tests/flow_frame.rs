@@ -240,3 +240,57 @@ fn grains_at_rest_in_the_lab_turn_backwards_in_the_frame() {
         assert!(mass < 1e-13);
     });
 }
+
+/// A full circular drum (cut-cell wall, friction 11 deg) of dense glass beads turning at
+/// `rev_per_s`, solved in its own frame with the flow on cut cells: the bed must stay at rest
+/// in the frame (issue 8: "rotating frame u = 0"). Returns (max |u| / (omega R) over the
+/// run, relative mass error, min T).
+fn full_circular_drum(rev_per_s: f64, n: usize, revolutions: f64) -> (f64, f64, f64) {
+    use sieve_core::flow::CutWall;
+    use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
+    let omega = 2.0 * PI * rev_per_s;
+    let (r, h) = (0.05, 0.1 / (n as f64 - 2.0));
+    let lo = 0.05 - r - h;
+    let hi = 0.05 + r + h;
+    let grid = Grid::new([n, n], [lo; 2], [hi - lo; 2], N).unwrap();
+    let mut cut: Box<CutCells<f64, 2, N>> = Box::new(CutCells::zeroed());
+    cut.build(
+        &grid,
+        &Region::drum([0.05, 0.05], r),
+        [false; 2],
+        DEFAULT_SMALL,
+    )
+    .unwrap();
+    let mut cfg = FlowConfig::new(Material::glass_beads());
+    cfg.frame = Frame::Rotating(Rotation::new(omega, [0.05, 0.05], 0).unwrap());
+    let wall = FlowSide::wall(Slip::Friction(11f64.to_radians().tan()));
+    let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+    flow.setup(grid, [[wall, wall], [wall, wall]], cfg).unwrap();
+    flow.set_geometry(
+        &cut,
+        CutWall::resting(Slip::Friction(11f64.to_radians().tan())),
+    )
+    .unwrap();
+    for i in 0..grid.len() {
+        flow.set_cell(i, 0.6, [0.0; 2], 0.0);
+    }
+    flow.prepare().unwrap();
+    let (speed, mass, tmin, bad) = watch(&mut flow, 0.0, revolutions / rev_per_s);
+    assert!(!bad);
+    (speed / (omega * r), mass, tmin)
+}
+
+#[test]
+fn full_circular_drum_on_cut_cells_is_at_rest_in_its_own_frame() {
+    run_big(|| {
+        for (rev, turns) in [(1.5, 1.0), (0.1, 0.05)] {
+            let (rel, mass, tmin) = full_circular_drum(rev, 24, turns);
+            println!(
+                "full circular drum (cut cells, 24 x 24), {rev} rev/s, {turns} rev in its frame: max |u|/(omega R) = {rel:.2e}, mass {mass:.1e}, min T {tmin:.1e}"
+            );
+            assert!(rel < 1e-3, "{rel:e}");
+            assert!(mass < 1e-13, "{mass:e}");
+            assert!(tmin >= 0.0);
+        }
+    });
+}
