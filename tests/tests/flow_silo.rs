@@ -15,7 +15,7 @@ use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, OutletPressure, Slip};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
-use sieve_core::{diagnose, Boundary, Grid};
+use sieve_core::{diagnose, Boundary, Grid, Phase};
 use sieve_tests::run_big;
 
 const N: usize = 8192;
@@ -223,9 +223,9 @@ fn bits<const M: usize>(flow: &Flow<f64, 2, M>, seg: &Segregation<f64, 2, M>) ->
 
 /// The column collapse of `flow_collapse.rs` coupled to segregation of a mixed bed: the
 /// flow's limiter cuts face fluxes all along the spreading front, where the old scheme
-/// clipped phi (column-collapse lost 0.265 % of its small grains). Returns (small-grain
-/// mass error, overshoot, undershoot, state bits).
-fn coupled_collapse(t_end: f64) -> (f64, f64, f64, u64) {
+/// clipped phi (column-collapse lost 0.265 % of its small grains). Returns (largest relative
+/// mass error of the small and of the large grains, overshoot, undershoot, state bits).
+fn coupled_collapse(t_end: f64, phase: Phase) -> (f64, f64, f64, u64) {
     const M: usize = 2048;
     let grid = Grid::new([80, 16], [0.0; 2], [0.16, 0.032], M).unwrap();
     let mat = Material::glass_beads();
@@ -238,6 +238,7 @@ fn coupled_collapse(t_end: f64) -> (f64, f64, f64, u64) {
     let mut scfg = SegregationConfig::new();
     scfg.gravity = [0.0, -9.81];
     scfg.direction = DirectionMode::Flow;
+    scfg.phase = phase;
     seg.setup(grid, [[Boundary::Wall; 2]; 2], scfg).unwrap();
     for i in 0..grid.len() {
         let [x, z] = grid.center(i);
@@ -246,32 +247,42 @@ fn coupled_collapse(t_end: f64) -> (f64, f64, f64, u64) {
         seg.set_cell(i, c, 0.0, [0.0; 2], 0.5 * c);
     }
     let mut cpl = Coupled::new(&mut flow, &mut seg, CouplingConfig::new(Mode::Coupled)).unwrap();
+    let large = |seg: &Segregation<f64, 2, M>| -> f64 {
+        (0..grid.len()).map(|i| seg.c(i) - seg.phi(i)).sum::<f64>() * grid.cell_volume()
+    };
     let s0 = diagnose(cpl.seg).mass_small;
+    let l0 = large(cpl.seg);
     cpl.advance_to(t_end, u64::MAX).unwrap();
     let d = diagnose(cpl.seg);
+    let el = (large(cpl.seg) - l0) / l0;
     let (over, under) = cpl.seg.bound_violations();
     assert_eq!(cpl.guarded_mass(), 0.0);
     let e = (d.mass_small - s0) / s0;
     println!(
-        "coupled collapse to t = {t_end}: {} steps, small mass {e:.1e}, over/under {over:.1e} {under:.1e}, c mismatch {:.1e}, runout cells {}",
+        "coupled collapse ({phase:?} phase tracked) to t = {t_end}: {} steps, small mass {e:.1e}, large mass {el:.1e}, over/under {over:.1e} {under:.1e}, c mismatch {:.1e}, runout cells {}",
         cpl.flow.steps(),
         cpl.c_mismatch(),
         (0..80).filter(|&ix| cpl.flow.c(ix) > 0.1).count()
     );
     let h = bits(cpl.flow, cpl.seg);
-    (e, over, under, h)
+    (e.abs().max(el.abs()), over, under, h)
 }
 
-/// Small-grain mass to round-off in the coupled collapse (was -0.265 % with clipping), bounds
-/// exact, and the same bits on a rerun. Measured: small mass 2e-16 .. 1e-15, over/under 0.
+/// Small- and large-grain mass to round-off in the coupled collapse (small grains were
+/// -0.265 % with clipping), bounds exact, the same bits on a rerun, for either tracked phase.
+/// Measured: small mass -6.1e-15, over/under exactly 0, ~3,000 steps.
 #[test]
-fn coupled_collapse_keeps_small_grains_to_round_off() {
+fn coupled_collapse_keeps_both_phases_to_round_off() {
     run_big(|| {
-        let (e, over, under, h1) = coupled_collapse(0.25);
-        assert!(e.abs() < 1e-13, "{e}");
-        assert!(over <= 0.0 && under <= 0.0, "{over} {under}");
-        let (_, _, _, h2) = coupled_collapse(0.25);
-        assert_eq!(h1, h2, "coupled rerun not bit-identical");
+        for phase in [Phase::Small, Phase::Large] {
+            let (e, over, under, h1) = coupled_collapse(0.25, phase);
+            assert!(e < 1e-13, "{phase:?} {e}");
+            assert!(over <= 0.0 && under <= 0.0, "{phase:?} {over} {under}");
+            if phase == Phase::Small {
+                let (_, _, _, h2) = coupled_collapse(0.25, phase);
+                assert_eq!(h1, h2, "coupled rerun not bit-identical");
+            }
+        }
     });
 }
 
@@ -311,52 +322,47 @@ fn coarse_discharge_is_exact_bounded_and_granular() {
     });
 }
 
-/// Beverloo study on the coarse grid (run with `--ignored`): steady rate over [2, 3.5] s for
-/// orifice widths 0.03 .. 0.08 m, and the fitted exponent of rate vs W.
+/// Beverloo study on the default 5 mm grid (run with `--ignored`; ~2 CPU minutes): steady
+/// rates (10 - 50 % discharged, or to 1.5 s) for W = 0.03 .. 0.06 m, the Beverloo fit
+/// `Q = C c sqrt(g) (W - W0)^(3/2)` and the free exponent of `W - W0`. Measured: 4.73e-3,
+/// 1.086e-2, 1.783e-2, 2.574e-2 m^2/s; C = 1.46, W0 = 0.0154 m (3.1 cells), residuals < 3 %;
+/// joint fit of W0 and the exponent: 1.30 at W0 = 0.0188 m (2.44 in W alone). docs/silo.md.
 #[test]
 #[ignore]
 fn beverloo_study() {
     run_big(|| {
-        let widths = [0.03, 0.04, 0.05, 0.06, 0.08];
-        let mut rates = Vec::new();
-        for &w in &widths {
-            let mut s = Setup::new([15, 50], 3.5);
-            s.orifice = w;
-            s.t_min = 1e-8;
-            s.every = 0.5;
-            let o = silo(s);
-            rates.push(o.rate_in(2.0, 3.5));
-        }
-        let (lx, ly): (Vec<f64>, Vec<f64>) = widths
+        let widths = [0.03, 0.04, 0.05, 0.06];
+        let rates: Vec<f64> = widths
             .iter()
-            .zip(&rates)
-            .map(|(w, q)| (w.ln(), q.ln()))
-            .unzip();
-        let n = lx.len() as f64;
-        let (mx, my) = (lx.iter().sum::<f64>() / n, ly.iter().sum::<f64>() / n);
-        let sxy: f64 = lx.iter().zip(&ly).map(|(a, b)| (a - mx) * (b - my)).sum();
-        let sxx: f64 = lx.iter().map(|a| (a - mx) * (a - mx)).sum();
-        println!(
-            "widths {widths:?} rates {rates:?}: exponent {:.3}",
-            sxy / sxx
-        );
-    });
-}
-
-#[test]
-#[ignore]
-fn explore() {
-    run_big(|| {
-        let args: Vec<f64> = std::env::var("SILO")
-            .unwrap_or_default()
-            .split(',')
-            .filter_map(|x| x.parse().ok())
+            .map(|&w| {
+                let mut s = Setup::new([29, 100], 1.5);
+                s.orifice = w;
+                s.t_min = 1e-8;
+                s.every = 0.1;
+                silo(s).series.summary().steady_rate
+            })
             .collect();
-        let mut s = Setup::new([args[0] as usize, args[1] as usize], args[2]);
-        s.t_min = args[3];
-        s.t0 = args[4];
-        s.orifice = args[5];
-        let o = silo(s);
-        assert!(!o.nonfinite);
+        let slope = |x: &[f64], y: &[f64]| {
+            let n = x.len() as f64;
+            let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+            let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+            let sxx: f64 = x.iter().map(|a| (a - mx) * (a - mx)).sum();
+            (sxy / sxx, my - sxy / sxx * mx)
+        };
+        // Beverloo with 3/2: Q^(2/3) is linear in W, zero at W0
+        let y: Vec<f64> = rates.iter().map(|q| q.powf(2.0 / 3.0)).collect();
+        let (s, b) = slope(&widths, &y);
+        let w0 = -b / s;
+        let c = s.powf(1.5) / (9.81f64.sqrt() * 0.6);
+        let lx: Vec<f64> = widths.iter().map(|w| (w - w0).ln()).collect();
+        let ly: Vec<f64> = rates.iter().map(|q| q.ln()).collect();
+        let (e, _) = slope(&lx, &ly);
+        println!("widths {widths:?}, rates {rates:?}: Beverloo C = {c:.3}, W0 = {w0:.4} m; exponent of W - W0: {e:.3}");
+        // the Beverloo form holds within 5 % (with W0 free this does not pin the exponent:
+        // (W - W0)^p with p from 1.2 to 2 fits four widths of this range within ~3 %)
+        for (w, q) in widths.iter().zip(&rates) {
+            let fit = c * 9.81f64.sqrt() * 0.6 * (w - w0).powf(1.5);
+            assert!((fit / q - 1.0).abs() < 0.05, "W = {w}: {q} vs {fit}");
+        }
     });
 }
