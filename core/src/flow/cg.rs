@@ -50,7 +50,7 @@
 //! A V-cycle costs about 2.5 line-preconditioned iterations (two more products and a line
 //! solve on the fine grid, the coarse levels). Measured on the real systems: column collapse
 //! 160 x 32 (0.03 s after release), lines 8.9 / 9.0 / 8.2 iterations per step for u_x / u_z /
-//! T, V-cycle 5.1 / 5.2 / 5.4, so the lines are faster; shear-cell spin-up on 80 x 80 from
+//! T, V-cycle 5.4 / 5.3 / 5.5, so the lines are faster; shear-cell spin-up on 80 x 80 from
 //! rest, lines 74 / 89 / 21, V-cycle 17 / 27 / 8. [`solve`] therefore starts with the lines
 //! and switches when their observed convergence rate predicts a long solve
 //! ([`Preconditioner::Auto`]).
