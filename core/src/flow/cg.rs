@@ -50,7 +50,7 @@
 //! A V-cycle costs about 2.5 line-preconditioned iterations (two more products and a line
 //! solve on the fine grid, the coarse levels). Measured on the real systems: column collapse
 //! 160 x 32 (0.03 s after release), lines 8.9 / 9.0 / 8.2 iterations per step for u_x / u_z /
-//! T, V-cycle 5.1 / 5.2 / 5.4, so the lines are faster; shear-cell spin-up on 80 x 80 from
+//! T, V-cycle 5.4 / 5.3 / 5.5, so the lines are faster; shear-cell spin-up on 80 x 80 from
 //! rest, lines 74 / 89 / 21, V-cycle 17 / 27 / 8. [`solve`] therefore starts with the lines
 //! and switches when their observed convergence rate predicts a long solve
 //! ([`Preconditioner::Auto`]).
@@ -622,35 +622,50 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
     }
 
     /// Writes the Galerkin operator `P^T A P` of piecewise-constant aggregation into `block`
-    /// (the coarse level's full diagonal and face arrays; `cc` its cells): a face joining two
-    /// aggregates becomes (part of) a coarse face, a face inside one drops out of the
-    /// diagonal of both its cells.
-    fn galerkin(&self, cc: [usize; D], block: &mut [R]) {
+    /// (the coarse level's full diagonal and face arrays; `cc` its cells, `mass` its mass
+    /// diagonal, the sum of the fine one over each aggregate): a face joining two aggregates
+    /// becomes (part of) a coarse face, a face inside one drops out. The full diagonal is
+    /// assembled as mass plus coarse faces, never as the fine full diagonals minus the inner
+    /// faces: with a yield viscosity 1e10 times the mass term that difference would cancel
+    /// to round-off, and could leave a closed aggregate with a diagonal of the wrong sign.
+    fn galerkin(&self, cc: [usize; D], mass: &[R], block: &mut [R]) {
         let nc: usize = cc.iter().product();
         let sc = strides(cc);
         let block = &mut block[..(D + 1) * nc];
         block.fill(R::ZERO);
         for_each_cell(self.cells, true, |i, k| {
             let j = parent(k, &sc);
-            block[j] += self.adiag[i];
             for a in 0..D {
                 if self.cells[a] < 2 {
                     continue;
                 }
-                let (face, crosses) = if k[a] + 1 < self.cells[a] {
-                    (true, k[a] & 1 == 1)
+                let crosses = if k[a] + 1 < self.cells[a] {
+                    k[a] & 1 == 1
                 } else {
-                    (self.periodic[a], cc[a] > 1)
+                    self.periodic[a] && cc[a] > 1
                 };
-                if !face {
+                if crosses {
+                    block[(1 + a) * nc + j] += self.kf[a][i];
+                }
+            }
+        });
+        let (ad, faces) = block.split_at_mut(nc);
+        ad.copy_from_slice(&mass[..nc]);
+        for_each_cell(cc, true, |j, k| {
+            for a in 0..D {
+                if cc[a] < 2 {
                     continue;
                 }
-                let f = self.kf[a][i];
-                if crosses {
-                    block[(1 + a) * nc + j] += f;
+                let other = if k[a] + 1 < cc[a] {
+                    j + sc[a]
+                } else if self.periodic[a] {
+                    j - (cc[a] - 1) * sc[a]
                 } else {
-                    block[j] -= R::TWO * f;
-                }
+                    continue;
+                };
+                let f = faces[a * nc + j];
+                ad[j] += f;
+                ad[other] += f;
             }
         });
     }
@@ -759,20 +774,41 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize> Precond<'s, 'a, R, D, N> {
             return;
         }
         let n = st.grid.len();
-        let ops = &mut self.coarse[..lv.op_offset(lv.count)];
-        st.diagonal(self.diag, self.tmp);
+        let (ops, work) = self.coarse.split_at_mut(lv.op_offset(lv.count));
+        // The mass diagonal of every level, restricted level by level into the right-hand
+        // side slots of the V-cycle (free until the first cycle).
+        let rhs_slot = |l: usize| {
+            let x = 2 * lv.n[1..l].iter().sum::<usize>();
+            x + lv.n[l]..x + 2 * lv.n[l]
+        };
+        {
+            let m1 = &mut work[rhs_slot(1)];
+            m1.fill(R::ZERO);
+            restrict(cells, &strides(lv.cells[1]), &self.diag[..n], m1);
+        }
+        for l in 1..lv.count - 1 {
+            let (here, below) = work.split_at_mut(rhs_slot(l + 1).start);
+            let m = &mut below[..lv.n[l + 1]];
+            m.fill(R::ZERO);
+            restrict(
+                lv.cells[l],
+                &strides(lv.cells[l + 1]),
+                &here[rhs_slot(l)],
+                m,
+            );
+        }
         let fine = Op {
             cells,
             strides: strides(cells),
             periodic: st.periodic,
-            adiag: &self.tmp[..n],
+            adiag: &self.diag[..n], // not used by `galerkin`
             kf: core::array::from_fn(|a| &st.kf[a][..n]),
         };
-        fine.galerkin(lv.cells[1], ops);
+        fine.galerkin(lv.cells[1], &work[rhs_slot(1)], ops);
         for l in 1..lv.count - 1 {
             let (done, next) = ops.split_at_mut(lv.op_offset(l + 1));
             let op = Op::at(&done[lv.op_offset(l)..], lv.cells[l], st.periodic);
-            op.galerkin(lv.cells[l + 1], next);
+            op.galerkin(lv.cells[l + 1], &work[rhs_slot(l + 1)], next);
         }
         let omega = R::from_f64(OMEGA);
         for w in self.pre[..n].iter_mut() {
