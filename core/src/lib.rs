@@ -27,7 +27,7 @@ pub mod segregation;
 pub mod sensor;
 
 pub use boundary::{Boundaries, Boundary};
-pub use diagnostics::{diagnose, state_hash, Diagnostics, SegregationClock};
+pub use diagnostics::{diagnose, diagnose_embedded, state_hash, Diagnostics, SegregationClock};
 pub use grid::Grid;
 pub use real::Real;
 pub use segregation::{

@@ -25,9 +25,10 @@
 //!   closed surface of every cut cell sums to zero: a uniform pressure exerts no net force
 //!   (`wall_vector` gives `W` bit-exactly as the face terms are written).
 //! - the wall point is the mean edge crossing of the cell (on the wall for a planar cut), the
-//!   open centroid is estimated by the mean of the open polyhedron's vertices (open corners
-//!   and crossings: exact for triangles, tetrahedra and slabs), and the wall distance is that
-//!   centroid's distance to the wall plane, floored at [`WALL_DISTANCE_FLOOR`] `min h`.
+//!   open centroid is the centroid of the open polygon through the crossings in 2D (exact for
+//!   a straight wall) and the mean of the open polyhedron's vertices in 3D (open corners and
+//!   crossings: exact for tetrahedra and slabs, an estimate otherwise), and the wall distance
+//!   is that centroid's distance to the wall plane, floored at [`WALL_DISTANCE_FLOOR`] `min h`.
 //!
 //! # Small cells: merging, not redistribution
 //!
@@ -531,16 +532,74 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
         self.vol[i] = v;
         let lo = self.corner(j);
         let h = self.grid.spacing();
+        let exact = if D == 2 && crossings > 0 {
+            self.polygon_centroid(region, j, i)?
+        } else {
+            None
+        };
         for a in 0..D {
             self.wall_point[a][i] = lo[a] + p[a] * h[a];
-            let c = if vertices > 0 {
-                vert_sum[a] / R::from_usize(vertices)
-            } else {
-                R::HALF
+            let c = match exact {
+                Some(c) => c[a],
+                None if vertices > 0 => vert_sum[a] / R::from_usize(vertices),
+                None => R::HALF,
             };
             self.centroid[a][i] = lo[a] + c * h[a];
         }
         Ok(())
+    }
+
+    /// 2D: the centroid (normalised coordinates) of the open polygon of cell `i` with lowest
+    /// corner `j`, walking the cell boundary counter-clockwise through the open corners and
+    /// the edge crossings; `None` for a degenerate polygon.
+    fn polygon_centroid(
+        &self,
+        region: &Region<R, D>,
+        j: [usize; D],
+        i: usize,
+    ) -> Result<Option<[R; 2]>, GeometryError> {
+        let at = |dx: usize, dz: usize| {
+            let mut jc = j;
+            let s: &mut [usize] = &mut jc;
+            s[0] += dx;
+            s[1] += dz;
+            jc
+        };
+        // each side: its first corner, then the lowest corner and the axis of its edge (the
+        // crossing lies between the side's two corners whichever way the edge runs)
+        let sides = [
+            ((0, 0), (0, 0), 0),
+            ((1, 0), (1, 0), 1),
+            ((1, 1), (0, 1), 0),
+            ((0, 1), (0, 0), 1),
+        ];
+        let mut poly = [[R::ZERO; 2]; 8];
+        let mut len = 0;
+        for ((cx, cz), (ex, ez), axis) in sides {
+            if self.dist(region, self.corner(at(cx, cz)), i)? <= R::ZERO {
+                poly[len] = [R::from_usize(cx), R::from_usize(cz)];
+                len += 1;
+            }
+            if let Some(t) = self.edge(region, at(ex, ez), axis, i)?.cross {
+                let mut v = [R::from_usize(ex), R::from_usize(ez)];
+                v[axis] = t;
+                poly[len] = v;
+                len += 1;
+            }
+        }
+        let (mut a2, mut cx, mut cz) = (R::ZERO, R::ZERO, R::ZERO);
+        for k in 0..len {
+            let (p, q) = (poly[k], poly[(k + 1) % len]);
+            let cross = p[0] * q[1] - q[0] * p[1];
+            a2 += cross;
+            cx += (p[0] + q[0]) * cross;
+            cz += (p[1] + q[1]) * cross;
+        }
+        if !(a2 > R::EPSILON) {
+            return Ok(None);
+        }
+        let three_a2 = R::from_usize(3) * a2;
+        Ok(Some([cx / three_a2, cz / three_a2]))
     }
 
     fn close_faces(&mut self, i: usize) {
@@ -771,7 +830,8 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
         }
         p
     }
-    /// The open centroid estimate (mean of the open vertices; the cell centre of a full cell).
+    /// The open centroid: exact for the 2D polygon through the crossings, the mean of the open
+    /// vertices in 3D (and for degenerate 2D slivers); the cell centre of a full cell.
     pub fn open_centroid(&self, i: usize) -> [R; D] {
         let mut p = [R::ZERO; D];
         for (a, pa) in p.iter_mut().enumerate() {
@@ -808,6 +868,12 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
     #[inline]
     pub fn is_cut(&self, i: usize) -> bool {
         self.vol[i] > R::ZERO && self.vol[i] < R::ONE
+    }
+    /// True if other cells are merged into cell `i` (it is the master of a group of two or
+    /// more cells).
+    #[inline]
+    pub fn has_merged(&self, i: usize) -> bool {
+        self.merged[i] != 0
     }
     /// True if cell `i` is merged into another cell.
     #[inline]
@@ -847,7 +913,9 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
 
     /// Replaces the state of every group by its volume-weighted mean `sum V_j q_j / V_group`
     /// (content kept to round-off); call once on an initial state so that merged cells agree
-    /// with their masters.
+    /// with their masters. Groups that are already uniform are left alone, so calling it
+    /// again changes no bit; the rounded mean is monotone, so `phi <= c` per cell stays
+    /// `phi <= c` per group.
     pub fn average_groups(&self, q: &mut [R]) {
         let n = self.grid.len();
         for i in 0..n {
@@ -856,6 +924,10 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
                 continue;
             }
             let (idx, len) = self.group_members(i, mask);
+            // already uniform: leave it (so that repeated calls change no bit)
+            if idx[..len].iter().all(|&k| q[k] == q[i]) {
+                continue;
+            }
             let mut content = R::ZERO;
             for &k in &idx[..len] {
                 content += self.vol[k] * q[k];

@@ -9,6 +9,7 @@
 
 mod carried;
 pub mod direction;
+mod embedded;
 pub mod flux;
 mod step;
 

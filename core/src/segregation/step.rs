@@ -14,16 +14,16 @@ use core::marker::PhantomData;
 /// One side of a face: tracked fraction, volume fraction, segregation coefficient, temperature,
 /// normal velocity.
 #[derive(Clone, Copy)]
-struct Side<R> {
-    q: R,
-    c: R,
-    k: R,
-    t: R,
-    u: R,
+pub(super) struct Side<R> {
+    pub(super) q: R,
+    pub(super) c: R,
+    pub(super) k: R,
+    pub(super) t: R,
+    pub(super) u: R,
 }
 
 /// A numerical segregation flux as a zero-sized type, so the face loop is monomorphised.
-trait Kernel<R: Real> {
+pub(super) trait Kernel<R: Real> {
     /// Whether the face flux includes the solver's own upwind transport `q u.n` (not when
     /// the transport is carried by the flow's mass fluxes: [`Percolation`]).
     const TRANSPORT: bool = true;
@@ -41,9 +41,9 @@ impl<R: Real, K: Kernel<R>> Kernel<R> for Percolation<K> {
     }
 }
 
-struct Modified;
-struct Godunov;
-struct Upwind;
+pub(super) struct Modified;
+pub(super) struct Godunov;
+pub(super) struct Upwind;
 
 impl<R: Real> Kernel<R> for Modified {
     #[inline(always)]
@@ -91,17 +91,21 @@ impl<R: Real> Kernel<R> for Upwind {
 
 /// Coefficients of the face loop that do not vary between faces of one axis.
 #[derive(Clone, Copy)]
-struct AxisConst<R> {
+pub(super) struct AxisConst<R> {
     /// dt / h
-    lambda: R,
+    pub(super) lambda: R,
     /// D / h (the diffusive flux is `-(D/h) c_face (qhat_R - qhat_L)`)
-    diffusion: R,
-    vacuum: R,
+    pub(super) diffusion: R,
+    pub(super) vacuum: R,
 }
 
 /// Total normal flux through one face times dt/h: transport + segregation (+ diffusion).
 #[inline(always)]
-fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(l: Side<R>, r: Side<R>, ax: AxisConst<R>) -> R {
+pub(super) fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
+    l: Side<R>,
+    r: Side<R>,
+    ax: AxisConst<R>,
+) -> R {
     let mut f = if K::TRANSPORT {
         let un = (l.u + r.u) * R::HALF;
         flux::transport(l.q, r.q, un) + K::segregation(l, r, ax.vacuum)
@@ -176,7 +180,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     }
 
     #[inline(always)]
-    fn side(&self, axis: usize, i: usize) -> Side<R> {
+    pub(super) fn side(&self, axis: usize, i: usize) -> Side<R> {
         Side {
             q: self.q[i],
             c: self.c[i],
@@ -189,7 +193,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// The ghost side of boundary cell `i`: its own coefficients, with the Dirichlet value for
     /// inflow or its own value (zero gradient) for outflow.
     #[inline(always)]
-    fn ghost_side(&self, axis: usize, i: usize, kind: Boundary) -> Side<R> {
+    pub(super) fn ghost_side(&self, axis: usize, i: usize, kind: Boundary) -> Side<R> {
         let mut s = self.side(axis, i);
         if kind == Boundary::Inflow {
             s.q = self.inflow_tracked(i);
@@ -364,7 +368,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
 /// Equal-length views of the cell arrays starting at one offset.
 #[derive(Clone, Copy)]
-struct Slices<'a, R> {
+pub(super) struct Slices<'a, R> {
     q: &'a [R],
     c: &'a [R],
     k: &'a [R],
@@ -374,7 +378,7 @@ struct Slices<'a, R> {
 
 impl<'a, R: Real> Slices<'a, R> {
     #[inline(always)]
-    fn new(
+    pub(super) fn new(
         q: &'a [R],
         c: &'a [R],
         k: &'a [R],
@@ -393,7 +397,7 @@ impl<'a, R: Real> Slices<'a, R> {
         }
     }
     #[inline(always)]
-    fn get(&self, j: usize) -> Side<R> {
+    pub(super) fn get(&self, j: usize) -> Side<R> {
         Side {
             q: self.q[j],
             c: self.c[j],
@@ -431,7 +435,7 @@ fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool>
 
 impl<'a, R: Real> Slices<'a, R> {
     #[inline(always)]
-    fn truncated(self, len: usize) -> Self {
+    pub(super) fn truncated(self, len: usize) -> Self {
         Self {
             q: &self.q[..len],
             c: &self.c[..len],
