@@ -1,14 +1,15 @@
 //! The one error type of the host crate and its exit codes.
 //!
-//! Bad input (a scene the user can fix) exits with code 2 and one line naming the file, the key
-//! and the allowed range; anything else (I/O, a failed thread) exits with code 1.
+//! Bad input (a scene the user can fix) exits with code 2 and one line per problem naming the
+//! file, the key and the allowed range; anything else (I/O, a failed thread) exits with code 1.
 
 use std::fmt;
 
 /// Why a command failed.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Error {
-    /// The input is wrong (exit code 2). The text is one line without the `error: ` prefix.
+    /// The input is wrong (exit code 2). The text is one line per problem, without the
+    /// `error: ` prefix.
     Input(String),
     /// Anything else: I/O, plotting, an internal failure (exit code 1).
     Failure(String),
@@ -32,6 +33,32 @@ impl Error {
         Error::Input(one_line(&format!(
             "{file}: {key} = {value} is out of range: allowed {allowed}"
         )))
+    }
+
+    /// Several problems as one error, one line each (exit code 2 if every one is bad input,
+    /// else 1). One problem stays as it is.
+    pub fn many(mut errors: Vec<Error>) -> Self {
+        if errors.len() == 1 {
+            return errors.remove(0);
+        }
+        let input = errors.iter().all(|e| matches!(e, Error::Input(_)));
+        let text = errors
+            .iter()
+            .map(|e| e.to_string())
+            .collect::<Vec<_>>()
+            .join("\n");
+        if input {
+            Error::Input(text)
+        } else {
+            Error::Failure(text)
+        }
+    }
+
+    /// The lines of the message (several for [`Error::many`]).
+    pub fn lines(&self) -> impl Iterator<Item = &str> {
+        match self {
+            Error::Input(m) | Error::Failure(m) => m.lines(),
+        }
     }
 
     /// A failure that is not the user's input (exit code 1).

@@ -7,7 +7,9 @@ fn main() -> ExitCode {
     match sieve::cli::execute(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e}");
+            for line in e.lines() {
+                eprintln!("error: {line}");
+            }
             ExitCode::from(e.exit_code() as u8)
         }
     }

@@ -546,3 +546,94 @@ fn naive_fluxes_leave_the_bounds_on_column_d_and_the_modified_one_does_not() {
     assert_eq!(undershoot[0], 0.0);
     assert!(undershoot[1] > 0.1 && undershoot[2] > 0.1, "{undershoot:?}");
 }
+
+/// Writes a copy of `scenes/column-a.toml` with `(from, to)` replacements into `dir`.
+fn column_a_with(dir: &Path, name: &str, edits: &[(&str, &str)]) -> PathBuf {
+    let mut text = std::fs::read_to_string(scenes_dir().join("column-a.toml")).unwrap();
+    for (from, to) in edits {
+        assert!(text.contains(from), "column-a.toml has no `{from}`");
+        text = text.replacen(from, to, 1);
+    }
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Issue 11: validation reports every problem of a scene file in one go, one line each, in the
+/// order of the file's sections, with exit code 2 and no output directory.
+#[test]
+fn a_file_with_three_mistakes_gets_three_lines() {
+    let d = tmp();
+    let scene = column_a_with(
+        d.path(),
+        "three.toml",
+        &[
+            ("courant = 0.5", "courant = 1.5"),
+            ("s0 = 1.0", "s0 = -1.0"),
+            ("t_end = 1.5", "t_end = 0.0"),
+        ],
+    );
+    let (code, _, err) = run_in(
+        d.path(),
+        &["run", scene.to_str().unwrap(), "--out", "out", "--quiet"],
+    );
+    assert_eq!(code, 2, "{err}");
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 3, "{err}");
+    assert!(lines.iter().all(|l| l.starts_with("error: ")), "{err}");
+    for (line, key) in lines.iter().zip([
+        "numerics.courant = 1.5",
+        "material.s0 = -1",
+        "run.t_end = 0",
+    ]) {
+        assert!(line.contains("three.toml") && line.contains(key), "{line}");
+    }
+    assert!(!d.path().join("out").exists());
+}
+
+/// Turning a 1D scene into 3D by changing `dim` alone: one run names every per-axis key that
+/// still has one entry (the issue's "five runs"), and the boundary key of an axis 3D has.
+#[test]
+fn a_1d_scene_made_3d_reports_every_per_axis_key_at_once() {
+    let d = tmp();
+    let scene = column_a_with(d.path(), "to3d.toml", &[("dim = 1", "dim = 3")]);
+    let (code, _, err) = run_in(
+        d.path(),
+        &["run", scene.to_str().unwrap(), "--out", "out", "--quiet"],
+    );
+    assert_eq!(code, 2, "{err}");
+    for key in [
+        "grid.cells",
+        "grid.lower",
+        "grid.upper",
+        "physics.gravity",
+        "initial.u",
+    ] {
+        assert!(
+            err.lines()
+                .any(|l| l.contains(&format!("to3d.toml: {key}"))),
+            "{key} missing in\n{err}"
+        );
+    }
+    assert_eq!(err.lines().count(), 5, "{err}");
+    // Per-cell field checks report a key once, at its first bad cell, and every bad key.
+    let fields = column_a_with(
+        d.path(),
+        "fields.toml",
+        &[
+            ("T = 1.0", "T = \"z - 0.5\""),
+            ("phi = \"c / 2\"", "phi = \"c * 2\""),
+            ("exact = \"column-a\"", ""),
+        ],
+    );
+    let (code, _, err) = run_in(
+        d.path(),
+        &["run", fields.to_str().unwrap(), "--out", "out", "--quiet"],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert_eq!(err.lines().count(), 2, "{err}");
+    assert!(
+        err.contains("initial.T = -0.4975") && err.contains("initial.phi"),
+        "{err}"
+    );
+}

@@ -41,7 +41,7 @@ fn at_cell(scene: &Scene, cell: usize) -> String {
     let axes = super::validate::physical_axes(scene.dim);
     let parts: Vec<String> = axes
         .iter()
-        .map(|&a| format!("{} = {}", names[a], crate::output::num(p[a])))
+        .map(|&a| format!("{} = {}", names[a], p[a]))
         .collect();
     format!(" (cell centre {})", parts.join(", "))
 }
