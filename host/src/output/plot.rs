@@ -46,6 +46,9 @@ pub fn frame_indices(n_outputs: usize, max: usize) -> Vec<usize> {
     v
 }
 
+/// The colour of masked cells (no material: solid or empty) in the colour maps.
+pub const MASKED: RGBColor = RGBColor(225, 225, 225);
+
 /// A perceptually ordered colour map (viridis, 9 anchors, linear in between) for `x` in [0, 1].
 pub fn viridis(x: f64) -> RGBColor {
     const A: [(u8, u8, u8); 9] = [
@@ -173,6 +176,9 @@ pub fn profiles(path: &Path, scene: &Scene, frames: &[(f64, Vec<f64>)]) -> Resul
 
 /// A colour map of `values` (`nx` x `nz`, x fastest) over the box `[x0, x1] x [z0, z1]`,
 /// with a colour bar for [0, 1]. Large grids are averaged down to at most 300 blocks per axis.
+/// NaN values are masked (drawn light grey, left out of block averages): the solid and empty
+/// cells of a container, which hold no phihat at all. `outline`: polylines drawn on top (the
+/// container's walls).
 #[allow(clippy::too_many_arguments)]
 pub fn colour_map(
     path: &Path,
@@ -182,6 +188,7 @@ pub fn colour_map(
     (z0, z1): (f64, f64),
     (xlabel, zlabel): (&str, &str),
     values: &[f64],
+    outline: &[Vec<(f64, f64)>],
 ) -> Result<()> {
     ensure_font()?;
     let aspect = ((z1 - z0) / (x1 - x0)).clamp(0.25, 2.0);
@@ -213,23 +220,42 @@ pub fn colour_map(
     for jz in (0..nz).step_by(bz) {
         for jx in (0..nx).step_by(bx) {
             let (ex, ez) = ((jx + bx).min(nx), (jz + bz).min(nz));
-            let mut sum = 0.0;
+            let (mut sum, mut count) = (0.0, 0usize);
             for iz in jz..ez {
                 for ix in jx..ex {
-                    sum += values[ix + nx * iz];
+                    let v = values[ix + nx * iz];
+                    if !v.is_nan() {
+                        sum += v;
+                        count += 1;
+                    }
                 }
             }
-            let v = sum / ((ex - jx) * (ez - jz)) as f64;
+            let colour = if count > 0 {
+                viridis(sum / count as f64)
+            } else {
+                MASKED
+            };
             rects.push(Rectangle::new(
                 [
                     (x0 + jx as f64 * hx, z0 + jz as f64 * hz),
                     (x0 + ex as f64 * hx, z0 + ez as f64 * hz),
                 ],
-                viridis(v).filled(),
+                colour.filled(),
             ));
         }
     }
     chart.draw_series(rects).map_err(fail(path))?;
+    for line in outline {
+        let clipped = line
+            .iter()
+            .map(|&(x, z)| (x.clamp(x0, x1), z.clamp(z0, z1)));
+        chart
+            .draw_series(std::iter::once(PathElement::new(
+                clipped.collect::<Vec<_>>(),
+                BLACK.stroke_width(2),
+            )))
+            .map_err(fail(path))?;
+    }
     // Colour bar.
     let mut cb = ChartBuilder::on(&bar)
         .margin_top(40)

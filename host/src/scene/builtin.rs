@@ -32,6 +32,7 @@ builtins!(
     "shear-cell-inverse",
     "shear-cell",
     "column-collapse",
+    "drum-settling",
 );
 
 /// The scene `sieve run` runs without a SCENE argument: 2D, segregates visibly (mixes, then
