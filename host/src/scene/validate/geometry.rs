@@ -362,7 +362,8 @@ pub(super) fn check(
     let center = center?;
     let z = dim - 1;
     let inside = |a: usize| center[a] > lower[a] && center[a] < upper[a];
-    if g.shape != ShapeKind::Hopper && !(inside(0) && inside(z)) {
+    let centred = g.shape == ShapeKind::Hopper || (inside(0) && inside(z));
+    if !centred {
         ok = false;
         p.push(Error::range(
             l,
@@ -394,7 +395,7 @@ pub(super) fn check(
         ShapeKind::Drum | ShapeKind::DrumBaffle => {
             let key = "geometry.radius";
             if let Some(r) = positive(p, l, key, g.radius, g.shape.name()) {
-                if r > room {
+                if centred && r > room {
                     ok = false;
                     p.push(Error::range(
                         l,
@@ -467,7 +468,7 @@ pub(super) fn check(
             if let Some(hw) = positive(p, l, key, g.half_width, "square-drum") {
                 let (s, c) = geo.angle.sin_cos();
                 let reach = hw * (s.abs() + c.abs());
-                if reach > room {
+                if centred && reach > room {
                     ok = false;
                     p.push(Error::range(
                         l,
