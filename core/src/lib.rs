@@ -25,6 +25,7 @@ mod messages;
 pub mod real;
 pub mod segregation;
 pub mod sensor;
+pub mod sum;
 
 pub use boundary::{Boundaries, Boundary};
 pub use diagnostics::{diagnose, diagnose_embedded, state_hash, Diagnostics, SegregationClock};

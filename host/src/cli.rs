@@ -24,8 +24,12 @@ pub enum Command {
     Scenes,
     /// Run a scene and write summary.json, series.csv, final.csv, fields/ and plots/ to DIR.
     Run(RunArgs),
-    /// Run a scene on several grids and print a work-precision table (errors, orders, times).
+    /// Run a scene on several grids and print a work-precision table (errors, orders, times);
+    /// draws it as converge.png (error against cell size and against wall time).
     Converge(ConvergeArgs),
+    /// Redraw the pictures of a finished run DIR (into DIR/plots) from its files:
+    /// summary.json, series.csv, fields/*.vti, profiles.csv.
+    Plot(PlotArgs),
     /// Fit S0 of a frozen-flow scene so that re-segregation completes at a target time, per
     /// grid (the flow is spun up and frozen once per grid); writes fit.csv, fit.json, plots/.
     Fit(FitArgs),
@@ -33,6 +37,13 @@ pub enum Command {
     Record(RecordArgs),
     /// Run the soft sensor over a recording: estimate-against-truth error and state hash.
     Replay(ReplayArgs),
+}
+
+/// Arguments of `sieve plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// A run directory written by `sieve run` (e.g. runs/shear-cell-inverse).
+    pub dir: PathBuf,
 }
 
 /// Arguments of `sieve record`.
@@ -363,6 +374,11 @@ pub fn execute(cli: Cli) -> Result<()> {
             })?;
             soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
                 .map_err(|e| Error::failure(format!("stdout: {e}")))
+        }
+        Command::Plot(a) => {
+            let (dir, written) = crate::output::redraw::replot(&a.dir)?;
+            println!("{}: {}", dir.display(), written.join(", "));
+            Ok(())
         }
         Command::Converge(a) => {
             let mut sets = a.set.clone();

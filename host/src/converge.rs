@@ -324,6 +324,7 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
         };
         rows.push(row);
     }
+    let loaded_cell_sizes: Vec<f64> = loaded.iter().map(|(s, _)| s.spacing()[s.dim - 1]).collect();
     let study = Study {
         scene: base.name.clone(),
         scheme: base.scheme.name().into(),
@@ -340,11 +341,38 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
         levels: rows,
     };
     write_file(&staging.path().join("converge.csv"), csv(&study).as_bytes())?;
+    draw(
+        &study,
+        &loaded_cell_sizes,
+        &staging.path().join("converge.png"),
+    )?;
     let mut json = serde_json::to_string_pretty(&study).map_err(Error::failure)?;
     json.push('\n');
     write_file(&staging.path().join("converge.json"), json.as_bytes())?;
     let dir = staging.commit()?;
     Ok((study, dir))
+}
+
+/// converge.png: the work-precision picture, L1 error against the vertical cell size h (with
+/// the observed order of the finest pair) and against wall time.
+fn draw(study: &Study, h: &[f64], path: &std::path::Path) -> Result<()> {
+    let rows: Vec<(f64, f64, f64)> = study
+        .levels
+        .iter()
+        .zip(h)
+        .filter_map(|(r, &h)| Some((h, r.l1?, r.wall_seconds)))
+        .collect();
+    let order = study.levels.iter().rev().find_map(|r| r.order_l1);
+    crate::output::plot::work_precision(
+        path,
+        &format!(
+            "{} ({}): error of {} against {}",
+            study.scene, study.scheme, study.quantity, study.reference
+        ),
+        "L1",
+        &rows,
+        order,
+    )
 }
 
 fn opt(x: Option<f64>) -> String {

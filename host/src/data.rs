@@ -267,6 +267,9 @@ pub struct FlowSummary {
     /// transport (coupled; 0 when the percolation stage keeps the bounds exactly, and when
     /// frozen). phi is no longer clipped: it rides on the flow's mass fluxes.
     pub clipped_mass: f64,
+    /// Discharge through wall outlets (scenes with outlets; [`crate::silo`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub outlet: Option<crate::silo::DischargeSummary>,
 }
 
 /// Horizontally averaged flow profiles over the vertical (last) axis.

@@ -438,14 +438,14 @@ pub fn fit(spec: &str, sets: &[String], opts: &FitOptions) -> Result<(Fit, PathB
     )?;
     plot::vertical_curves(
         &plots.join("flow_velocity.png"),
-        &format!("{}: mean u_x(z) per grid", fit.scene),
+        &format!("{}: mean u_x(z) per grid, frozen after spin-up", fit.scene),
         "u_x [m/s]",
         &u_curves,
         false,
     )?;
     plot::vertical_curves(
         &plots.join("flow_temperature.png"),
-        &format!("{}: mean T(z) per grid", fit.scene),
+        &format!("{}: mean T(z) per grid, frozen after spin-up", fit.scene),
         "T [m^2/s^2]",
         &t_curves,
         true,

@@ -65,6 +65,9 @@ fn boundaries<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowBou
                     WallSlip::Friction { tan, .. } => Slip::Friction(R::from_f64(tan)),
                 });
                 s.velocity = core::array::from_fn(|b| R::from_f64(w.velocity[b]));
+                if let Some(o) = &w.outlet {
+                    crate::silo::open(&mut s, o);
+                }
                 s
             }
         })
@@ -214,6 +217,7 @@ fn summary_of<R: Real, const D: usize, const N: usize>(
         residual: d.residual,
         steady_tolerance: fm.steady_tolerance,
         clipped_mass: clipped,
+        outlet: None,
     }
 }
 
@@ -322,6 +326,8 @@ pub struct CoupledStats {
     pub stats: LoopStats,
     /// Flow block.
     pub summary: FlowSummary,
+    /// The discharge series (scenes with outlets).
+    pub discharge: Option<crate::silo::DischargeSeries>,
 }
 
 /// Coupled mode: flow and segregation on the full grid with a common step (the last step
@@ -352,6 +358,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     };
     let mut timer = SegregationTimer::new(scene.psi_threshold);
     let mut flow_seconds = 0.0;
+    let mut discharge = crate::silo::has_outlets(scene).then(crate::silo::DischargeSeries::default);
     for (k, &t) in times.iter().enumerate() {
         let target = R::from_f64(t);
         let start = Instant::now();
@@ -381,12 +388,23 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
         timer.sample(t, row.psi);
         stats.series.push(row);
         on_output(k, t, cpl.seg, cpl.flow)?;
+        if let Some(d) = discharge.as_mut() {
+            d.sample(t, &cpl);
+            if d.emptied {
+                break; // until empty (or t_end)
+            }
+        }
     }
     stats.segregation_time = timer.time();
     stats.record_bounds(cpl.seg);
     let clipped = cpl.guarded_mass().to_f64();
-    let summary = summary_of(cpl.flow, fm, flow_seconds, None, clipped);
-    Ok(CoupledStats { stats, summary })
+    let mut summary = summary_of(cpl.flow, fm, flow_seconds, None, clipped);
+    summary.outlet = discharge.as_ref().map(|d| d.summary());
+    Ok(CoupledStats {
+        stats,
+        summary,
+        discharge,
+    })
 }
 
 /// The profiles of a snapshot.

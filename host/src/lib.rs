@@ -17,6 +17,7 @@ pub mod flow;
 pub mod output;
 pub mod run;
 pub mod scene;
+pub mod silo;
 pub mod soft_sensor;
 
 pub use error::{Error, Result};

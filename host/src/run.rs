@@ -262,13 +262,13 @@ pub struct RunOptions {
 /// What the solver thread of `sieve run` hands back.
 struct RunOutcome {
     stats: LoopStats,
-    frames: Vec<(usize, f64, Vec<f64>)>,
     pvd: Vec<(f64, String)>,
     hash: u64,
     exact_l1: Option<f64>,
     flow: Option<crate::data::FlowSummary>,
     profiles: Option<crate::data::Profiles>,
     geometry: Option<crate::data::GeometrySummary>,
+    discharge: Option<crate::silo::DischargeSeries>,
 }
 
 struct RunJob<'a> {
@@ -276,43 +276,21 @@ struct RunJob<'a> {
     fields: &'a Fields,
     fields_dir: std::path::PathBuf,
     staging: std::path::PathBuf,
-    plan: Vec<usize>,
     quiet: bool,
 }
 
-/// The data plotted for one frame: phihat over the whole 1D/2D grid, or the x-z mid-plane
-/// (y index `ny / 2`) of a 3D grid.
-fn plot_frame(scene: &Scene, phihat: &[f64]) -> Vec<f64> {
-    if scene.dim < 3 {
-        return phihat.to_vec();
-    }
-    let [nx, ny, nz] = [scene.cells[0], scene.cells[1], scene.cells[2]];
-    let iy = ny / 2;
-    let mut out = Vec::with_capacity(nx * nz);
-    for iz in 0..nz {
-        for ix in 0..nx {
-            out.push(phihat[ix + nx * (iy + ny * iz)]);
-        }
-    }
-    out
-}
-
 impl RunJob<'_> {
-    /// Writes the VTK snapshot of output `k` and keeps the plot frame if planned.
+    /// Writes the VTK snapshot of output `k` (the pictures are drawn from these files).
     fn output(
         &self,
         k: usize,
         t: f64,
         snap: &Snapshot,
-        frames: &mut Vec<(usize, f64, Vec<f64>)>,
         pvd: &mut Vec<(f64, String)>,
     ) -> Result<()> {
         let name = format!("state_{k:04}.vti");
         crate::output::vtk::write_vti(&self.fields_dir.join(&name), self.scene, snap)?;
         pvd.push((t, name));
-        if self.plan.contains(&k) {
-            frames.push((k, t, plot_frame(self.scene, &snap.phihat_masked())));
-        }
         Ok(())
     }
 
@@ -359,12 +337,11 @@ impl SolverJob for RunJob<'_> {
         }
         let volume = geo.map(crate::embedded::volumes);
         let bar = progress_bar(self.quiet, &scene.name);
-        let mut frames = Vec::new();
         let mut pvd = Vec::new();
         let stats = time_loop(s, scene, &bar, geo, |k, t, s| {
             let mut snap = Snapshot::of(s, scene);
             snap.volume = volume.clone();
-            self.output(k, t, &snap, &mut frames, &mut pvd)
+            self.output(k, t, &snap, &mut pvd)
         })?;
         bar.finish_and_clear();
         let mut snap = Snapshot::of(s, scene);
@@ -372,13 +349,13 @@ impl SolverJob for RunJob<'_> {
         let (hash, exact_l1) = self.finish(s, &snap)?;
         Ok(RunOutcome {
             stats,
-            frames,
             pvd,
             hash,
             exact_l1,
             flow: None,
             profiles: None,
             geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
+            discharge: None,
         })
     }
 }
@@ -394,16 +371,17 @@ impl FlowJob for RunJob<'_> {
         let scene = self.scene;
         load(s, scene, self.fields)?;
         let bar = progress_bar(self.quiet, &scene.name);
-        let mut frames = Vec::new();
         let mut pvd = Vec::new();
         let equations = scene.flow.as_ref().map(|m| m.equations);
+        let mut discharge = None;
         let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
             let cs = crate::flow::coupled_loop(f, s, scene, self.fields, &bar, |k, t, s, f| {
                 let mut snap = Snapshot::of(s, scene);
                 snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
-                self.output(k, t, &snap, &mut frames, &mut pvd)
+                self.output(k, t, &snap, &mut pvd)
             })?;
             let p: Vec<f64> = (0..f.len()).map(|i| f.pressure(i).to_f64()).collect();
+            discharge = cs.discharge;
             (cs.stats, cs.summary, p)
         } else {
             let frozen = crate::flow::spin_up(f, scene, self.fields)?;
@@ -411,7 +389,7 @@ impl FlowJob for RunJob<'_> {
             let stats = time_loop(s, scene, &bar, None, |k, t, s| {
                 let mut snap = Snapshot::of(s, scene);
                 snap.p = Some(frozen.p.clone());
-                self.output(k, t, &snap, &mut frames, &mut pvd)
+                self.output(k, t, &snap, &mut pvd)
             })?;
             (stats, frozen.summary, frozen.p)
         };
@@ -421,13 +399,13 @@ impl FlowJob for RunJob<'_> {
         let (hash, exact_l1) = self.finish(s, &snap)?;
         Ok(RunOutcome {
             stats,
-            frames,
             pvd,
             hash,
             exact_l1,
             flow: Some(summary),
             profiles: Some(crate::flow::profiles(scene, &snap)),
             geometry: None,
+            discharge,
         })
     }
 }
@@ -438,23 +416,16 @@ pub fn run_scene(
     fields: &Fields,
     opts: &RunOptions,
 ) -> Result<crate::output::summary::Summary> {
-    use crate::output::{self, plot, summary, Staging};
+    use crate::output::{self, redraw, summary, Staging};
     let start = Instant::now();
     let staging = Staging::new(&opts.out)?;
     let fields_dir = staging.subdir("fields")?;
     let plots_dir = staging.subdir("plots")?;
-    let n_outputs = output_times(scene.t_end, scene.output_interval).len();
-    let max_frames = if scene.dim == 1 {
-        plot::MAX_FRAMES_1D
-    } else {
-        plot::MAX_FRAMES_MAP
-    };
     let job = RunJob {
         scene,
         fields,
         fields_dir: fields_dir.clone(),
         staging: staging.path().to_path_buf(),
-        plan: plot::frame_indices(n_outputs, max_frames),
         quiet: opts.quiet,
     };
     let out = if scene.flow.is_some() {
@@ -465,15 +436,11 @@ pub fn run_scene(
     let stats = &out.stats;
     output::csv::write_series(&staging.path().join("series.csv"), &stats.series)?;
     output::vtk::write_pvd(&fields_dir.join("series.pvd"), &out.pvd)?;
-    plot::psi(
-        &plots_dir.join("psi.png"),
-        &stats.series,
-        scene.psi_threshold,
-        &format!("{}: mixing index", scene.name),
-    )?;
-    write_phihat_plots(scene, &plots_dir, &out.frames)?;
+    if let Some(d) = &out.discharge {
+        output::write_file(&staging.path().join("discharge.csv"), d.csv().as_bytes())?;
+    }
     if let Some(p) = &out.profiles {
-        plot::flow_profiles(&plots_dir, &scene.name, p)?;
+        redraw::write_profiles(&staging.path().join("profiles.csv"), p)?;
     }
     let first = stats.series.first().copied();
     let last = stats.series.last().copied();
@@ -540,45 +507,8 @@ pub fn run_scene(
         }),
     };
     summary.write(&staging.path().join("summary.json"))?;
+    // The pictures come from the files just written, as `sieve plot DIR` draws them.
+    redraw::redraw(staging.path(), &plots_dir)?;
     staging.commit()?;
     Ok(summary)
-}
-
-fn write_phihat_plots(
-    scene: &Scene,
-    dir: &std::path::Path,
-    frames: &[(usize, f64, Vec<f64>)],
-) -> Result<()> {
-    use crate::output::{num, plot};
-    if scene.dim == 1 {
-        let curves: Vec<(f64, Vec<f64>)> = frames.iter().map(|(_, t, v)| (*t, v.clone())).collect();
-        return plot::profiles(&dir.join("phihat_profiles.png"), scene, &curves);
-    }
-    let nx = scene.cells[0];
-    let nz = scene.cells[scene.dim - 1];
-    let (x0, x1) = (scene.lower[0], scene.upper[0]);
-    let (z0, z1) = (scene.lower[scene.dim - 1], scene.upper[scene.dim - 1]);
-    let (prefix, what) = if scene.dim == 3 {
-        ("phihat_midplane", "phihat, mid-plane y slice")
-    } else {
-        ("phihat", "phihat")
-    };
-    let outline = scene
-        .geometry
-        .as_ref()
-        .map(|g| g.outline(scene.dim))
-        .unwrap_or_default();
-    for (k, t, v) in frames {
-        plot::colour_map(
-            &dir.join(format!("{prefix}_{k:04}.png")),
-            &format!("{}: {what} at t = {}", scene.name, num(*t)),
-            (nx, nz),
-            (x0, x1),
-            (z0, z1),
-            ("x [m]", "z [m]"),
-            v,
-            &outline,
-        )?;
-    }
-    Ok(())
 }

@@ -637,3 +637,87 @@ fn a_1d_scene_made_3d_reports_every_per_axis_key_at_once() {
         "{err}"
     );
 }
+
+/// Number of frames of a GIF (graphic control extensions, one per frame as plotters writes).
+fn gif_frames(path: &Path) -> usize {
+    let b = std::fs::read(path).unwrap();
+    assert_eq!(&b[..6], b"GIF89a", "{}", path.display());
+    b.windows(3).filter(|w| w == &[0x21, 0xf9, 0x04]).count()
+}
+
+/// Issue 11: a 2D run animates every output time beside its still frames, and `sieve plot
+/// DIR` redraws the same pictures from the run's files alone (after they were deleted).
+#[test]
+fn plot_redraws_a_finished_run_with_an_animation_of_every_output() {
+    let d = tmp();
+    let (code, _, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "shear-cell-mixed",
+            "--grid",
+            "16x16",
+            "--t-end",
+            "0.4",
+            "--set",
+            "run.output_interval=0.025",
+            "--out",
+            "r",
+            "--quiet",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let plots = d.path().join("r/plots");
+    // 17 output times: all in the animation, 12 still frames (first and last included).
+    assert_eq!(gif_frames(&plots.join("phihat.gif")), 17);
+    let stills = |p: &Path| {
+        std::fs::read_dir(p)
+            .unwrap()
+            .filter(|e| {
+                let n = e.as_ref().unwrap().file_name();
+                let n = n.to_string_lossy();
+                n.starts_with("phihat_") && n.ends_with(".png")
+            })
+            .count()
+    };
+    assert_eq!(stills(&plots), 12);
+    assert!(plots.join("phihat_0000.png").exists() && plots.join("phihat_0016.png").exists());
+    std::fs::remove_dir_all(&plots).unwrap();
+    let (code, out, err) = run_in(d.path(), &["plot", "r"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("phihat.gif") && out.contains("psi.png"),
+        "{out}"
+    );
+    assert_eq!(gif_frames(&plots.join("phihat.gif")), 17);
+    assert_eq!(stills(&plots), 12);
+    let png = std::fs::read(plots.join("psi.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+    // Not a run directory: bad input.
+    let (code, _, err) = run_in(d.path(), &["plot", "."]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("no summary.json"), "{err}");
+}
+
+/// `sieve converge` draws its work-precision picture beside the table.
+#[test]
+fn converge_draws_error_against_cell_size_and_wall_time() {
+    let d = tmp();
+    let (code, _, err) = run_in(
+        d.path(),
+        &[
+            "converge",
+            "column-a",
+            "--levels",
+            "50,100,200",
+            "--t-end",
+            "0.5",
+            "--out",
+            "c",
+            "--quiet",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let png = std::fs::read(d.path().join("c/converge.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+}

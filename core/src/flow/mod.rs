@@ -64,6 +64,9 @@
 pub mod cg;
 pub mod coupled;
 mod step;
+mod walls;
+
+pub use walls::CutWall;
 
 use crate::boundary::{check_periodic_pairs, Boundary, Openings};
 use crate::closure::{self, Material};
@@ -321,6 +324,8 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     /// The applied amount of each low boundary face (at the first cell of a line; positive
     /// = into the box; 0 on closed walls and periodic axes).
     flux_low: [[R; N]; D],
+    /// Coarse levels of the multigrid preconditioner ([`cg`]); scratch of the implicit solves.
+    coarse: [[R; N]; D],
     /// Grain volume that left through each side `[axis][low, high]`, since setup.
     discharged: [[R; 2]; D],
     /// Grain volume that left through each side in the last step.
@@ -345,6 +350,8 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     residual: R,
     cg_iterations: u64,
     last_cg: [u32; 4],
+    /// Embedded (cut-cell) walls, off unless [`Flow::set_geometry`] loaded them.
+    walls: walls::Walls<R, D, N>,
 }
 
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
@@ -391,6 +398,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             c_rlp: z,
             flux: zd,
             flux_low: zd,
+            coarse: zd,
             discharged: [[R::ZERO; 2]; D],
             discharge_step: [[R::ZERO; 2]; D],
             kf: zd,
@@ -410,6 +418,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             residual: R::ZERO,
             cg_iterations: 0,
             last_cg: [0; 4],
+            walls: walls::Walls::zeroed(),
         }
     }
 
@@ -514,6 +523,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.c_rcp[..n].fill(cfg.material.phi_rcp);
         self.c_rlp[..n].fill(cfg.material.phi_rlp);
         self.g_now = cfg.frame.gravity(cfg.gravity, R::ZERO);
+        self.walls.on = false;
+        self.walls.merged = false;
         self.prepared = false;
         self.time = R::ZERO;
         self.steps = 0;
@@ -542,9 +553,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.c_rlp[i] = c_rlp;
     }
 
-    /// Validates the fields and derives the primitives, pressure and coefficients.
+    /// Validates the fields and derives the primitives, pressure and coefficients. With an
+    /// embedded wall, solid cells are emptied first and every merge group takes its
+    /// content-weighted mean state (conservative).
     pub fn prepare(&mut self) -> Result<(), FlowError> {
         let n = self.grid.len();
+        if self.walls.on {
+            self.embedded_prepare();
+        }
         for i in 0..n {
             let cmax = (R::ONE - self.cfg.margin) * self.c_rcp[i];
             if !(self.c[i].is_finite() && self.c[i] >= R::ZERO && self.c[i] <= cmax) {
@@ -716,8 +732,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             kinetic_energy: R::ZERO,
             residual: self.residual,
         };
+        let emb = self.walls.on;
         for i in 0..n {
-            d.mass += self.c[i] * vol;
+            // open volume of the cell (exactly `vol` without a geometry)
+            let v = if emb { self.walls.vol[i] * vol } else { vol };
+            d.mass += self.c[i] * v;
             d.max_packing = d.max_packing.max(self.c[i] / self.c_rcp[i]);
             d.t_min = d.t_min.min(self.t[i]);
             let s2 = self.speed_squared(i);
@@ -725,7 +744,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 d.t_max = d.t_max.max(self.t[i]);
                 d.max_speed = d.max_speed.max(s2.sqrt());
             }
-            d.kinetic_energy += R::HALF * self.c[i] * s2 * vol;
+            d.kinetic_energy += R::HALF * self.c[i] * s2 * v;
         }
         d
     }

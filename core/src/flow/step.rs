@@ -1,6 +1,6 @@
 //! One time step of the flow (the scheme of the module docs of [`super`]).
 
-use super::cg::{self, Scratch, Stencil, Stop};
+use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
 use super::{Flow, FlowSide, OutletPressure, Slip};
 use crate::boundary::Boundary;
 use crate::closure;
@@ -96,6 +96,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // Compact parts only: the direct gravity of faded faces is not a pressure mode, and
         // counting it would let the correction hold an unsupported surface cell in the air.
         self.cell_forces(false);
+        // With an embedded wall every face flux is scaled by its open aperture (0 inside a
+        // merge group) and the limiters and the update work in content units (`walls`).
+        let emb = self.walls.on;
         // Pass 1: face fluxes (stored at the left cell), inflow and outflow of each cell.
         self.inflow[..n].fill(R::ZERO);
         self.diag[..n].fill(R::ZERO);
@@ -107,18 +110,28 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             for b in 0..fb.blocks {
                 let l0 = b * fb.block_stride;
                 for l in l0..l0 + fb.block_len {
-                    let f = self.interior_flux(a, l, l + s, dt, cap, vac);
+                    let mut f = self.interior_flux(a, l, l + s, dt, cap, vac);
+                    if emb {
+                        f *= self.transport_aperture(a, l, l + s);
+                    }
                     self.flux[a][l] = f;
                     self.count(l, l + s, lam * f);
                 }
             }
             let (lo, hi) = (self.bc[a][0], self.bc[a][1]);
             grid.for_each_boundary_cell(a, true, |last, first| {
-                let f = if hi.kind == Boundary::Periodic {
+                let mut f = if hi.kind == Boundary::Periodic {
                     self.interior_flux(a, last, first, dt, cap, vac)
                 } else {
                     self.high_flux(a, last, first, &hi)
                 };
+                if emb {
+                    f *= if hi.kind == Boundary::Periodic {
+                        self.transport_aperture(a, last, first)
+                    } else {
+                        self.walls.ap_hi[a][last]
+                    };
+                }
                 self.flux[a][last] = f;
                 if hi.kind == Boundary::Periodic {
                     self.count(last, first, lam * f);
@@ -130,7 +143,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             });
             if open_low(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
-                    let f = self.low_flux(a, first, &lo);
+                    let mut f = self.low_flux(a, first, &lo);
+                    if emb {
+                        f *= self.walls.ap_lo[a][first];
+                    }
                     if f > R::ZERO {
                         self.inflow[first] += lam * f;
                     } else {
@@ -143,17 +159,22 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // its outflow so it cannot drop below 0 (inflow only raises c). Each face flux takes
         // the smaller factor of its donor and receiver, so both bounds hold whatever the
         // neighbours do, and every flux still leaves one cell and enters the other.
-        for i in 0..n {
-            let room = ((R::ONE - self.cfg.margin) * self.c_rcp[i] - self.c[i]).max(R::ZERO);
-            let inflow = self.inflow[i];
-            self.inflow[i] = if inflow > room { room / inflow } else { R::ONE };
-            let content = self.c[i].max(R::ZERO);
-            let outflow = self.diag[i];
-            self.diag[i] = if outflow > content {
-                content / outflow
-            } else {
-                R::ONE
-            };
+        if emb {
+            self.embedded_limiters();
+            self.embedded_begin_update();
+        } else {
+            for i in 0..n {
+                let room = ((R::ONE - self.cfg.margin) * self.c_rcp[i] - self.c[i]).max(R::ZERO);
+                let inflow = self.inflow[i];
+                self.inflow[i] = if inflow > room { room / inflow } else { R::ONE };
+                let content = self.c[i].max(R::ZERO);
+                let outflow = self.diag[i];
+                self.diag[i] = if outflow > content {
+                    content / outflow
+                } else {
+                    R::ONE
+                };
+            }
         }
         // Pass 2: apply, and keep each applied amount in `flux` / `flux_low` (the step's
         // face mass fluxes, see `Flow::mass_fluxes`).
@@ -193,7 +214,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             });
             if open_low(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
-                    let f = self.low_flux(a, first, &lo);
+                    let mut f = self.low_flux(a, first, &lo);
+                    if emb {
+                        f *= self.walls.ap_lo[a][first];
+                    }
                     let mut df = R::ZERO;
                     if f > R::ZERO {
                         let f = f * self.inflow[first];
@@ -214,6 +238,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             for side in 0..2 {
                 self.discharged[a][side] += self.discharge_step[a][side];
             }
+        }
+        if emb {
+            self.embedded_end_update();
         }
     }
 
@@ -273,6 +300,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
     #[inline(always)]
     fn add_flux(&mut self, i: usize, dc: R, u: [R; D], t: R) {
+        if self.walls.on {
+            return self.embedded_add_flux(i, dc, u, t);
+        }
         self.c[i] += dc;
         for a in 0..D {
             self.m[a][i] += dc * u[a];
@@ -379,9 +409,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// `(1 - w)/2` of faded faces (so dust in the air still falls). In the bulk this is the central pressure gradient with
     /// the gravity of the face masses; a rest state is `F_f = 0` on every face, i.e. the compact
     /// lithostatic balance `(p_R - p_L)/h = g (c_L + c_R)/2`.
+    ///
+    /// With an embedded wall each face term is weighted by the face's open aperture (the open
+    /// part of its dual volume), the cut wall fragment is a hydrostatic ghost (no term), and
+    /// the sum of a merge group is divided by the group volume (`walls`).
     fn cell_forces(&mut self, with_direct_gravity: bool) {
         let n = self.grid.len();
         let grid = self.grid;
+        let emb = self.walls.on;
         // The body force of faded faces acts directly on their cells (only if asked for).
         let direct = |b: R| if with_direct_gravity { b } else { R::ZERO };
         let h = self.grid.spacing();
@@ -403,8 +438,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     let (f, w) = self.face_force(a, b, self.c[l], self.p[l], self.c[r], self.p[r]);
                     let rest = R::HALF * (R::ONE - w) * direct(b);
                     let push = (R::ONE - w) * open;
-                    self.kf[a][l] += R::HALF * f + rest * self.c[l] + push * self.p[l];
-                    self.kf[a][r] += R::HALF * f + rest * self.c[r] - push * self.p[r];
+                    let wa = if emb { self.walls.ap_hi[a][l] } else { R::ONE };
+                    self.kf[a][l] += wa * (R::HALF * f + rest * self.c[l] + push * self.p[l]);
+                    self.kf[a][r] += wa * (R::HALF * f + rest * self.c[r] - push * self.p[r]);
                 }
             }
             for (high, side) in [(false, self.bc[a][0]), (true, self.bc[a][1])] {
@@ -419,16 +455,24 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         self.low_face_body(a)
                     };
                     let rest = R::HALF * (R::ONE - w) * direct(b);
-                    self.kf[a][i] += R::HALF * f + rest * self.c[i];
+                    let wa = match (emb, high) {
+                        (false, _) => R::ONE,
+                        (true, true) => self.walls.ap_hi[a][i],
+                        (true, false) => self.walls.ap_lo[a][i],
+                    };
+                    self.kf[a][i] += wa * (R::HALF * f + rest * self.c[i]);
                     if side.kind == Boundary::Periodic {
                         // the wrap face is an interior face: `i` is its high-side (last) cell
                         let push = (R::ONE - w) * open;
-                        self.kf[a][i] += push * self.p[i];
+                        self.kf[a][i] += wa * (push * self.p[i]);
                         self.kf[a][other] +=
-                            R::HALF * f + rest * self.c[other] - push * self.p[other];
+                            wa * (R::HALF * f + rest * self.c[other] - push * self.p[other]);
                     }
                 });
             }
+        }
+        if emb {
+            self.embedded_forces();
         }
     }
 
@@ -458,6 +502,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             }
         }
         self.wall_contact();
+        if self.walls.on {
+            self.embedded_wall_contact();
+        }
     }
 
     /// Unilateral wall contact of loose cells, with Coulomb friction: a wall cell with
@@ -555,6 +602,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
     /// Face coefficients `scale * mean(coef) / h_a^2` of the interior and wrap faces.
     fn face_coefficients(&mut self, use_lambda: bool, scale: R) {
+        let n = self.grid.len();
         let h = self.grid.spacing();
         let grid = self.grid;
         let periodic = self.periodic();
@@ -577,6 +625,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     R::ZERO
                 };
             });
+            if self.walls.on {
+                // the open part of each face (0 towards and between solid cells)
+                for (k, w) in kf[..n].iter_mut().zip(&self.walls.ap_hi[a][..n]) {
+                    *k *= *w;
+                }
+            }
         }
     }
 
@@ -630,15 +684,18 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 u_ref = u_ref.max(self.u[a][i].abs());
             }
         }
+        // With an embedded wall the rows are content balances: mass terms times the open
+        // volume (`walls`).
+        let emb = self.walls.on;
         let mut mass_norm = R::ZERO;
         for i in 0..n {
-            let cd = self.c[i].max(vac) / dt;
+            let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
             mass_norm += cd * cd;
         }
         let mass_norm = mass_norm.sqrt();
         for comp in 0..D {
             for i in 0..n {
-                let cd = self.c[i].max(vac) / dt;
+                let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
                 self.diag[i] = cd;
                 self.rhs[i] = cd * self.u[comp][i];
             }
@@ -649,18 +706,32 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 let k2 = R::TWO / (h[axis] * h[axis]);
                 for (high, side) in [(false, self.bc[axis][0]), (true, self.bc[axis][1])] {
                     grid.for_each_boundary_cell(axis, high, |i, _| {
-                        // the closed share of the face (the open share is free: zero gradient)
+                        // the closed share of the face (the open share is free: zero
+                        // gradient), times the box face's aperture (cut-cell walls)
                         let shut = R::ONE - self.open_fraction(axis, high, i);
+                        let wa = self.box_aperture(axis, high, i);
                         match self.wall_face(comp, &side, i, axis) {
                             Face::Value(v) => {
-                                let k = k2 * self.eta[i] * shut;
+                                let k = wa * (k2 * self.eta[i] * shut);
                                 self.diag[i] += k;
                                 self.rhs[i] += k * v;
                             }
-                            Face::Stress(tau) => self.rhs[i] += tau * shut / h[axis],
+                            Face::Stress(tau) => self.rhs[i] += wa * (tau * shut / h[axis]),
                             Face::Free => {}
                         }
                     });
+                }
+            }
+            if emb {
+                // the cut wall fragment: Dirichlet towards u_B (lagged wall law)
+                for i in 0..n {
+                    let kw = self.walls.wall_k[i];
+                    if kw > R::ZERO {
+                        let ub = self.boundary_velocity(i);
+                        let k = kw * self.eta[i];
+                        self.diag[i] += k;
+                        self.rhs[i] += k * ub[comp];
+                    }
                 }
             }
             // Scale of the mass term `c u / dt` alone: the wall terms (yield viscosity up to
@@ -682,11 +753,18 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     ap: &mut self.ap,
                     pre: &mut self.pre,
                     line: &mut self.line,
+                    // `inflow` is dead between the transport and the heating (written after
+                    // the velocity solves, read into `rhs` before the temperature solve).
+                    // `flux` is not: it holds the step's applied face mass fluxes, which the
+                    // coupled driver carries phi with after the step.
+                    tmp: &mut self.inflow,
+                    coarse: self.coarse.as_flattened_mut(),
                 },
                 Stop {
                     relative: self.cfg.cg_tolerance,
                     floor,
                     max_iterations: self.cfg.cg_max_iterations,
+                    preconditioner: Preconditioner::Auto,
                 },
             );
             self.last_cg[comp.min(2)] = res.iterations;
@@ -735,6 +813,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             for (high, side) in [(false, self.bc[a][0]), (true, self.bc[a][1])] {
                 grid.for_each_boundary_cell(a, high, |i, _| {
                     let shut = R::ONE - self.open_fraction(a, high, i);
+                    let wa = self.box_aperture(a, high, i);
                     let mut w = R::ZERO;
                     for comp in 0..D {
                         w += match self.wall_face(comp, &side, i, a) {
@@ -746,9 +825,35 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                             Face::Free => R::ZERO,
                         };
                     }
-                    self.inflow[i] += R::HALF * w * shut;
+                    self.inflow[i] += wa * (R::HALF * w * shut);
                 });
             }
+        }
+        if self.walls.on {
+            // the work of the cut wall term `eta A / (d |C|) (u_B - u)` (content units)
+            for i in 0..n {
+                let kw = self.walls.wall_k[i];
+                if kw > R::ZERO {
+                    let ub = self.boundary_velocity(i);
+                    let mut du2 = R::ZERO;
+                    for (comp, b) in ub.iter().enumerate() {
+                        let d = *b - self.u[comp][i];
+                        du2 += d * d;
+                    }
+                    self.inflow[i] += kw * self.eta[i] * du2;
+                }
+            }
+        }
+    }
+
+    /// Open aperture of the box face of cell `i` on side `high` of `axis` (1 without an
+    /// embedded wall).
+    #[inline(always)]
+    fn box_aperture(&self, axis: usize, high: bool, i: usize) -> R {
+        match (self.walls.on, high) {
+            (false, _) => R::ONE,
+            (true, true) => self.walls.ap_hi[axis][i],
+            (true, false) => self.walls.ap_lo[axis][i],
         }
     }
 
@@ -770,10 +875,18 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let vac = self.cfg.vacuum;
         let a_heat = self.cfg.material.heating;
         let periodic = self.periodic();
+        let emb = self.walls.on;
         for i in 0..n {
             let cd = self.c[i].max(vac);
             self.diag[i] = cd / dt + self.c[i] * self.eps[i];
-            self.rhs[i] = self.e[i].max(R::ZERO) / dt + a_heat * self.inflow[i];
+            self.rhs[i] = self.e[i].max(R::ZERO) / dt;
+            if emb {
+                // content balance: mass and dissipation times the open volume
+                let v = self.walls.mass_volume(i);
+                self.diag[i] *= v;
+                self.rhs[i] *= v;
+            }
+            self.rhs[i] += a_heat * self.inflow[i];
         }
         self.face_coefficients(true, a_heat);
         for axis in 0..D {
@@ -783,7 +896,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     continue; // walls and outflow: d_n T = 0; periodic: wrap faces
                 }
                 grid.for_each_boundary_cell(axis, high, |i, _| {
-                    let k = k2 * self.lam[i];
+                    let k = self.box_aperture(axis, high, i) * (k2 * self.lam[i]);
                     self.diag[i] += k;
                     self.rhs[i] += k * side.t;
                 });
@@ -809,11 +922,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 ap: &mut self.ap,
                 pre: &mut self.pre,
                 line: &mut self.line,
+                tmp: &mut self.inflow,
+                coarse: self.coarse.as_flattened_mut(),
             },
             Stop {
                 relative: self.cfg.cg_tolerance,
                 floor,
                 max_iterations: self.cfg.cg_max_iterations,
+                preconditioner: Preconditioner::Auto,
             },
         );
         self.last_cg[3] = res.iterations;

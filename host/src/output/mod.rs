@@ -3,6 +3,7 @@
 
 pub mod csv;
 pub mod plot;
+pub mod redraw;
 pub mod summary;
 pub mod vtk;
 

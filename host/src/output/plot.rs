@@ -1,10 +1,12 @@
-//! PNG plots (plotters, bitmap backend, embedded DejaVu Sans font): the mixing index Psi(t),
-//! and phihat at output times: profiles phihat(z) in 1D, colour maps in 2D, the mid-plane
-//! (y = middle) x-z slice in 3D.
+//! PNG and GIF plots (plotters, bitmap backend, embedded DejaVu Sans font): the series of a run
+//! (mixing index Psi, mass drift, bound violations against time), phihat at output times
+//! (profiles phihat(z) in 1D; colour maps with a labelled colour bar and masked empty cells in
+//! 2D, the mid-plane y slice in 3D; an animation over the output times), flow profiles, and
+//! the work-precision picture of `sieve converge`. Every function takes plain data: what is
+//! drawn is decided by `output::redraw`, which reads a run's files.
 
 use crate::data::{Profiles, SeriesRow};
 use crate::error::{Error, Result};
-use crate::scene::Scene;
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -13,10 +15,30 @@ use std::path::Path;
 static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 const FONT_NAME: &str = "sans-serif";
 
-/// At most this many profile curves (1D) or colour maps (2D/3D) per run.
-pub const MAX_FRAMES_1D: usize = 8;
-/// See [`MAX_FRAMES_1D`].
+/// At most this many profile curves in one 1D picture: more cannot be told apart.
+pub const MAX_FRAMES_1D: usize = 6;
+/// At most this many still colour maps (2D/3D) per run; the animation has every output time
+/// up to [`MAX_FRAMES_GIF`].
 pub const MAX_FRAMES_MAP: usize = 12;
+/// At most this many frames in the animation (evenly spread over the output times).
+pub const MAX_FRAMES_GIF: usize = 100;
+/// Width of the animation's frames in pixels.
+const GIF_WIDTH: u32 = 640;
+/// Cells with c at or below this are empty (the solvers' vacuum threshold, 1e-6): drawn in
+/// [`EMPTY`], not as phihat = 0.
+pub const VACUUM: f64 = 1e-6;
+/// The colour of empty cells: a neutral grey outside the colour map.
+pub const EMPTY: RGBColor = RGBColor(190, 190, 190);
+/// Distinct colours for curves that must be told apart (Okabe-Ito, colour-blind safe).
+pub const PALETTE: [RGBColor; 7] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(86, 180, 233),
+    RGBColor(230, 159, 0),
+    RGBColor(0, 0, 0),
+];
 
 fn ensure_font() -> Result<()> {
     static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -33,6 +55,11 @@ fn fail<E: std::fmt::Debug>(path: &Path) -> impl Fn(E) -> Error + '_ {
     move |e| Error::failure(format!("{}: plotting failed: {e:?}", path.display()))
 }
 
+/// A drawing error as text (generic backends: PNG file, GIF frame).
+fn text<E: std::fmt::Debug>(e: E) -> String {
+    format!("{e:?}")
+}
+
 /// Output indices to plot: all if there are at most `max`, else `max` evenly spread ones
 /// including the first and the last.
 pub fn frame_indices(n_outputs: usize, max: usize) -> Vec<usize> {
@@ -45,9 +72,6 @@ pub fn frame_indices(n_outputs: usize, max: usize) -> Vec<usize> {
     v.dedup();
     v
 }
-
-/// The colour of masked cells (no material: solid or empty) in the colour maps.
-pub const MASKED: RGBColor = RGBColor(225, 225, 225);
 
 /// A perceptually ordered colour map (viridis, 9 anchors, linear in between) for `x` in [0, 1].
 pub fn viridis(x: f64) -> RGBColor {
@@ -78,62 +102,158 @@ pub fn viridis(x: f64) -> RGBColor {
     )
 }
 
-/// Psi(t) with the threshold of the segregation time.
+/// The series of a run in three panels over t: the mixing index Psi with the threshold of the
+/// segregation time; the relative drift of the small-phase mass `(m - m0)/|m0|` (round-off
+/// for closed scenes; inflow/outflow scenes exchange mass); the bound violations
+/// `max(phi - c)` and `max(-phi)` (0 for the modified flux, model.md 5).
 pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Result<()> {
     ensure_font()?;
-    let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();
+    let root = BitMapBackend::new(path, (800, 900)).into_drawing_area();
     root.fill(&WHITE).map_err(fail(path))?;
+    let root = root.titled(title, (FONT_NAME, 22)).map_err(fail(path))?;
+    let panels = root.split_evenly((3, 1));
     let t_max = series.last().map_or(1.0, |r| r.t).max(f64::MIN_POSITIVE);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, (FONT_NAME, 22))
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..t_max, 0.0..1.05)
-        .map_err(fail(path))?;
-    chart
-        .configure_mesh()
-        .x_desc("t [s]")
-        .y_desc("mixing index Psi")
-        .label_style((FONT_NAME, 15))
-        .axis_desc_style((FONT_NAME, 17))
-        .draw()
-        .map_err(fail(path))?;
-    chart
-        .draw_series(LineSeries::new(
+    let m0 = series.first().map_or(0.0, |r| r.mass);
+    let drift: Vec<(f64, f64)> = series
+        .iter()
+        .map(|r| {
+            let d = if m0 != 0.0 {
+                (r.mass - m0) / m0.abs()
+            } else {
+                r.mass - m0
+            };
+            (r.t, d)
+        })
+        .collect();
+    let over: Vec<(f64, f64)> = series.iter().map(|r| (r.t, r.overshoot_max)).collect();
+    let under: Vec<(f64, f64)> = series.iter().map(|r| (r.t, r.undershoot_max)).collect();
+    let y_range = |v: &[(f64, f64)]| {
+        let (lo, hi) = v
+            .iter()
+            .map(|p| p.1)
+            .filter(|y| y.is_finite())
+            .fold((0.0f64, 0.0f64), |(a, b), y| (a.min(y), b.max(y)));
+        let pad = ((hi - lo) * 0.1).max(1e-16);
+        (lo - pad)..(hi + pad)
+    };
+    // Psi.
+    {
+        let mut c = ChartBuilder::on(&panels[0])
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(80)
+            .build_cartesian_2d(0.0..t_max, 0.0..1.05)
+            .map_err(fail(path))?;
+        c.configure_mesh()
+            .x_desc("t")
+            .y_desc("mixing index Psi")
+            .label_style((FONT_NAME, 13))
+            .axis_desc_style((FONT_NAME, 15))
+            .draw()
+            .map_err(fail(path))?;
+        c.draw_series(LineSeries::new(
             series.iter().map(|r| (r.t, r.psi)),
-            BLUE.stroke_width(2),
+            PALETTE[0].stroke_width(2),
         ))
         .map_err(fail(path))?
         .label("Psi")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
-    chart
-        .draw_series(LineSeries::new(
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[0].stroke_width(2)));
+        c.draw_series(LineSeries::new(
             vec![(0.0, threshold), (t_max, threshold)],
-            RED.stroke_width(1),
+            PALETTE[1].stroke_width(1),
         ))
         .map_err(fail(path))?
-        .label(format!("threshold {threshold}"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(1)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.9))
-        .label_font((FONT_NAME, 15))
-        .draw()
-        .map_err(fail(path))?;
+        .label(format!("threshold {threshold} (segregation time)"))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[1].stroke_width(1)));
+        legend(&mut c, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
+    }
+    // Mass drift.
+    {
+        let mut c = ChartBuilder::on(&panels[1])
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(80)
+            .build_cartesian_2d(0.0..t_max, y_range(&drift))
+            .map_err(fail(path))?;
+        c.configure_mesh()
+            .x_desc("t")
+            .y_desc("(m - m0) / m0")
+            .y_label_formatter(&|y: &f64| format!("{y:.1e}"))
+            .label_style((FONT_NAME, 13))
+            .axis_desc_style((FONT_NAME, 15))
+            .draw()
+            .map_err(fail(path))?;
+        c.draw_series(LineSeries::new(drift.clone(), PALETTE[2].stroke_width(2)))
+            .map_err(fail(path))?;
+    }
+    // Bound violations.
+    {
+        let both: Vec<(f64, f64)> = over.iter().chain(&under).copied().collect();
+        let mut c = ChartBuilder::on(&panels[2])
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(80)
+            .build_cartesian_2d(0.0..t_max, y_range(&both))
+            .map_err(fail(path))?;
+        c.configure_mesh()
+            .x_desc("t")
+            .y_desc("bound violation")
+            .y_label_formatter(&|y: &f64| format!("{y:.1e}"))
+            .label_style((FONT_NAME, 13))
+            .axis_desc_style((FONT_NAME, 15))
+            .draw()
+            .map_err(fail(path))?;
+        c.draw_series(LineSeries::new(over, PALETTE[3].stroke_width(2)))
+            .map_err(fail(path))?
+            .label(format!(
+                "max(phi - c): above c (largest {:.1e})",
+                series.iter().map(|r| r.overshoot_max).fold(0.0, f64::max)
+            ))
+            .legend(|(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[3].stroke_width(2))
+            });
+        c.draw_series(LineSeries::new(under, PALETTE[5].stroke_width(2)))
+            .map_err(fail(path))?
+            .label(format!(
+                "max(-phi): below 0 (largest {:.1e})",
+                series.iter().map(|r| r.undershoot_max).fold(0.0, f64::max)
+            ))
+            .legend(|(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[5].stroke_width(2))
+            });
+        legend(&mut c, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
+    }
     root.present().map_err(fail(path))
 }
 
-/// 1D: phihat(z) profiles, one curve per frame `(t, phihat per cell)`.
-pub fn profiles(path: &Path, scene: &Scene, frames: &[(f64, Vec<f64>)]) -> Result<()> {
+/// Draws the legend box of a chart.
+fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    c: &mut ChartContext<'a, DB, CT>,
+    pos: SeriesLabelPosition,
+) -> std::result::Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    c.configure_series_labels()
+        .position(pos)
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.9))
+        .label_font((FONT_NAME, 14))
+        .draw()
+}
+
+/// 1D: phihat(z) profiles, one curve per frame `(t, phihat per cell)` (NaN in empty cells,
+/// left out), in distinct colours with distinct markers; at most [`MAX_FRAMES_1D`] frames
+/// should be passed. `z` holds the cell centres.
+pub fn profiles(
+    path: &Path,
+    title: &str,
+    z: &[f64],
+    (z0, z1): (f64, f64),
+    frames: &[(f64, Vec<f64>)],
+) -> Result<()> {
     ensure_font()?;
     let root = BitMapBackend::new(path, (700, 700)).into_drawing_area();
     root.fill(&WHITE).map_err(fail(path))?;
-    let (z0, z1) = (scene.lower[0], scene.upper[0]);
     let mut chart = ChartBuilder::on(&root)
-        .caption(format!("{}: phihat profiles", scene.name), (FONT_NAME, 22))
+        .caption(title, (FONT_NAME, 22))
         .margin(15)
         .x_label_area_size(45)
         .y_label_area_size(60)
@@ -141,78 +261,104 @@ pub fn profiles(path: &Path, scene: &Scene, frames: &[(f64, Vec<f64>)]) -> Resul
         .map_err(fail(path))?;
     chart
         .configure_mesh()
-        .x_desc("phihat = phi / c (small-grain fraction)")
-        .y_desc("z [m]")
+        .x_desc("phihat = phi / c: fraction of small grains")
+        .y_desc("z")
         .label_style((FONT_NAME, 15))
         .axis_desc_style((FONT_NAME, 17))
         .draw()
         .map_err(fail(path))?;
-    let n = frames.len().max(2) - 1;
+    let marks = (z.len() / 10).max(1);
     for (j, (t, ph)) in frames.iter().enumerate() {
-        let colour = viridis(0.9 * j as f64 / n as f64);
+        let colour = PALETTE[j % PALETTE.len()];
         let pts: Vec<(f64, f64)> = ph
             .iter()
-            .enumerate()
-            .map(|(i, &v)| (v, scene.center(i)[2]))
+            .zip(z)
+            .filter(|(v, _)| v.is_finite())
+            .map(|(&v, &z)| (v, z))
             .collect();
+        let shape = j % 4;
+        let offset = (j * marks / frames.len().max(1)) % marks;
+        let marker_pts: Vec<(f64, f64)> = pts.iter().skip(offset).step_by(marks).copied().collect();
         chart
             .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
             .map_err(fail(path))?
             .label(format!("t = {}", crate::output::num(*t)))
             .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3))
             });
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.9))
-        .label_font((FONT_NAME, 14))
-        .draw()
+        // Markers of four shapes along each curve, staggered so that coinciding curves
+        // (a steady state) still show each other.
+        let m = marker_pts.into_iter();
+        match shape {
+            0 => chart.draw_series(m.map(|p| Circle::new(p, 4, colour.filled()))),
+            1 => chart.draw_series(m.map(|p| TriangleMarker::new(p, 6, colour.filled()))),
+            2 => chart.draw_series(m.map(|p| Cross::new(p, 5, colour.stroke_width(2)))),
+            _ => chart.draw_series(m.map(|p| Circle::new(p, 5, colour.stroke_width(2)))),
+        }
         .map_err(fail(path))?;
+    }
+    legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
     root.present().map_err(fail(path))
 }
 
-/// A colour map of `values` (`nx` x `nz`, x fastest) over the box `[x0, x1] x [z0, z1]`,
-/// with a colour bar for [0, 1]. Large grids are averaged down to at most 300 blocks per axis.
-/// NaN values are masked (drawn light grey, left out of block averages): the solid and empty
-/// cells of a container, which hold no phihat at all. `outline`: polylines drawn on top (the
-/// container's walls).
-#[allow(clippy::too_many_arguments)]
-pub fn colour_map(
-    path: &Path,
+/// The grid of a colour map: `nx` x `nz` cells (x fastest) over `[x0, x1] x [z0, z1]`.
+#[derive(Debug, Clone)]
+pub struct MapGrid {
+    /// Cells along the horizontal and the vertical axis.
+    pub cells: (usize, usize),
+    /// Horizontal extent.
+    pub x: (f64, f64),
+    /// Vertical extent.
+    pub z: (f64, f64),
+    /// Axis labels.
+    pub labels: (String, String),
+}
+
+impl MapGrid {
+    /// Picture size in pixels: 900 wide (700 for the map), the height after the box's aspect.
+    pub fn size(&self) -> (u32, u32) {
+        self.size_for(900)
+    }
+
+    /// Picture size for a total width (the colour bar keeps 170 px, the map gets the rest).
+    pub fn size_for(&self, width: u32) -> (u32, u32) {
+        let aspect = ((self.z.1 - self.z.0) / (self.x.1 - self.x.0)).clamp(0.25, 2.0);
+        let map = width.saturating_sub(200) as f64;
+        (width, (map * aspect + 120.0) as u32)
+    }
+}
+
+/// Draws a colour map of phihat (NaN = empty cell, drawn in [`EMPTY`]) with a colour bar
+/// labelled "phihat: fraction of small grains" and a swatch for empty cells. Large grids are
+/// averaged down to at most 300 blocks per axis (empty cells left out of the average; a block
+/// of empty cells only is empty).
+pub fn draw_colour_map<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
     title: &str,
-    (nx, nz): (usize, usize),
-    (x0, x1): (f64, f64),
-    (z0, z1): (f64, f64),
-    (xlabel, zlabel): (&str, &str),
+    g: &MapGrid,
     values: &[f64],
-    outline: &[Vec<(f64, f64)>],
-) -> Result<()> {
-    ensure_font()?;
-    let aspect = ((z1 - z0) / (x1 - x0)).clamp(0.25, 2.0);
-    let plot_w = 700.0;
-    let height = (plot_w * aspect + 110.0) as u32;
-    let root = BitMapBackend::new(path, (820, height)).into_drawing_area();
-    root.fill(&WHITE).map_err(fail(path))?;
-    let (main, bar) = root.split_horizontally(730);
+) -> std::result::Result<(), String> {
+    let (nx, nz) = g.cells;
+    let ((x0, x1), (z0, z1)) = (g.x, g.z);
+    root.fill(&WHITE).map_err(text)?;
+    let (w, _) = root.dim_in_pixel();
+    let (main, bar) = root.split_horizontally(w.saturating_sub(170));
     let mut chart = ChartBuilder::on(&main)
         .caption(title, (FONT_NAME, 20))
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d(x0..x1, z0..z1)
-        .map_err(fail(path))?;
+        .map_err(text)?;
     chart
         .configure_mesh()
         .disable_mesh()
-        .x_desc(xlabel)
-        .y_desc(zlabel)
+        .x_desc(g.labels.0.as_str())
+        .y_desc(g.labels.1.as_str())
         .label_style((FONT_NAME, 14))
         .axis_desc_style((FONT_NAME, 16))
         .draw()
-        .map_err(fail(path))?;
+        .map_err(text)?;
     let bx = nx.div_ceil(300).max(1);
     let bz = nz.div_ceil(300).max(1);
     let (hx, hz) = ((x1 - x0) / nx as f64, (z1 - z0) / nz as f64);
@@ -224,16 +370,16 @@ pub fn colour_map(
             for iz in jz..ez {
                 for ix in jx..ex {
                     let v = values[ix + nx * iz];
-                    if !v.is_nan() {
+                    if v.is_finite() {
                         sum += v;
                         count += 1;
                     }
                 }
             }
-            let colour = if count > 0 {
-                viridis(sum / count as f64)
+            let colour = if count == 0 {
+                EMPTY
             } else {
-                MASKED
+                viridis(sum / count as f64)
             };
             rects.push(Rectangle::new(
                 [
@@ -244,39 +390,186 @@ pub fn colour_map(
             ));
         }
     }
-    chart.draw_series(rects).map_err(fail(path))?;
-    for line in outline {
-        let clipped = line
-            .iter()
-            .map(|&(x, z)| (x.clamp(x0, x1), z.clamp(z0, z1)));
-        chart
-            .draw_series(std::iter::once(PathElement::new(
-                clipped.collect::<Vec<_>>(),
-                BLACK.stroke_width(2),
-            )))
-            .map_err(fail(path))?;
-    }
-    // Colour bar.
-    let mut cb = ChartBuilder::on(&bar)
+    chart.draw_series(rects).map_err(text)?;
+    // Colour bar with its label, and the swatch of empty cells below it.
+    let (_, bar_h) = bar.dim_in_pixel();
+    let (bar_top, swatch) = bar.split_vertically(bar_h.saturating_sub(70));
+    let mut cb = ChartBuilder::on(&bar_top)
         .margin_top(40)
-        .margin_bottom(50)
-        .margin_right(45)
+        .margin_bottom(10)
+        .margin_left(35)
+        .margin_right(5)
         .y_label_area_size(0)
         .right_y_label_area_size(40)
         .build_cartesian_2d(0.0..1.0, 0.0..1.0)
-        .map_err(fail(path))?;
+        .map_err(text)?;
     cb.configure_mesh()
         .disable_mesh()
         .disable_x_axis()
         .y_labels(6)
         .label_style((FONT_NAME, 13))
         .draw()
-        .map_err(fail(path))?;
+        .map_err(text)?;
+    // The bar's meaning, written upwards along its left side.
+    let (_, top_h) = bar_top.dim_in_pixel();
+    let label_style = TextStyle::from((FONT_NAME, 14).into_font())
+        .transform(FontTransform::Rotate270)
+        .pos(plotters::style::text_anchor::Pos::new(
+            plotters::style::text_anchor::HPos::Center,
+            plotters::style::text_anchor::VPos::Top,
+        ));
+    bar_top
+        .draw(&Text::new(
+            "phihat: fraction of small grains",
+            (8, (top_h as i32 + 30) / 2),
+            label_style,
+        ))
+        .map_err(text)?;
     cb.draw_series((0..100).map(|k| {
         let v = k as f64 / 100.0;
         Rectangle::new([(0.0, v), (1.0, v + 0.01)], viridis(v + 0.005).filled())
     }))
-    .map_err(fail(path))?;
+    .map_err(text)?;
+    swatch
+        .draw(&Rectangle::new([(40, 10), (70, 30)], EMPTY.filled()))
+        .map_err(text)?;
+    swatch
+        .draw(&Rectangle::new([(40, 10), (70, 30)], BLACK.stroke_width(1)))
+        .map_err(text)?;
+    swatch
+        .draw(&Text::new("empty", (76, 12), (FONT_NAME, 13)))
+        .map_err(text)?;
+    swatch
+        .draw(&Text::new(
+            format!("c <= {VACUUM:e}"),
+            (40, 36),
+            (FONT_NAME, 12),
+        ))
+        .map_err(text)?;
+    Ok(())
+}
+
+/// A colour map as a PNG (see [`draw_colour_map`]).
+pub fn colour_map(path: &Path, title: &str, g: &MapGrid, values: &[f64]) -> Result<()> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, g.size()).into_drawing_area();
+    draw_colour_map(&root, title, g, values).map_err(fail(path))?;
+    root.present().map_err(fail(path))
+}
+
+/// An animated GIF of colour maps, one frame per [`Animation::frame`] (plotters' GIF
+/// backend: no external tools).
+pub struct Animation {
+    root: DrawingArea<BitMapBackend<'static>, plotters::coord::Shift>,
+    path: std::path::PathBuf,
+    grid: MapGrid,
+}
+
+impl Animation {
+    /// Starts `path` with `delay_ms` between frames.
+    pub fn new(path: &Path, grid: MapGrid, delay_ms: u32) -> Result<Self> {
+        ensure_font()?;
+        // Every GIF frame is colour-quantised (NeuQuant): the dominant cost, so the frames are
+        // smaller than the stills.
+        let backend =
+            BitMapBackend::gif(path, grid.size_for(GIF_WIDTH), delay_ms).map_err(fail(path))?;
+        Ok(Self {
+            root: backend.into_drawing_area(),
+            path: path.to_path_buf(),
+            grid,
+        })
+    }
+
+    /// Adds one frame.
+    pub fn frame(&mut self, title: &str, values: &[f64]) -> Result<()> {
+        draw_colour_map(&self.root, title, &self.grid, values).map_err(fail(&self.path))?;
+        self.root.present().map_err(fail(&self.path))
+    }
+}
+
+/// Log-log panels of the work-precision picture of `sieve converge`: error against cell size
+/// `h` with the observed order of the finest pair, and error against wall time. `rows` are
+/// `(h, error, wall seconds)` per level (levels without an error are left out).
+pub fn work_precision(
+    path: &Path,
+    title: &str,
+    norm: &str,
+    rows: &[(f64, f64, f64)],
+    order: Option<f64>,
+) -> Result<()> {
+    ensure_font()?;
+    let pts: Vec<(f64, f64, f64)> = rows
+        .iter()
+        .copied()
+        .filter(|r| r.0 > 0.0 && r.1 > 0.0 && r.2 > 0.0 && r.1.is_finite())
+        .collect();
+    let root = BitMapBackend::new(path, (1100, 520)).into_drawing_area();
+    root.fill(&WHITE).map_err(fail(path))?;
+    let root = root.titled(title, (FONT_NAME, 20)).map_err(fail(path))?;
+    let (left, right) = root.split_horizontally(550);
+    let span = |v: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = v.fold((f64::MAX, f64::MIN), |(a, b), x| (a.min(x), b.max(x)));
+        if lo > hi {
+            (1e-3, 1.0)
+        } else {
+            (lo / 2.0, hi * 2.0)
+        }
+    };
+    let (h0, h1) = span(&mut pts.iter().map(|r| r.0));
+    let (e0, e1) = span(&mut pts.iter().map(|r| r.1));
+    let (w0, w1) = span(&mut pts.iter().map(|r| r.2));
+    let label = format!("{norm} error of phihat");
+    for (area, x_desc, xs, ix) in [
+        (&left, "cell size h (vertical)", (h0, h1), 0usize),
+        (&right, "wall time [s]", (w0, w1), 2usize),
+    ] {
+        let mut c = ChartBuilder::on(area)
+            .margin(15)
+            .x_label_area_size(45)
+            .y_label_area_size(70)
+            .build_cartesian_2d((xs.0..xs.1).log_scale(), (e0..e1).log_scale())
+            .map_err(fail(path))?;
+        c.configure_mesh()
+            .x_labels(8)
+            .y_labels(12)
+            .light_line_style(RGBColor(238, 238, 238))
+            .x_desc(x_desc)
+            .y_desc(label.as_str())
+            .x_label_formatter(&|x: &f64| format!("{x:.0e}"))
+            .y_label_formatter(&|y: &f64| format!("{y:.0e}"))
+            .label_style((FONT_NAME, 13))
+            .axis_desc_style((FONT_NAME, 15))
+            .draw()
+            .map_err(fail(path))?;
+        let line: Vec<(f64, f64)> = pts
+            .iter()
+            .map(|r| (if ix == 0 { r.0 } else { r.2 }, r.1))
+            .collect();
+        c.draw_series(LineSeries::new(line.clone(), PALETTE[0].stroke_width(2)))
+            .map_err(fail(path))?
+            .label("measured")
+            .legend(|(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[0].stroke_width(2))
+            });
+        c.draw_series(line.iter().map(|&p| Circle::new(p, 4, PALETTE[0].filled())))
+            .map_err(fail(path))?;
+        if ix == 0 {
+            let finest = pts.iter().min_by(|a, b| a.0.total_cmp(&b.0));
+            if let (Some(p), Some(&(hf, ef, _))) = (order, finest) {
+                // A slope-p guide below the finest level (offset so that it does not hide
+                // the measured line when they are parallel).
+                let e_at = |h: f64| 0.6 * ef * (h / hf).powf(p);
+                let guide = vec![(hf, e_at(hf)), (h1 / 2.0, e_at(h1 / 2.0))];
+                c.draw_series(LineSeries::new(guide, PALETTE[1].stroke_width(1)))
+                    .map_err(fail(path))?
+                    .label(format!("slope {p:.2}: observed order, finest pair"))
+                    .legend(|(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[1].stroke_width(1))
+                    });
+            }
+        }
+        legend(&mut c, SeriesLabelPosition::LowerRight).map_err(fail(path))?;
+    }
     root.present().map_err(fail(path))
 }
 
@@ -319,7 +612,6 @@ pub fn vertical_curves(
         .margin(15)
         .x_label_area_size(45)
         .y_label_area_size(70);
-    let n = curves.len().max(2) - 1;
     macro_rules! draw {
         ($chart:expr) => {{
             let mut chart = $chart;
@@ -333,7 +625,7 @@ pub fn vertical_curves(
                 .draw()
                 .map_err(fail(path))?;
             for (j, (label, v)) in curves.iter().enumerate() {
-                let colour = viridis(0.9 * j as f64 / n as f64);
+                let colour = PALETTE[j % PALETTE.len()];
                 let line: Vec<(f64, f64)> = v.iter().copied().filter(|&(x, _)| finite(x)).collect();
                 chart
                     .draw_series(LineSeries::new(line, colour.stroke_width(2)))
@@ -343,14 +635,10 @@ pub fn vertical_curves(
                         PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
                     });
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .border_style(BLACK)
-                .background_style(WHITE.mix(0.9))
-                .label_font((FONT_NAME, 14))
-                .draw()
-                .map_err(fail(path))?;
+            // A legend with one entry only hides the curve: the title names it.
+            if curves.len() > 1 {
+                legend(&mut chart, SeriesLabelPosition::UpperLeft).map_err(fail(path))?;
+            }
         }};
     }
     if log_x {
@@ -366,20 +654,22 @@ pub fn vertical_curves(
     root.present().map_err(fail(path))
 }
 
-/// Tick label: one significant digit in exponent form on a log axis; at most 6 decimals on a
-/// linear one.
+/// Tick label: one significant digit in exponent form on a log axis and for small values
+/// (|x| < 1e-3, which would not fit as decimals); at most 6 decimals otherwise.
 fn tick(x: f64, log: bool) -> String {
-    if log {
+    if log || (x != 0.0 && x.abs() < 1e-3) {
         format!("{x:.0e}")
     } else {
         format!("{}", (x * 1e6).round() / 1e6)
     }
 }
 
-/// The flow profiles of a run: `flow_velocity.png` (mean u_x(z)), `flow_temperature.png`
-/// (mean T(z), log scale) and `flow_shear_ratio.png` (sqrt(T)/shear rate over its steady
-/// uniform shear value sqrt(a eta0/eps0), rows with T > 1e-12 only).
-pub fn flow_profiles(dir: &Path, name: &str, p: &Profiles) -> Result<()> {
+/// The flow profiles of a run at time `t`: `flow_velocity.png` (mean u_x(z)),
+/// `flow_temperature.png` (mean T(z), log scale) and `flow_shear_ratio.png` (sqrt(T)/shear
+/// rate over its steady uniform shear value sqrt(a eta0/eps0), rows with T > 1e-12 only).
+/// The titles say which time they show (the end of the run; for a frozen flow, the flow
+/// frozen after its spin-up).
+pub fn flow_profiles(dir: &Path, name: &str, when: &str, p: &Profiles) -> Result<()> {
     let one = |v: &[f64]| -> Vec<(String, Vec<(f64, f64)>)> {
         vec![(
             name.to_string(),
@@ -388,21 +678,21 @@ pub fn flow_profiles(dir: &Path, name: &str, p: &Profiles) -> Result<()> {
     };
     vertical_curves(
         &dir.join("flow_velocity.png"),
-        &format!("{name}: mean velocity u_x(z)"),
+        &format!("{name}: mean velocity u_x(z), {when}"),
         "u_x [m/s]",
         &one(&p.u),
         false,
     )?;
     vertical_curves(
         &dir.join("flow_temperature.png"),
-        &format!("{name}: mean granular temperature T(z)"),
+        &format!("{name}: mean granular temperature T(z), {when}"),
         "T [m^2/s^2]",
         &one(&p.t),
         true,
     )?;
     vertical_curves(
         &dir.join("flow_shear_ratio.png"),
-        &format!("{name}: sqrt(T)/shear rate / sqrt(a eta0/eps0)"),
+        &format!("{name}: sqrt(T)/shear rate / sqrt(a eta0/eps0), {when}"),
         "sqrt(T) / |du_x/dz| / sqrt(a eta0 / eps0)",
         &one(&shear_ratio(p)),
         false,
@@ -452,9 +742,8 @@ pub fn time_curves(
         .axis_desc_style((FONT_NAME, 17))
         .draw()
         .map_err(fail(path))?;
-    let n = curves.len().max(2) - 1;
     for (j, (label, v)) in curves.iter().enumerate() {
-        let colour = viridis(0.9 * j as f64 / n as f64);
+        let colour = PALETTE[j % PALETTE.len()];
         chart
             .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
             .map_err(fail(path))?

@@ -97,3 +97,129 @@ pub fn write_pvd(path: &Path, entries: &[(f64, String)]) -> Result<()> {
     let _ = writeln!(xml, "  </Collection>\n</VTKFile>");
     write_file(path, xml.as_bytes())
 }
+
+/// A `.vti` written by [`write_vti`], read back (for `sieve plot`): the grid in physical axis
+/// order (x, y, z; 1 cell on absent axes), the time, and the named cell arrays.
+#[derive(Debug, Clone)]
+pub struct Vti {
+    /// Cells per physical axis.
+    pub cells: [usize; 3],
+    /// Lower corner per physical axis.
+    pub origin: [f64; 3],
+    /// Cell width per physical axis.
+    pub spacing: [f64; 3],
+    /// Time of the snapshot.
+    pub t: f64,
+    /// `(name, components, values)` in file order.
+    pub arrays: Vec<(String, usize, Vec<f64>)>,
+}
+
+impl Vti {
+    /// The values of array `name`, if present.
+    pub fn array(&self, name: &str) -> Option<&[f64]> {
+        self.arrays
+            .iter()
+            .find(|(n, _, _)| n == name)
+            .map(|(_, _, v)| v.as_slice())
+    }
+}
+
+/// The value of attribute `key="..."` in `tag`.
+fn attr<'a>(tag: &'a str, key: &str) -> Option<&'a str> {
+    let start = tag.find(&format!(" {key}=\""))? + key.len() + 3;
+    let end = tag[start..].find('"')? + start;
+    Some(&tag[start..end])
+}
+
+fn three(s: &str) -> Option<[f64; 3]> {
+    let v: Vec<f64> = s
+        .split_whitespace()
+        .map(|x| x.parse().ok())
+        .collect::<Option<_>>()?;
+    (v.len() == 3).then(|| [v[0], v[1], v[2]])
+}
+
+/// Reads a `.vti` of [`write_vti`] (raw appended little-endian Float64, UInt64 headers).
+pub fn read_vti(path: &Path) -> Result<Vti> {
+    use crate::error::Error;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bad =
+        |why: &str| Error::failure(format!("{}: not a sieve .vti file: {why}", path.display()));
+    let marker = b"<AppendedData encoding=\"raw\">";
+    let at = bytes
+        .windows(marker.len())
+        .position(|w| w == marker)
+        .ok_or_else(|| bad("no raw appended data"))?;
+    let header = std::str::from_utf8(&bytes[..at]).map_err(|_| bad("header is not UTF-8"))?;
+    let underscore = bytes[at..]
+        .iter()
+        .position(|&b| b == b'_')
+        .ok_or_else(|| bad("no '_' before the data"))?;
+    let data = &bytes[at + underscore + 1..];
+    let image = header
+        .split('<')
+        .find(|t| t.starts_with("ImageData "))
+        .ok_or_else(|| bad("no ImageData"))?;
+    let ext: Vec<usize> = attr(image, "WholeExtent")
+        .ok_or_else(|| bad("no WholeExtent"))?
+        .split_whitespace()
+        .map(|x| x.parse().unwrap_or(0))
+        .collect();
+    if ext.len() != 6 {
+        return Err(bad("WholeExtent needs 6 numbers"));
+    }
+    // Point extents: an absent axis has extent 0..0 (one point, no cell width) yet one layer
+    // of cell data.
+    let cells = [
+        (ext[1] - ext[0]).max(1),
+        (ext[3] - ext[2]).max(1),
+        (ext[5] - ext[4]).max(1),
+    ];
+    let origin = attr(image, "Origin")
+        .and_then(three)
+        .ok_or_else(|| bad("no Origin"))?;
+    let spacing = attr(image, "Spacing")
+        .and_then(three)
+        .ok_or_else(|| bad("no Spacing"))?;
+    let t = header
+        .find("Name=\"TimeValue\"")
+        .and_then(|i| {
+            let rest = &header[i..];
+            let s = rest.find('>')? + 1;
+            let e = rest[s..].find('<')? + s;
+            rest[s..e].trim().parse().ok()
+        })
+        .ok_or_else(|| bad("no TimeValue"))?;
+    let mut arrays = Vec::new();
+    for tag in header.split('<').filter(|t| t.starts_with("DataArray ")) {
+        if attr(tag, "format") != Some("appended") {
+            continue;
+        }
+        let name = attr(tag, "Name").ok_or_else(|| bad("DataArray without Name"))?;
+        let comps: usize = attr(tag, "NumberOfComponents")
+            .and_then(|c| c.parse().ok())
+            .unwrap_or(1);
+        let offset: usize = attr(tag, "offset")
+            .and_then(|c| c.parse().ok())
+            .ok_or_else(|| bad("DataArray without offset"))?;
+        let len_bytes = data
+            .get(offset..offset + 8)
+            .ok_or_else(|| bad("truncated data"))?;
+        let len = u64::from_le_bytes(len_bytes.try_into().map_err(|_| bad("length"))?) as usize;
+        let raw = data
+            .get(offset + 8..offset + 8 + len)
+            .ok_or_else(|| bad("truncated data"))?;
+        let values = raw
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
+            .collect();
+        arrays.push((name.to_string(), comps, values));
+    }
+    Ok(Vti {
+        cells,
+        origin,
+        spacing,
+        t,
+        arrays,
+    })
+}

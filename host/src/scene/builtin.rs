@@ -32,6 +32,7 @@ builtins!(
     "shear-cell-inverse",
     "shear-cell",
     "column-collapse",
+    "silo",
     "drum-settling",
 );
 

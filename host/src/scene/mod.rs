@@ -8,6 +8,7 @@
 
 pub mod builtin;
 pub mod expr;
+pub mod outlet;
 pub mod solver_errors;
 pub mod validate;
 
@@ -373,6 +374,8 @@ pub struct FlowWallSpec {
     pub friction_angle: Option<f64>,
     /// Tangential wall velocity [m/s], one entry per axis (normal entry 0).
     pub velocity: Option<Vec<f64>>,
+    /// An opening (outlet) in the wall ([`outlet`]).
+    pub outlet: Option<outlet::OutletSpec>,
 }
 
 /// Tangential condition of a flow wall.

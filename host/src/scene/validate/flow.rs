@@ -62,10 +62,12 @@ fn wall_side(
     kind: Boundary,
     axis: usize,
     dim: usize,
+    extent: Option<(&[f64], &[f64])>,
 ) -> Result<WallSide> {
     let mut side = WallSide {
         slip: WallSlip::NoSlip,
         velocity: vec![0.0; dim],
+        outlet: None,
     };
     let Some(spec) = spec else {
         return Ok(side);
@@ -133,6 +135,11 @@ fn wall_side(
         }
         side.velocity = v;
     }
+    if let (Some(o), Some((lower, upper))) = (&spec.outlet, extent) {
+        side.outlet = Some(crate::scene::outlet::validate(
+            l, key, o, axis, dim, lower, upper,
+        )?);
+    }
     Ok(side)
 }
 
@@ -143,6 +150,7 @@ fn walls(
     f: &SceneFile,
     dim: usize,
     boundaries: &[[Boundary; 2]],
+    extent: Option<(&[f64], &[f64])>,
 ) -> Option<Vec<[WallSide; 2]>> {
     let names = axis_names(dim);
     let fb = f.boundary.flow.clone().unwrap_or_default();
@@ -165,6 +173,7 @@ fn walls(
                         boundaries[a][s],
                         a,
                         dim,
+                        extent,
                     ))
                 };
                 let (low, high) = (side(p, 0, lo), side(p, 1, hi));
@@ -200,6 +209,7 @@ pub(super) fn check(
     dim: Option<usize>,
     phi_rcp: Option<f64>,
     boundaries: Option<&[[Boundary; 2]]>,
+    extent: Option<(&[f64], &[f64])>,
 ) -> Option<FlowModel> {
     let m = &f.material;
     let eta0 = p.ok(positive(l, "material.eta0", m.eta0, "[m]"));
@@ -256,7 +266,7 @@ pub(super) fn check(
                 "\"inflow\" sides are not supported with a solved flow yet: allowed wall, outflow, periodic",
             ));
         } else {
-            walls_ok = walls(p, l, f, dim, boundaries);
+            walls_ok = walls(p, l, f, dim, boundaries, extent);
         }
     }
     let fs = f.flow.clone().unwrap_or_default();

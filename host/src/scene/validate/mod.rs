@@ -103,6 +103,8 @@ pub struct WallSide {
     pub slip: WallSlip,
     /// Wall velocity, solver axis order (normal component 0).
     pub velocity: Vec<f64>,
+    /// An opening in the wall (grains leave through it).
+    pub outlet: Option<super::outlet::Outlet>,
 }
 
 /// The validated flow part of a scene (`model.equations` other than "prescribed").
@@ -288,7 +290,10 @@ impl Scene {
         let run = run::check(&mut p, l, &f.run);
         let flow = if has_flow {
             let bc = bounds.as_ref().map(|(b, _)| b.as_slice());
-            flow::check(&mut p, l, &f, dim, mat.map(|m| m.2), bc)
+            let extent = grid
+                .as_ref()
+                .map(|g| (g.lower.as_slice(), g.upper.as_slice()));
+            flow::check(&mut p, l, &f, dim, mat.map(|m| m.2), bc, extent)
         } else {
             None
         };

@@ -1,0 +1,663 @@
+//! Embedded (cut-cell) walls of the flow: what the step needs of a [`CutCells`] geometry,
+//! copied once at set-up, and the wall law on the cut wall fragment (model.md 2).
+//!
+//! # Why a copy, not a reference
+//! [`Flow::step`] keeps its signature and box scenes keep their bits and their speed: with no
+//! geometry loaded every stage runs its box code path (the embedded branches are taken once per
+//! stage, not per face). The copy costs `3 + 3 D` arrays of `N` on the host; the firmware does
+//! not use [`Flow`].
+//!
+//! # The discretisation (content units)
+//! A cell of open volume fraction `V` (0 = solid, 1 = full) holds the content `V c` (and
+//! `V c u`, `V c T`) per full-cell volume. Every face term of the box scheme is multiplied by
+//! the face's open aperture `alpha`, every cell term (mass, dissipation) by `V`:
+//! - transport: face fluxes `alpha F`; the limiters compare a cell's in- and outflow with its
+//!   room `V (c_max - c)` and content `V c`; the update goes through the merge groups;
+//! - pressure and gravity: each face's compact force `alpha F_f / 2` per side, the cell force per
+//!   volume is the group's sum over its group volume; the cut wall fragment is a hydrostatic
+//!   ghost like the box wall (zero face force), so the compact lithostatic balance of a resting
+//!   bed holds face by face next to a curved wall too;
+//! - viscosity: `kf = alpha eta_f / h^2`, mass term `V c / dt`, and the wall fragment adds the
+//!   Dirichlet term `eta A / (d |C|)` (area `A`, distance `d` from the cell centre to the
+//!   fragment's plane; the box wall term `2 eta / h^2` is the case `A = h^(D-1)`, `d = h/2`)
+//!   towards the boundary velocity `u_B` of [`Flow::boundary_velocity`], computed from the
+//!   lagged velocity, so each velocity component is still one SPD system while the wall's own
+//!   normal acts. By the divergence identity `A n = sum_a (alpha_low - alpha_high) h^(D-1) e_a`
+//!   the discrete operator is exact on linear fields: a rigid rotation with `u_B` the rigid
+//!   velocity at the Dirichlet point `x_c + d n` is reproduced without error by the viscous
+//!   stage (for uniform `eta`);
+//! - temperature: `kf = a alpha lambda_f / h^2`, `V` in the mass and dissipation terms, no flux
+//!   through the cut wall (`d_n T = 0`); the heating includes the dissipation `eta A / (d |C|)
+//!   |u_B - u|^2` of the wall term.
+//!
+//! # Small cells: merging
+//! A cut cell with `V < small` is merged into a master (its [`CutCells::master`]); the group
+//! (volume `>= small`, 1/2 by default) is one cell for the explicit stages: face fluxes and
+//! forces are summed over the group and divided by the group volume, and the members copy the
+//! master's state. Faces inside a group carry no mass. The implicit stages (no stability
+//! limit) solve on the cells, and a member keeps its own solution for the rest of the step
+//! (its wall flux and heating); the next transport update takes the group's state from the
+//! master again. Averaging the group after each implicit solve (content-conservative) was
+//! tried and dropped: the mean of a linear field over a group is not its value at the
+//! master's centre, which breaks the exactness above and tripled the rigid-rotation error of
+//! the drum (1.3e-2 against 4.4e-3 on 32 x 32, tests/tests/flow_drum.rs). Mass is conserved to
+//! round-off either way (c never leaves the group rule); momentum and `c T` are not conserved
+//! quantities next to a wall anyway. The time step is the box rule over the open cells
+//! ([`Flow::stable_dt`]): no tiny cell enters it, and the limiters keep `0 <= c <= c_max` of
+//! every group whatever its volume.
+
+use super::{Flow, Slip};
+use crate::geometry::CutCells;
+use crate::grid::Grid;
+use crate::real::Real;
+
+/// What the cut wall does: its tangential law and its (rigid) motion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CutWall<R, const D: usize> {
+    /// Tangential condition (model.md 2): no-slip, slip, or friction `tan(phi_w)`.
+    pub slip: Slip<R>,
+    /// Angular velocity (rad/s) of a rigid rotation of the wall in the plane of the axes
+    /// `plane[0] -> plane[1]` (counter-clockwise positive): `u_W = omega x (x - center)`.
+    /// 0 for a resting wall.
+    pub omega: R,
+    /// Centre of the rotation.
+    pub center: [R; D],
+    /// The rotation plane (two different axes; ignored if `omega == 0`).
+    pub plane: [usize; 2],
+}
+
+impl<R: Real, const D: usize> CutWall<R, D> {
+    /// A resting wall with the given tangential condition.
+    pub fn resting(slip: Slip<R>) -> Self {
+        Self {
+            slip,
+            omega: R::ZERO,
+            center: [R::ZERO; D],
+            plane: [0, 1 % D.max(1)],
+        }
+    }
+    /// A wall rotating rigidly with `omega` (rad/s) about `center` in the plane of the first
+    /// two axes (the drum of model.md 7.5 in the lab frame).
+    pub fn rotating(slip: Slip<R>, omega: R, center: [R; D]) -> Self {
+        Self {
+            slip,
+            omega,
+            center,
+            plane: [0, 1 % D.max(1)],
+        }
+    }
+}
+
+/// The geometry the flow step needs, copied from [`CutCells`] (module docs).
+#[derive(Clone, Debug)]
+pub(super) struct Walls<R: Real, const D: usize, const N: usize> {
+    /// Geometry loaded: the embedded code paths run.
+    pub on: bool,
+    /// Any merged cell (else the group passes are skipped).
+    pub merged: bool,
+    pub wall: CutWall<R, D>,
+    /// Open volume fraction `V`.
+    pub vol: [R; N],
+    /// Group volume at a master (the cell's own volume if unmerged), 0 at solid cells.
+    pub gvol: [R; N],
+    /// Master of each cell (itself unless merged).
+    pub master: [u32; N],
+    /// Aperture of the high / low face along each axis (box faces included).
+    pub ap_hi: [[R; N]; D],
+    pub ap_lo: [[R; N]; D],
+    /// Wall coefficient `A / (d |C|)` (1/m^2), 0 where the cell has no wall fragment.
+    pub wall_k: [R; N],
+    /// Distance `d` of the Dirichlet point `x_c + d n` from the cell centre.
+    pub wall_d: [R; N],
+    /// Unit wall normal (open -> solid).
+    pub normal: [[R; N]; D],
+}
+
+impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
+    pub const fn zeroed() -> Self {
+        let z = [R::ZERO; N];
+        Self {
+            on: false,
+            merged: false,
+            wall: CutWall {
+                slip: Slip::NoSlip,
+                omega: R::ZERO,
+                center: [R::ZERO; D],
+                plane: [0, 0],
+            },
+            vol: z,
+            gvol: z,
+            master: [0; N],
+            ap_hi: [z; D],
+            ap_lo: [z; D],
+            wall_k: z,
+            wall_d: z,
+            normal: [z; D],
+        }
+    }
+
+    /// Adds the group sums of the per-cell content increments `dq` (per full-cell volume,
+    /// members gathered into their master in cell order) divided by the group volume to the
+    /// masters' `q`; members then copy their master. `dq` is overwritten; solid cells keep `q`.
+    pub fn apply_increment(&self, n: usize, q: &mut [R], dq: &mut [R]) {
+        if self.merged {
+            for i in 0..n {
+                let m = self.master[i] as usize;
+                if m != i {
+                    dq[m] += dq[i];
+                }
+            }
+        }
+        for i in 0..n {
+            let gv = self.gvol[i];
+            if self.master[i] as usize == i && gv > R::ZERO {
+                q[i] += dq[i] / gv;
+            }
+        }
+        self.copy_to_members(n, q);
+    }
+
+    /// Replaces the values of every merge group by their open-volume-weighted mean
+    /// (`acc` is scratch): the group's content `sum V q` is kept. Used on the initial state.
+    pub fn group_mean(&self, n: usize, q: &mut [R], acc: &mut [R]) {
+        if !self.merged {
+            return;
+        }
+        for i in 0..n {
+            acc[i] = self.vol[i] * q[i];
+        }
+        for i in 0..n {
+            let m = self.master[i] as usize;
+            if m != i {
+                acc[m] += acc[i];
+            }
+        }
+        for i in 0..n {
+            let m = self.master[i] as usize;
+            if m == i && self.gvol[i] > self.vol[i] {
+                q[i] = acc[i] / self.gvol[i];
+            }
+        }
+        self.copy_to_members(n, q);
+    }
+
+    /// Members take their master's value.
+    pub fn copy_to_members(&self, n: usize, q: &mut [R]) {
+        if !self.merged {
+            return;
+        }
+        for i in 0..n {
+            let m = self.master[i] as usize;
+            if m != i {
+                q[i] = q[m];
+            }
+        }
+    }
+
+    /// Members' values summed into their master (in cell order), then copied back.
+    pub fn group_sum(&self, n: usize, q: &mut [R]) {
+        if !self.merged {
+            return;
+        }
+        for i in 0..n {
+            let m = self.master[i] as usize;
+            if m != i {
+                q[m] += q[i];
+            }
+        }
+        self.copy_to_members(n, q);
+    }
+
+    /// `V` for the mass terms of the implicit systems: a solid cell counts as a full empty
+    /// cell (a decoupled row with zero right-hand side), so the operator stays definite.
+    #[inline(always)]
+    pub fn mass_volume(&self, i: usize) -> R {
+        let v = self.vol[i];
+        if v > R::ZERO {
+            v
+        } else {
+            R::ONE
+        }
+    }
+
+    /// Wall velocity at the Dirichlet point `x_c + d n` of cell `i`.
+    pub fn wall_velocity(&self, grid: &Grid<R, D>, i: usize) -> [R; D] {
+        let mut u = [R::ZERO; D];
+        let w = &self.wall;
+        if w.omega == R::ZERO || D < 2 {
+            return u;
+        }
+        let x = grid.center(i);
+        let d = self.wall_d[i];
+        let [a, b] = w.plane;
+        let xa = x[a] + d * self.normal[a][i] - w.center[a];
+        let xb = x[b] + d * self.normal[b][i] - w.center[b];
+        u[a] = -(w.omega * xb);
+        u[b] = w.omega * xa;
+        u
+    }
+}
+
+impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
+    /// Loads an embedded wall (cut cells, [`CutCells`], built on this flow's grid) with its
+    /// tangential law and motion. Call after [`Flow::setup`] and before the cells are set;
+    /// [`Flow::prepare`] then empties solid cells and gives every merge group its
+    /// content-weighted mean state. The box sides keep their own conditions (a box face
+    /// closed by the geometry carries nothing).
+    pub fn set_geometry(
+        &mut self,
+        cut: &CutCells<R, D, N>,
+        wall: CutWall<R, D>,
+    ) -> Result<(), super::FlowError> {
+        self.load_walls(cut, wall, false)
+    }
+
+    /// The same geometry rounded to whole cells (a *staircase*: a cell is open iff its open
+    /// volume fraction is at least 1/2, a face is open iff both its cells are, box faces iff
+    /// their cell is), with the wall fragments the divergence identity gives the rounded
+    /// apertures. Kept to show what cut cells buy (tests/tests/flow_drum.rs): the staircase
+    /// wall is not rotation-invariant, so a drum's solid-body rotation pushes mass through its
+    /// steps and the bed near the wall is dragged or slips.
+    pub fn set_staircase_geometry(
+        &mut self,
+        cut: &CutCells<R, D, N>,
+        wall: CutWall<R, D>,
+    ) -> Result<(), super::FlowError> {
+        self.load_walls(cut, wall, true)
+    }
+
+    fn load_walls(
+        &mut self,
+        cut: &CutCells<R, D, N>,
+        wall: CutWall<R, D>,
+        staircase: bool,
+    ) -> Result<(), super::FlowError> {
+        use super::FlowError::Parameter;
+        let grid = self.grid;
+        let n = grid.len();
+        if !(wall.omega.is_finite() && wall.center.iter().all(|x| x.is_finite())) {
+            return Err(Parameter("cut wall motion"));
+        }
+        if wall.omega != R::ZERO
+            && (D < 2 || wall.plane[0] == wall.plane[1] || wall.plane.iter().any(|&a| a >= D))
+        {
+            return Err(Parameter("cut wall rotation plane"));
+        }
+        if let Slip::Friction(tan) = wall.slip {
+            if !(tan.is_finite() && tan >= R::ZERO) {
+                return Err(Parameter("cut wall friction"));
+            }
+        }
+        let h = grid.spacing();
+        let cell = grid.cell_volume();
+        let w = &mut self.walls;
+        w.wall = wall;
+        w.merged = false;
+        let open = |v: R| v >= R::HALF;
+        for i in 0..n {
+            let v = cut.volume(i);
+            if staircase {
+                w.vol[i] = if open(v) { R::ONE } else { R::ZERO };
+                w.master[i] = i as u32;
+                w.gvol[i] = w.vol[i];
+            } else {
+                w.vol[i] = v;
+                let m = cut.master(i);
+                w.master[i] = m as u32;
+                w.merged |= m != i;
+                w.gvol[i] = if m == i { cut.group_volume(i) } else { R::ZERO };
+            }
+        }
+        for a in 0..D {
+            let s = grid.stride(a);
+            let na = grid.cells()[a];
+            for i in 0..n {
+                let (lo, hi) = if staircase {
+                    let k = grid.coord(i, a);
+                    let me = open(cut.volume(i));
+                    let per = self.bc[a][0].kind == crate::boundary::Boundary::Periodic;
+                    // interior and wrap faces: both cells open; box faces: the cell open
+                    let up = if k + 1 < na {
+                        open(cut.volume(i + s))
+                    } else {
+                        !per || open(cut.volume(i + s - s * na))
+                    };
+                    let down = if k > 0 {
+                        open(cut.volume(i - s))
+                    } else {
+                        !per || open(cut.volume(i + s * (na - 1)))
+                    };
+                    let f = |b: bool| if b { R::ONE } else { R::ZERO };
+                    (f(me && down), f(me && up))
+                } else {
+                    (cut.aperture_low(a, i), cut.aperture(a, i))
+                };
+                w.ap_lo[a][i] = lo;
+                w.ap_hi[a][i] = hi;
+            }
+        }
+        for i in 0..n {
+            // wall fragment: A n = sum_a (alpha_low - alpha_high) |face_a| e_a
+            let mut an = [R::ZERO; D];
+            let mut area2 = R::ZERO;
+            for a in 0..D {
+                an[a] = (w.ap_lo[a][i] - w.ap_hi[a][i]) * (cell / h[a]);
+                area2 += an[a] * an[a];
+            }
+            let (area, nrm, d) = if staircase {
+                let area = area2.sqrt();
+                let mut nrm = [R::ZERO; D];
+                let mut d = R::ZERO;
+                if area > R::ZERO && w.vol[i] > R::ZERO {
+                    for a in 0..D {
+                        nrm[a] = an[a] / area;
+                        // the plane through the mid-points of the closed faces
+                        d = d.max(R::HALF * h[a] * nrm[a].abs());
+                    }
+                }
+                (area, nrm, d)
+            } else {
+                let nrm = cut.wall_normal(i);
+                (cut.wall_area(i), nrm, cut.wall_distance(i))
+            };
+            if area > R::ZERO && w.vol[i] > R::ZERO && d > R::ZERO {
+                w.wall_k[i] = area / (d * cell);
+                w.wall_d[i] = d;
+                for a in 0..D {
+                    w.normal[a][i] = nrm[a];
+                }
+            } else {
+                w.wall_k[i] = R::ZERO;
+                w.wall_d[i] = R::ZERO;
+                for a in 0..D {
+                    w.normal[a][i] = R::ZERO;
+                }
+            }
+        }
+        w.on = true;
+        self.prepared = false;
+        Ok(())
+    }
+
+    /// The open volume of cell `i` in the mass terms of the implicit systems (1 without an
+    /// embedded wall; see [`Walls::mass_volume`]).
+    #[inline(always)]
+    pub(super) fn mass_factor(&self, i: usize) -> R {
+        if self.walls.on {
+            self.walls.mass_volume(i)
+        } else {
+            R::ONE
+        }
+    }
+
+    /// Removes the embedded wall: back to the box scheme.
+    pub fn clear_geometry(&mut self) {
+        self.walls.on = false;
+        self.walls.merged = false;
+        self.prepared = false;
+    }
+
+    /// Whether an embedded wall is loaded.
+    pub fn has_geometry(&self) -> bool {
+        self.walls.on
+    }
+
+    /// Open volume fraction of cell `i` (1 without a geometry).
+    pub fn open_volume(&self, i: usize) -> R {
+        if self.walls.on {
+            self.walls.vol[i]
+        } else {
+            R::ONE
+        }
+    }
+
+    /// Wall coefficient `A / (d |C|)` of cell `i` (0 if it has no cut wall fragment).
+    pub fn wall_coefficient(&self, i: usize) -> R {
+        if self.walls.on {
+            self.walls.wall_k[i]
+        } else {
+            R::ZERO
+        }
+    }
+
+    /// The velocity of the cut wall at the Dirichlet point of cell `i`.
+    pub fn wall_velocity(&self, i: usize) -> [R; D] {
+        self.walls.wall_velocity(&self.grid, i)
+    }
+
+    /// The boundary velocity `u_B` of the cut wall fragment of cell `i` (model.md 2), from the
+    /// velocity at the start of the step (lagged), the cell's viscosity and pressure: with
+    /// `t` the tangential part of `u_I - u_W`,
+    /// - no-slip: `u_B = u_W`;
+    /// - slip: `u_B = u_W + t` (zero tangential stress; normal component that of the wall);
+    /// - friction `tan(phi_w)`: `u_B = u_W + t max(0, 1 - p tan(phi_w) / W)` with
+    ///   `W = eta |t| / d`: the wall stress is `min(p tan(phi_w), W)` towards the wall velocity.
+    pub(super) fn boundary_velocity(&self, i: usize) -> [R; D] {
+        let w = &self.walls;
+        let uw = w.wall_velocity(&self.grid, i);
+        if w.wall.slip == Slip::NoSlip {
+            return uw;
+        }
+        let mut rel = [R::ZERO; D];
+        let mut rn = R::ZERO;
+        for a in 0..D {
+            rel[a] = self.u_prev[a][i] - uw[a];
+            rn += rel[a] * w.normal[a][i];
+        }
+        let mut t2 = R::ZERO;
+        for a in 0..D {
+            rel[a] -= rn * w.normal[a][i];
+            t2 += rel[a] * rel[a];
+        }
+        let keep = match w.wall.slip {
+            Slip::NoSlip => R::ZERO,
+            Slip::Slip => R::ONE,
+            Slip::Friction(tan) => {
+                let big_w = self.eta[i] * t2.sqrt() / w.wall_d[i];
+                let limit = self.p[i] * tan;
+                if limit >= big_w {
+                    R::ZERO
+                } else {
+                    R::ONE - limit / big_w
+                }
+            }
+        };
+        let mut ub = uw;
+        for a in 0..D {
+            ub[a] += keep * rel[a];
+        }
+        ub
+    }
+}
+
+impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
+    /// Empties the solid cells and gives each merge group its content-weighted mean state.
+    pub(super) fn embedded_prepare(&mut self) {
+        let n = self.grid.len();
+        for i in 0..n {
+            if self.walls.vol[i] == R::ZERO {
+                self.c[i] = R::ZERO;
+                self.e[i] = R::ZERO;
+                self.t[i] = R::ZERO;
+                for a in 0..D {
+                    self.m[a][i] = R::ZERO;
+                    self.u[a][i] = R::ZERO;
+                }
+            }
+        }
+        let w = &self.walls;
+        w.group_mean(n, &mut self.c, &mut self.rhs);
+        w.group_mean(n, &mut self.e, &mut self.rhs);
+        for a in 0..D {
+            w.group_mean(n, &mut self.m[a], &mut self.rhs);
+        }
+    }
+
+    /// Open aperture of the interior (or wrap) face `(l, r)` along `a` for the transport:
+    /// 0 inside a merge group (the group is one cell there).
+    #[inline(always)]
+    pub(super) fn transport_aperture(&self, a: usize, l: usize, r: usize) -> R {
+        let w = &self.walls;
+        if w.master[l] == w.master[r] {
+            R::ZERO
+        } else {
+            w.ap_hi[a][l]
+        }
+    }
+
+    /// Transport limiters in content units (module docs of `walls`): a group's inflow is
+    /// scaled so its content cannot pass `V (c_max - c)`, its outflow so it cannot drop below
+    /// 0. On entry `inflow` / `diag` hold each cell's in- and outflow (per full cell); on exit
+    /// the factors, the same for every member of a group.
+    pub(super) fn embedded_limiters(&mut self) {
+        let n = self.grid.len();
+        let w = &self.walls;
+        w.group_sum(n, &mut self.inflow);
+        w.group_sum(n, &mut self.diag);
+        for i in 0..n {
+            let gv = w.gvol[w.master[i] as usize];
+            let cmax = (R::ONE - self.cfg.margin) * self.c_rcp[i];
+            let room = gv * (cmax - self.c[i]).max(R::ZERO);
+            let inflow = self.inflow[i];
+            self.inflow[i] = if inflow > room { room / inflow } else { R::ONE };
+            let content = gv * self.c[i].max(R::ZERO);
+            let outflow = self.diag[i];
+            self.diag[i] = if outflow > content {
+                content / outflow
+            } else {
+                R::ONE
+            };
+        }
+    }
+
+    /// Before the transport update: the scratch vectors that collect the content increments
+    /// of c, c T and c u ([`Self::embedded_add_flux`]) are cleared.
+    pub(super) fn embedded_begin_update(&mut self) {
+        let n = self.grid.len();
+        self.rhs[..n].fill(R::ZERO);
+        self.r[..n].fill(R::ZERO);
+        let dm: [&mut [R; N]; 3] = [&mut self.pv, &mut self.ap, &mut self.pre];
+        for d in dm.into_iter().take(D) {
+            d[..n].fill(R::ZERO);
+        }
+    }
+
+    /// Books the content increment `dc` (and `dc u`, `dc T`) of cell `i`.
+    #[inline(always)]
+    pub(super) fn embedded_add_flux(&mut self, i: usize, dc: R, u: [R; D], t: R) {
+        self.rhs[i] += dc;
+        self.r[i] += dc * t;
+        let dm: [&mut [R; N]; 3] = [&mut self.pv, &mut self.ap, &mut self.pre];
+        for (a, d) in dm.into_iter().enumerate().take(D) {
+            d[i] += dc * u[a];
+        }
+    }
+
+    /// After the transport update: the group sums of the increments over the group volumes
+    /// are added (members copy their master).
+    pub(super) fn embedded_end_update(&mut self) {
+        let n = self.grid.len();
+        let w = &self.walls;
+        w.apply_increment(n, &mut self.c, &mut self.rhs);
+        w.apply_increment(n, &mut self.e, &mut self.r);
+        let dm: [&mut [R; N]; 3] = [&mut self.pv, &mut self.ap, &mut self.pre];
+        for (a, d) in dm.into_iter().enumerate().take(D) {
+            w.apply_increment(n, &mut self.m[a], d);
+        }
+    }
+
+    /// Pressure + gravity forces (content per full cell in `kf`) summed over each merge group
+    /// and divided by its volume: the force per open volume (0 in solid cells).
+    pub(super) fn embedded_forces(&mut self) {
+        let n = self.grid.len();
+        let w = &self.walls;
+        for a in 0..D {
+            let kf = &mut self.kf[a];
+            if w.merged {
+                for i in 0..n {
+                    let m = w.master[i] as usize;
+                    if m != i {
+                        kf[m] += kf[i];
+                    }
+                }
+            }
+            for i in 0..n {
+                let m = w.master[i] as usize;
+                if m == i {
+                    let gv = w.gvol[i];
+                    kf[i] = if gv > R::ZERO { kf[i] / gv } else { R::ZERO };
+                }
+            }
+            w.copy_to_members(n, kf);
+        }
+    }
+
+    /// Unilateral contact of loose cells with the cut wall, along its own normal, with Coulomb
+    /// friction (the box rule of `wall_contact`): a cut cell with `c <= c_rlp` or a nearly
+    /// empty inner neighbour (along `-n`) loses the momentum relative to the wall that points
+    /// into it, and up to `tan(phi_w)` of that impulse of its tangential momentum.
+    pub(super) fn embedded_wall_contact(&mut self) {
+        let n = self.grid.len();
+        let grid = self.grid;
+        for i in 0..n {
+            let k = self.walls.wall_k[i];
+            let c = self.c[i];
+            if !(k > R::ZERO && c > self.cfg.vacuum) {
+                continue;
+            }
+            let uw = self.walls.wall_velocity(&grid, i);
+            let mut rel = [R::ZERO; D];
+            let mut into = R::ZERO;
+            // inner neighbour: one cell against the dominant component of the normal
+            let (mut ax, mut big) = (0, R::ZERO);
+            for a in 0..D {
+                let na = self.walls.normal[a][i];
+                rel[a] = self.m[a][i] - c * uw[a];
+                into += rel[a] * na;
+                if na.abs() > big {
+                    big = na.abs();
+                    ax = a;
+                }
+            }
+            if !(into > R::ZERO) {
+                continue;
+            }
+            let k_ax = grid.coord(i, ax);
+            let s = grid.stride(ax);
+            let inner = if self.walls.normal[ax][i] > R::ZERO {
+                if k_ax > 0 {
+                    self.c[i - s]
+                } else {
+                    R::ZERO
+                }
+            } else if k_ax + 1 < grid.cells()[ax] {
+                self.c[i + s]
+            } else {
+                R::ZERO
+            };
+            if !(c <= self.c_rlp[i] || inner < self.cfg.surface) {
+                continue;
+            }
+            let mut t2 = R::ZERO;
+            for a in 0..D {
+                rel[a] -= into * self.walls.normal[a][i];
+                t2 += rel[a] * rel[a];
+            }
+            let t = t2.sqrt();
+            let keep = match self.walls.wall.slip {
+                Slip::NoSlip => R::ZERO,
+                Slip::Slip => R::ONE,
+                Slip::Friction(tan) => {
+                    if t > R::ZERO {
+                        R::ONE - (tan * into).min(t) / t
+                    } else {
+                        R::ZERO
+                    }
+                }
+            };
+            for a in 0..D {
+                self.m[a][i] = c * uw[a] + keep * rel[a];
+            }
+        }
+    }
+}

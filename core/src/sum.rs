@@ -1,0 +1,184 @@
+//! Sums whose bits depend only on the data and on one fixed constant, [`BLOCK`]: never on the
+//! order in which a driver visits the data, on the number of threads or ranks, or on the
+//! compiler's choice of vector width.
+//!
+//! # The scheme
+//! The index range `0..n` is cut into blocks of [`BLOCK`] terms (the last one may be short).
+//! Inside a block, term `i` goes to lane `i % LANES` of [`LANES`] independent accumulators,
+//! each summed in index order; the lanes are combined in a fixed tree
+//! `((l0 + l1) + (l2 + l3)) + ((l4 + l5) + (l6 + l7))`, giving the block's partial sum. The
+//! partials are then added in block order, starting from 0 ([`fold`]).
+//!
+//! Why lanes: a plain `s += x[i]` loop is a chain of dependent additions and runs at one add
+//! per floating-point latency (4 cycles here); eight independent chains fill the pipeline
+//! and the vector units, so a dot product runs at memory speed (the conjugate-gradient loops
+//! of the flow, [`crate::flow::cg`], were dominated by such chains). Rust never reassociates
+//! floating-point sums, so the lanes are spelled out and the bits are the same whatever the
+//! target's vector width.
+//!
+//! Why blocks: a threaded or distributed driver splits the cells into chunks. If every chunk
+//! boundary is a multiple of [`BLOCK`] (a grid row of a subdomain decomposition along the last
+//! axis is, when rows are padded to blocks), each chunk computes exactly the block partials
+//! of the serial sum ([`block_partials`]) and one place folds them in block order: the same
+//! bits for 1, 2 or 64 workers. `tests/tests/flow_cg.rs` asserts it.
+//!
+//! # Against an exact accumulator
+//! An exact (superaccumulator, xsum) or binned (ReproBLAS) sum is independent of *any* order
+//! and decomposition, not only of splits at block boundaries, and correctly rounded. Its
+//! price is a split of every term into chunks of a wide integer accumulator (xsum reports
+//! 2-5x a plain sum at best; the big accumulator needs ~70 words for f64), and it cannot use
+//! the lanes of a vector unit without the same blocking. The flow's CG takes three of these
+//! sums per iteration over arrays that stay in cache, so their cost is the cost of the
+//! solver; the blocked sum costs what a plain vectorised loop costs. Its error is that of
+//! ordinary floating-point summation with depth `BLOCK / LANES + 2 + blocks` (bound in
+//! [`error_bound`]), far below the solver's tolerance. Where a driver cannot align its
+//! chunks to blocks, the block partials (a few per thousand terms) are what should go into
+//! an exact accumulator: the hybrid keeps the fast inner loop.
+
+use crate::real::Real;
+
+/// Independent accumulators inside a block.
+pub const LANES: usize = 8;
+/// Terms per block: the only constant the bits depend on (a multiple of [`LANES`]).
+pub const BLOCK: usize = 256;
+
+/// The fixed combination tree of the lanes.
+#[inline(always)]
+pub fn combine<R: Real>(l: &[R; LANES]) -> R {
+    ((l[0] + l[1]) + (l[2] + l[3])) + ((l[4] + l[5]) + (l[6] + l[7]))
+}
+
+/// `sum_i term(i)` over `0..n` by the blocked scheme of the module docs. `term` is called once
+/// per index, in increasing order, so it may update the data it reads (fused loops: the
+/// conjugate-gradient update `x += alpha p; r -= alpha A p` returns `r_i^2`).
+#[inline(always)]
+pub fn reduce<R: Real>(n: usize, mut term: impl FnMut(usize) -> R) -> R {
+    let mut total = R::ZERO;
+    let mut start = 0;
+    while start < n {
+        let end = (start + BLOCK).min(n);
+        total += block(start, end, &mut term);
+        start = end;
+    }
+    total
+}
+
+/// The partial sum of the block `start..end` (`start` a multiple of [`BLOCK`], `end - start`
+/// at most [`BLOCK`]).
+#[inline(always)]
+pub fn block<R: Real>(start: usize, end: usize, term: &mut impl FnMut(usize) -> R) -> R {
+    let mut l = [R::ZERO; LANES];
+    let mut i = start;
+    while i + LANES <= end {
+        for (k, lk) in l.iter_mut().enumerate() {
+            *lk += term(i + k);
+        }
+        i += LANES;
+    }
+    for (k, lk) in l.iter_mut().enumerate().take(end - i) {
+        *lk += term(i + k);
+    }
+    combine(&l)
+}
+
+/// The block partials of `term` over `start..end` into `out` (one per block; `start` a
+/// multiple of [`BLOCK`]): what one worker of a threaded driver computes for its chunk.
+/// Returns the number of partials written. [`fold`] of all chunks' partials, in block order,
+/// is bit-identical to [`reduce`] over the whole range.
+pub fn block_partials<R: Real>(
+    start: usize,
+    end: usize,
+    mut term: impl FnMut(usize) -> R,
+    out: &mut [R],
+) -> usize {
+    debug_assert!(start % BLOCK == 0, "chunks must start at a block boundary");
+    let mut k = 0;
+    let mut s = start;
+    while s < end {
+        let e = (s + BLOCK).min(end);
+        out[k] = block(s, e, &mut term);
+        k += 1;
+        s = e;
+    }
+    k
+}
+
+/// Adds block partials in order, from 0: the last stage of [`reduce`].
+pub fn fold<R: Real>(partials: &[R]) -> R {
+    let mut total = R::ZERO;
+    for p in partials {
+        total += *p;
+    }
+    total
+}
+
+/// `sum_i x_i`.
+pub fn sum<R: Real>(x: &[R]) -> R {
+    reduce(x.len(), |i| x[i])
+}
+
+/// `sum_i a_i b_i` over the common length (the bits of `reduce(n, |i| a[i] * b[i])`, written
+/// with chunked slices so that no index is checked in the loop).
+pub fn dot<R: Real>(a: &[R], b: &[R]) -> R {
+    let n = a.len().min(b.len());
+    let mut total = R::ZERO;
+    for (ab, bb) in a[..n].chunks(BLOCK).zip(b[..n].chunks(BLOCK)) {
+        let mut l = [R::ZERO; LANES];
+        let (ac, bc) = (ab.chunks_exact(LANES), bb.chunks_exact(LANES));
+        let (ar, br) = (ac.remainder(), bc.remainder());
+        for (x, y) in ac.zip(bc) {
+            for k in 0..LANES {
+                l[k] += x[k] * y[k];
+            }
+        }
+        for (k, (x, y)) in ar.iter().zip(br).enumerate() {
+            l[k] += *x * *y;
+        }
+        total += combine(&l);
+    }
+    total
+}
+
+/// The conjugate-gradient update `x += alpha p; r -= alpha q`, returning `sum r_i^2` with the
+/// bits of [`reduce`] (one pass over the four vectors).
+pub fn update<R: Real>(alpha: R, p: &[R], q: &[R], x: &mut [R], r: &mut [R]) -> R {
+    let n = x.len().min(r.len()).min(p.len()).min(q.len());
+    let mut total = R::ZERO;
+    let blocks = x[..n]
+        .chunks_mut(BLOCK)
+        .zip(r[..n].chunks_mut(BLOCK))
+        .zip(p[..n].chunks(BLOCK).zip(q[..n].chunks(BLOCK)));
+    for ((xb, rb), (pb, qb)) in blocks {
+        let mut l = [R::ZERO; LANES];
+        let mut xc = xb.chunks_exact_mut(LANES);
+        let mut rc = rb.chunks_exact_mut(LANES);
+        let (pc, qc) = (pb.chunks_exact(LANES), qb.chunks_exact(LANES));
+        let (pr, qr) = (pc.remainder(), qc.remainder());
+        for ((xs, rs), (ps, qs)) in xc.by_ref().zip(rc.by_ref()).zip(pc.zip(qc)) {
+            for k in 0..LANES {
+                xs[k] += alpha * ps[k];
+                rs[k] -= alpha * qs[k];
+                l[k] += rs[k] * rs[k];
+            }
+        }
+        let (xr, rr) = (xc.into_remainder(), rc.into_remainder());
+        for k in 0..xr.len() {
+            xr[k] += alpha * pr[k];
+            rr[k] -= alpha * qr[k];
+            l[k] += rr[k] * rr[k];
+        }
+        total += combine(&l);
+    }
+    total
+}
+
+/// A bound on `|reduce(x) - sum x|` for `n` terms: `gamma_k sum |x_i|` with
+/// `gamma_k = k u / (1 - k u)`, `u = EPSILON / 2` and `k` the longest chain of additions a
+/// term passes through (lane, tree, fold). The classical bound of recursive summation
+/// (Higham, Accuracy and Stability of Numerical Algorithms, 4.2) applied to that tree.
+pub fn error_bound<R: Real>(n: usize, sum_abs: R) -> R {
+    let blocks = n.div_ceil(BLOCK).max(1);
+    let k = BLOCK / LANES + 3 + blocks;
+    let ku = R::from_usize(k) * R::EPSILON * R::HALF;
+    ku / (R::ONE - ku) * sum_abs
+}

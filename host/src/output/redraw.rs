@@ -1,0 +1,278 @@
+//! The pictures of a run, drawn from its files only (`summary.json`, `series.csv`,
+//! `fields/series.pvd` with its `.vti` snapshots, `profiles.csv` for flow scenes): `sieve run`
+//! calls this on its staging directory, and `sieve plot DIR` on a finished run, so both draw
+//! the same pictures from the same data.
+//!
+//! Written into the plots directory:
+//! - `psi.png`: Psi(t) with the threshold, the relative mass drift and the bound violations;
+//! - 1D: `phihat_profiles.png`, at most [`plot::MAX_FRAMES_1D`] output times;
+//! - 2D (3D: the mid-plane y slice, `phihat_midplane_*`): `phihat_NNNN.png` at up to
+//!   [`plot::MAX_FRAMES_MAP`] output times and `phihat.gif`, an animation over every output
+//!   time (at most [`plot::MAX_FRAMES_GIF`], evenly spread); empty cells grey;
+//! - flow scenes: `flow_velocity.png`, `flow_temperature.png`, `flow_shear_ratio.png`.
+
+use super::plot::{self, MapGrid};
+use super::vtk::{read_vti, Vti};
+use crate::data::{Profiles, SeriesRow};
+use crate::error::{Error, Result};
+use std::path::{Path, PathBuf};
+
+/// Reads `series.csv` (header [`super::csv::SERIES_HEADER`]).
+pub fn read_series(path: &Path) -> Result<Vec<SeriesRow>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut lines = text.lines();
+    let header = lines.next().unwrap_or_default();
+    if header != super::csv::SERIES_HEADER {
+        return Err(Error::failure(format!(
+            "{}: unexpected header `{header}` (expected `{}`)",
+            path.display(),
+            super::csv::SERIES_HEADER
+        )));
+    }
+    lines
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<f64> = l
+                .split(',')
+                .map(|x| x.trim().parse().unwrap_or(f64::NAN))
+                .collect();
+            if v.len() < 5 {
+                return Err(Error::failure(format!(
+                    "{}: short row `{l}`",
+                    path.display()
+                )));
+            }
+            Ok(SeriesRow {
+                t: v[0],
+                psi: v[1],
+                mass: v[2],
+                overshoot_max: v[3],
+                undershoot_max: v[4],
+            })
+        })
+        .collect()
+}
+
+/// Header of `profiles.csv` (flow scenes): horizontally averaged profiles at the end of the
+/// run; `shear_ratio` is sqrt(T)/|du_x/dz| over sqrt(a eta0/eps0) (NaN where T <= 1e-12).
+pub const PROFILES_HEADER: &str = "z,u_x,T,shear_rate,shear_ratio";
+
+/// Writes `profiles.csv`.
+pub fn write_profiles(path: &Path, p: &Profiles) -> Result<()> {
+    use std::fmt::Write;
+    let ratio = plot::shear_ratio(p);
+    let mut s = String::from(PROFILES_HEADER);
+    s.push('\n');
+    for k in 0..p.z.len() {
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{}",
+            super::num(p.z[k]),
+            super::num(p.u[k]),
+            super::num(p.t[k]),
+            super::num(p.shear[k]),
+            super::num(ratio[k])
+        );
+    }
+    super::write_file(path, s.as_bytes())
+}
+
+/// Reads `profiles.csv` back; `ratio_theory` is 1 so that the stored ratio is plotted as is.
+fn read_profiles(path: &Path) -> Result<Profiles> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut p = Profiles {
+        ratio_theory: 1.0,
+        ..Profiles::default()
+    };
+    let mut ratio = Vec::new();
+    for l in text.lines().skip(1).filter(|l| !l.trim().is_empty()) {
+        let v: Vec<f64> = l
+            .split(',')
+            .map(|x| x.trim().parse().unwrap_or(f64::NAN))
+            .collect();
+        if v.len() < 5 {
+            return Err(Error::failure(format!(
+                "{}: short row `{l}`",
+                path.display()
+            )));
+        }
+        p.z.push(v[0]);
+        p.u.push(v[1]);
+        p.t.push(v[2]);
+        ratio.push(v[4]);
+    }
+    // Plotted through shear_ratio(): T^(1/2) / shear / 1 = the stored ratio.
+    p.shear = ratio
+        .iter()
+        .zip(&p.t)
+        .map(|(&r, &t)| {
+            if r.is_finite() && r > 0.0 {
+                t.sqrt() / r
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    Ok(p)
+}
+
+/// `(t, file)` entries of a `.pvd`.
+fn read_pvd(path: &Path) -> Result<Vec<(f64, String)>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let get = |tag: &str, key: &str| -> Option<String> {
+        let start = tag.find(&format!("{key}=\""))? + key.len() + 2;
+        let end = tag[start..].find('"')? + start;
+        Some(tag[start..end].to_string())
+    };
+    Ok(text
+        .split('<')
+        .filter(|t| t.starts_with("DataSet "))
+        .filter_map(|t| Some((get(t, "timestep")?.parse().ok()?, get(t, "file")?)))
+        .collect())
+}
+
+/// phihat with empty cells (c <= [`plot::VACUUM`]) as NaN, on the x-z plane (3D: the
+/// mid-plane y slice `ny / 2`).
+fn masked_plane(v: &Vti) -> Result<Vec<f64>> {
+    let (Some(phihat), Some(c)) = (v.array("phihat"), v.array("c")) else {
+        return Err(Error::failure("a .vti without phihat or c"));
+    };
+    let [nx, ny, nz] = v.cells;
+    let iy = ny / 2;
+    let mut out = Vec::with_capacity(nx * nz);
+    for iz in 0..nz {
+        for ix in 0..nx {
+            let i = ix + nx * (iy + ny * iz);
+            out.push(if c[i] > plot::VACUUM {
+                phihat[i]
+            } else {
+                f64::NAN
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// Redraws every picture of the run in `run` into `plots` (which must exist); returns the
+/// file names written.
+pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
+    let summary_path = run.join("summary.json");
+    let text = std::fs::read_to_string(&summary_path).map_err(|e| Error::io(&summary_path, e))?;
+    let summary: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| Error::failure(format!("{}: {e}", summary_path.display())))?;
+    let name = summary["scene"].as_str().unwrap_or("run").to_string();
+    let threshold = summary["psi_threshold"].as_f64().unwrap_or(0.05);
+    let dims = summary["dims"].as_u64().unwrap_or(1) as usize;
+    let t_end = summary["t_end"].as_f64().unwrap_or(f64::NAN);
+    let mut written = Vec::new();
+
+    let series = read_series(&run.join("series.csv"))?;
+    plot::psi(
+        &plots.join("psi.png"),
+        &series,
+        threshold,
+        &format!("{name}: mixing index, mass drift, bound violations"),
+    )?;
+    written.push("psi.png".to_string());
+
+    let fields = run.join("fields");
+    let entries = read_pvd(&fields.join("series.pvd"))?;
+    let n = entries.len();
+    if dims == 1 {
+        let plan = plot::frame_indices(n, plot::MAX_FRAMES_1D);
+        let mut curves = Vec::with_capacity(plan.len());
+        let mut geometry = None;
+        for &k in &plan {
+            let v = read_vti(&fields.join(&entries[k].1))?;
+            geometry.get_or_insert_with(|| (v.cells[2], v.origin[2], v.spacing[2]));
+            curves.push((v.t, masked_plane(&v)?));
+        }
+        if let Some((nz, z0, h)) = geometry {
+            let z: Vec<f64> = (0..nz).map(|i| z0 + (i as f64 + 0.5) * h).collect();
+            plot::profiles(
+                &plots.join("phihat_profiles.png"),
+                &format!("{name}: phihat profiles"),
+                &z,
+                (z0, z0 + nz as f64 * h),
+                &curves,
+            )?;
+            written.push("phihat_profiles.png".into());
+        }
+    } else if n > 0 {
+        let stills = plot::frame_indices(n, plot::MAX_FRAMES_MAP);
+        let anim = plot::frame_indices(n, plot::MAX_FRAMES_GIF);
+        let (prefix, what) = if dims == 3 {
+            ("phihat_midplane", "phihat, mid-plane y slice")
+        } else {
+            ("phihat", "phihat")
+        };
+        let mut gif: Option<plot::Animation> = None;
+        let gif_name = format!("{prefix}.gif");
+        for k in 0..n {
+            let (still, framed) = (stills.contains(&k), anim.contains(&k));
+            if !still && !framed {
+                continue;
+            }
+            let v = read_vti(&fields.join(&entries[k].1))?;
+            let grid = MapGrid {
+                cells: (v.cells[0], v.cells[2]),
+                x: (v.origin[0], v.origin[0] + v.cells[0] as f64 * v.spacing[0]),
+                z: (v.origin[2], v.origin[2] + v.cells[2] as f64 * v.spacing[2]),
+                labels: ("x".into(), "z".into()),
+            };
+            let values = masked_plane(&v)?;
+            let title = format!(
+                "{name}: {what} at t = {} (output {k} of {})",
+                super::num(v.t),
+                n - 1
+            );
+            if still {
+                let file = format!("{prefix}_{k:04}.png");
+                plot::colour_map(&plots.join(&file), &title, &grid, &values)?;
+                written.push(file);
+            }
+            if framed {
+                if gif.is_none() {
+                    // 0.25 s per frame; the last frame of a GIF shows until it loops.
+                    gif = Some(plot::Animation::new(&plots.join(&gif_name), grid, 25)?);
+                }
+                if let Some(g) = gif.as_mut() {
+                    g.frame(&title, &values)?;
+                }
+            }
+        }
+        if gif.is_some() {
+            written.push(gif_name);
+        }
+    }
+
+    let profiles = run.join("profiles.csv");
+    if profiles.exists() {
+        let p = read_profiles(&profiles)?;
+        plot::flow_profiles(plots, &name, &format!("t = {}", super::num(t_end)), &p)?;
+        written.extend(
+            [
+                "flow_velocity.png",
+                "flow_temperature.png",
+                "flow_shear_ratio.png",
+            ]
+            .map(String::from),
+        );
+    }
+    Ok(written)
+}
+
+/// `sieve plot DIR`: redraws the pictures of the finished run in `dir` into `dir/plots`,
+/// replacing the old ones atomically.
+pub fn replot(dir: &Path) -> Result<(PathBuf, Vec<String>)> {
+    if !dir.join("summary.json").is_file() {
+        return Err(Error::Input(format!(
+            "{}: not a finished run directory (no summary.json)",
+            dir.display()
+        )));
+    }
+    let staging = super::Staging::new(&dir.join("plots"))?;
+    let written = redraw(dir, staging.path())?;
+    let target = staging.commit()?;
+    Ok((target, written))
+}

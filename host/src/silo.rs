@@ -1,0 +1,243 @@
+//! Discharge through wall openings (issue 9; model.md 7.6): opening the core's wall sides
+//! from a scene's outlets, and the discharge series and summary of a coupled run.
+//!
+//! Amounts are grain volumes (volume fraction times cell volume): per unit depth in 2D
+//! (m^2, rates in m^2/s), in m^3 in 3D; multiply by the grain density for a mass. Rates are
+//! averaged over each output interval (the change of the cumulative amount out over the
+//! interval), so they do not depend on the step. The fines fraction of the discharge is the
+//! small-grain share of what left in the interval.
+
+use crate::scene::outlet::Outlet;
+use crate::scene::Scene;
+use serde::Serialize;
+use sieve_core::boundary::{Opening, Openings};
+use sieve_core::flow::coupled::Coupled;
+use sieve_core::flow::FlowSide;
+use sieve_core::Real;
+use std::fmt::Write as _;
+
+/// Opens `side` by the validated `outlet`.
+pub fn open<R: Real, const D: usize>(side: &mut FlowSide<R, D>, outlet: &Outlet) {
+    side.openings = Openings::one(Opening {
+        lower: core::array::from_fn(|a| R::from_f64(outlet.lower[a])),
+        upper: core::array::from_fn(|a| R::from_f64(outlet.upper[a])),
+    });
+    side.outlet = outlet.pressure;
+}
+
+/// True if a wall of the scene has an outlet.
+pub fn has_outlets(scene: &Scene) -> bool {
+    scene
+        .flow
+        .as_ref()
+        .is_some_and(|f| f.walls.iter().flatten().any(|w| w.outlet.is_some()))
+}
+
+/// One row of `discharge.csv`, at an output time.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct DischargeRow {
+    /// Time [s].
+    pub t: f64,
+    /// Discharge rate over the last output interval, all grains [m^2/s in 2D].
+    pub rate: f64,
+    /// Discharge rate of the small grains.
+    pub rate_small: f64,
+    /// Small-grain fraction of what left in the last interval (NaN if nothing left).
+    pub fines_fraction: f64,
+    /// Grains in the box.
+    pub mass: f64,
+    /// Small grains in the box.
+    pub mass_small: f64,
+    /// Grains out so far (all outlets).
+    pub out: f64,
+    /// Small grains out so far.
+    pub out_small: f64,
+    /// Mean free-surface height over the columns [m] (where c first reaches
+    /// [`SURFACE_LEVEL`] from above; 2D/3D; the lower box edge for an empty column).
+    pub surface: f64,
+}
+
+/// Volume fraction that marks the free surface.
+pub const SURFACE_LEVEL: f64 = 0.2;
+
+/// The `flow.outlet` block of summary.json.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DischargeSummary {
+    /// Grains in the box at t = 0.
+    pub mass_initial: f64,
+    /// Small grains in the box at t = 0.
+    pub mass_small_initial: f64,
+    /// Grains out at the end.
+    pub out: f64,
+    /// Small grains out at the end.
+    pub out_small: f64,
+    /// max over output times of |in box + out - initial| / initial, all grains (flow's c).
+    pub mass_error: f64,
+    /// The same for the small grains (carried transport).
+    pub mass_small_error: f64,
+    /// The steady window: from when 10 % of the grains have left to when 50 % have (or to
+    /// the end of the run if fewer left) [s].
+    pub steady_window: [f64; 2],
+    /// Mean discharge rate over the steady window.
+    pub steady_rate: f64,
+    /// Small-grain fraction of the discharge over the steady window.
+    pub steady_fines_fraction: f64,
+    /// Small-grain fraction of the discharge in the last output interval with outflow.
+    pub final_fines_fraction: f64,
+    /// True if the run stopped because the discharge ended: the box is empty (< 1e-3 of the
+    /// grains left), or more than half has left and the rate fell below 1e-3 of its peak
+    /// (a flat floor keeps a resting heap beside the orifice: the stagnant corners).
+    pub emptied: bool,
+}
+
+/// The discharge series of a coupled run.
+#[derive(Debug, Clone, Default)]
+pub struct DischargeSeries {
+    /// One row per output time.
+    pub rows: Vec<DischargeRow>,
+    initial: [f64; 2],
+    errors: [f64; 2],
+    peak: f64,
+    /// See [`DischargeSummary::emptied`].
+    pub emptied: bool,
+}
+
+impl DischargeSeries {
+    /// Samples the state of `cpl` at time `t`.
+    pub fn sample<R: Real, const D: usize, const N: usize>(
+        &mut self,
+        t: f64,
+        cpl: &Coupled<'_, R, D, N>,
+    ) {
+        let fd = cpl.flow.diagnostics();
+        let mass = fd.mass.to_f64();
+        let mass_small = sieve_core::diagnose(cpl.seg).mass_small.to_f64();
+        let sum = |s: [[R; 2]; D]| s.iter().flatten().map(|v| v.to_f64()).sum::<f64>();
+        let out = sum(cpl.flow.discharged());
+        let out_small = sum(cpl.discharged_small());
+        if self.rows.is_empty() {
+            self.initial = [mass + out, mass_small + out_small];
+        }
+        let [m0, s0] = self.initial;
+        self.errors[0] = self.errors[0].max((mass + out - m0).abs() / m0.max(f64::MIN_POSITIVE));
+        self.errors[1] =
+            self.errors[1].max((mass_small + out_small - s0).abs() / s0.max(f64::MIN_POSITIVE));
+        let (rate, rate_small, fines_fraction) = match self.rows.last() {
+            Some(p) if t > p.t => {
+                let (dq, ds) = (out - p.out, out_small - p.out_small);
+                let frac = if dq > 0.0 { ds / dq } else { f64::NAN };
+                ((dq) / (t - p.t), ds / (t - p.t), frac)
+            }
+            _ => (0.0, 0.0, f64::NAN),
+        };
+        self.rows.push(DischargeRow {
+            t,
+            rate,
+            rate_small,
+            fines_fraction,
+            mass,
+            mass_small,
+            out,
+            out_small,
+            surface: surface_height(cpl),
+        });
+        self.peak = self.peak.max(rate);
+        if mass < 1e-3 * m0 || (out > 0.5 * m0 && rate < 1e-3 * self.peak) {
+            self.emptied = true;
+        }
+    }
+
+    /// The summary values.
+    pub fn summary(&self) -> DischargeSummary {
+        let [m0, s0] = self.initial;
+        let last = self.rows.last().copied();
+        let start = self
+            .rows
+            .iter()
+            .find(|r| r.out >= 0.1 * m0)
+            .or(self.rows.first());
+        let end = self
+            .rows
+            .iter()
+            .find(|r| r.out >= 0.5 * m0)
+            .or(self.rows.last());
+        let (window, rate, frac) = match (start, end) {
+            (Some(a), Some(b)) if b.t > a.t => (
+                [a.t, b.t],
+                (b.out - a.out) / (b.t - a.t),
+                if b.out > a.out {
+                    (b.out_small - a.out_small) / (b.out - a.out)
+                } else {
+                    f64::NAN
+                },
+            ),
+            _ => ([0.0, 0.0], 0.0, f64::NAN),
+        };
+        DischargeSummary {
+            mass_initial: m0,
+            mass_small_initial: s0,
+            out: last.map_or(0.0, |r| r.out),
+            out_small: last.map_or(0.0, |r| r.out_small),
+            mass_error: self.errors[0],
+            mass_small_error: self.errors[1],
+            steady_window: window,
+            steady_rate: rate,
+            steady_fines_fraction: frac,
+            final_fines_fraction: self
+                .rows
+                .iter()
+                .rev()
+                .find(|r| r.fines_fraction.is_finite())
+                .map_or(f64::NAN, |r| r.fines_fraction),
+            emptied: self.emptied,
+        }
+    }
+
+    /// `discharge.csv`.
+    pub fn csv(&self) -> String {
+        let mut s = String::from(
+            "t,rate,rate_small,fines_fraction,mass,mass_small,out,out_small,surface_height\n",
+        );
+        for r in &self.rows {
+            let _ = writeln!(
+                s,
+                "{},{},{},{},{},{},{},{},{}",
+                r.t,
+                r.rate,
+                r.rate_small,
+                r.fines_fraction,
+                r.mass,
+                r.mass_small,
+                r.out,
+                r.out_small,
+                r.surface
+            );
+        }
+        s
+    }
+}
+
+/// Mean over the vertical grid lines of the height where `c` first reaches
+/// [`SURFACE_LEVEL`] from above (linear between cell centres).
+fn surface_height<R: Real, const D: usize, const N: usize>(cpl: &Coupled<'_, R, D, N>) -> f64 {
+    let grid = cpl.flow.grid();
+    let cells = grid.cells();
+    let nz = cells[D - 1];
+    let stride = grid.stride(D - 1);
+    let hz = grid.spacing()[D - 1].to_f64();
+    let z0 = grid.origin()[D - 1].to_f64();
+    let mut total = 0.0;
+    for col in 0..stride {
+        let c = |k: usize| cpl.flow.c(col + stride * k).to_f64();
+        let h = match (0..nz).rev().find(|&k| c(k) >= SURFACE_LEVEL) {
+            None => 0.0,
+            Some(k) if k + 1 == nz => nz as f64 * hz,
+            Some(k) => {
+                let (lo, hi) = (c(k), c(k + 1));
+                (k as f64 + 0.5 + (lo - SURFACE_LEVEL) / (lo - hi)) * hz
+            }
+        };
+        total += h;
+    }
+    z0 + total / stride as f64
+}

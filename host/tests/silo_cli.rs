@@ -1,0 +1,106 @@
+//! `sieve run silo` (issue 9): the built-in silo scene with an outlet in the floor writes
+//! discharge.csv and the `flow.outlet` block; grains and fines in + out equal the initial
+//! amounts to round-off, phi stays in [0, c]; the orifice width is a `--set` key and a bad
+//! one exits 2 with one line naming file, key and range.
+
+use assert_cmd::Command;
+use std::path::Path;
+
+fn run_in(dir: &Path, args: &[&str]) -> (i32, String) {
+    let out = Command::cargo_bin("sieve")
+        .unwrap()
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn coarse_silo_discharges_with_exact_mass_accounting() {
+    let d = tempfile::tempdir().unwrap();
+    // ~10 mm cells, a 4-cell orifice: discharging from ~0.4 s on
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "silo",
+            "--grid",
+            "15x50",
+            "--t-end",
+            "0.7",
+            "--set",
+            "boundary.flow.z_low.outlet.width=0.04",
+            "--quiet",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let dir = d.path().join("runs/silo");
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let o = &s["flow"]["outlet"];
+    let f = |k: &str| o[k].as_f64().unwrap_or(f64::NAN);
+    assert!(f("mass_error") < 1e-13, "{o}");
+    assert!(f("mass_small_error") < 1e-13, "{o}");
+    // the bed of 0.145 m x 0.4 m at c = 0.6 (plus the 1e-9 air)
+    assert!((f("mass_initial") - 0.0348).abs() < 1e-6, "{o}");
+    assert!(f("out") > 1e-4, "{o}");
+    let ff = f("final_fines_fraction");
+    assert!(ff > 0.4 && ff < 0.6, "{o}");
+    assert_eq!(s["overshoot_max"], 0.0);
+    assert_eq!(s["undershoot_max"], 0.0);
+    assert_eq!(s["flow"]["clipped_mass"], 0.0);
+    let csv = std::fs::read_to_string(dir.join("discharge.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some("t,rate,rate_small,fines_fraction,mass,mass_small,out,out_small,surface_height")
+    );
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 15);
+    for r in &rows {
+        // in the box + out = initial, per row
+        assert!((r[4] + r[6] - f("mass_initial")).abs() < 1e-15, "{r:?}");
+        assert!(
+            (r[5] + r[7] - f("mass_small_initial")).abs() < 1e-15,
+            "{r:?}"
+        );
+        assert!(r[8] > 0.35 && r[8] < 0.45, "surface {r:?}");
+    }
+}
+
+#[test]
+fn orifice_wider_than_the_floor_is_rejected() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "silo",
+            "--set",
+            "boundary.flow.z_low.outlet.width=0.2",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("scenes/silo.toml") && err.contains("boundary.flow.z_low.outlet.center"),
+        "{err}"
+    );
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "silo",
+            "--set",
+            "boundary.flow.z_low.outlet.width=-0.01",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("boundary.flow.z_low.outlet.width"), "{err}");
+}
