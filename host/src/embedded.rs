@@ -3,10 +3,10 @@
 //! (solid cells hold no grains; merged groups start uniform), plus what the outputs need
 //! (open volume fractions, the geometry block of summary.json).
 //!
-//! Only the segregation solver runs on cut cells today; validation refuses a flow with a
-//! geometry (the flow on cut cells is the `flow-walls` branch), and the commands that do not
-//! know cut cells (`converge`, `record`) refuse such scenes: never a silent fallback to the
-//! box.
+//! Only the segregation solver runs on cut cells from the CLI today; validation refuses a flow
+//! with a geometry (the flow runs on cut cells, but the coupled driver does not yet hand them to
+//! the segregation step), and the commands that do not know cut cells (`converge`, `record`)
+//! refuse such scenes: never a silent fallback to the box.
 
 use crate::data::GeometrySummary;
 use crate::error::{Error, Result};

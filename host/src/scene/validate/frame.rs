@@ -5,10 +5,10 @@
 //! turns y towards z (x towards y).
 //!
 //! What runs today: the rotating frame with a solved, coupled flow (turning gravity,
-//! centrifugal and Coriolis forces in the flow, the turning gravity in the segregation). A
-//! lab frame with a turning drum wall needs the flow's moving walls on cut cells (branch
-//! `flow-walls`) and is refused until then, as is a rotating frame without a flow (nothing
-//! would turn but gravity) or with a frozen flow (a turning frame has no steady state).
+//! centrifugal and Coriolis forces in the flow, the turning gravity in the segregation) in a
+//! box. A lab frame with a turning drum wall needs a coupled flow on cut cells (see
+//! validate/geometry.rs) and is refused until then, as is a rotating frame without a flow
+//! (nothing would turn but gravity) or with a frozen flow (a turning frame has no steady state).
 
 use super::{vector, Problems};
 use crate::error::Error;
@@ -157,7 +157,7 @@ pub(super) fn check(
                 l,
                 "frame.rev_per_s",
                 rev,
-                "0 in the lab frame (a turning drum wall on cut cells needs the flow-walls solver, not merged yet): turn the drum with frame.kind = \"rotating\"",
+                "0 in the lab frame (a turning drum wall needs a coupled flow on cut cells, not wired yet): turn the container with frame.kind = \"rotating\"",
             ));
         }
         _ => {}

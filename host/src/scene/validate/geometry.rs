@@ -8,8 +8,9 @@
 //! box faces in y close it (walls: end walls; periodic: an axial slice).
 //!
 //! A geometry runs the segregation solver on cut cells for prescribed scenes; a scene that
-//! solves a flow with a geometry is refused until the flow runs on cut cells (branch
-//! `flow-walls`): no silent fallback to the box.
+//! solves a flow with a geometry is refused: the flow runs on cut cells (`Flow::set_geometry`,
+//! docs/flow-walls.md), but the coupled driver does not yet hand the cut cells to the
+//! segregation step, and a frozen flow would need the same. No silent fallback to the box.
 
 use super::{axis_names, vector, Problems};
 use crate::error::Error;
@@ -279,7 +280,7 @@ pub(super) fn check(
             l,
             "geometry",
             format!(
-                "not with model.equations = \"{}\" yet: the flow on cut cells (branch flow-walls) is not merged; allowed with model.equations = \"prescribed\"",
+                "not with model.equations = \"{}\" yet: the coupled driver does not run the segregation on cut cells (core flow/coupled.rs); allowed with model.equations = \"prescribed\"",
                 f.model.equations.name()
             ),
         ));
