@@ -446,3 +446,36 @@ fn rotating_frame_of_a_coupled_flow_runs_and_is_the_lab_at_rest() {
     // default centre: the box centre (no geometry)
     assert_eq!(f["center"], serde_json::json!([0.08, 0.016]));
 }
+
+#[test]
+fn a_3d_drum_slice_runs_on_cut_cells() {
+    // the drum as a cylinder along y, periodic axial slice of 3 cells
+    let d = tempfile::tempdir().unwrap();
+    let args = with_sets(
+        &["run", "drum-settling", "--t-end", "0.5", "--quiet"],
+        &[
+            "dim=3",
+            "grid.cells=[24, 3, 24]",
+            "grid.lower=[0.0, 0.0, 0.0]",
+            "grid.upper=[0.1, 0.0125, 0.1]",
+            "geometry.center=[0.05, 0.0, 0.05]",
+            "physics.gravity=[0.0, 0.0, -9.81]",
+            "initial.u=[0.0, 0.0, 0.0]",
+            "boundary.y=[\"periodic\", \"periodic\"]",
+        ],
+    );
+    let (code, _, err) = run_in(d.path(), &args);
+    assert_eq!(code, 0, "{err}");
+    let s = json(&d.path().join("runs/drum-settling/summary.json"));
+    assert!(s["mass_rel_drift"].as_f64().unwrap() < 1e-12);
+    assert_eq!(s["overshoot_max"].as_f64(), Some(0.0));
+    assert_eq!(s["undershoot_max"].as_f64(), Some(0.0));
+    // the cylinder's volume pi R^2 L, second order in h (24 cells: 1.2e-3)
+    let exact = std::f64::consts::PI * 0.05 * 0.05 * 0.0125;
+    let open = s["geometry"]["open_volume"].as_f64().unwrap();
+    assert!(
+        (open / exact - 1.0).abs() < 3e-3,
+        "open volume {open} vs {exact}"
+    );
+    assert!(s["psi_final"].as_f64().unwrap() < 0.5);
+}
