@@ -593,6 +593,7 @@ fn record_catalogue(
         ));
     }
     let (sc, fields) = scene::load(&a.scene, &sets)?;
+    crate::embedded::refuse(&sc, "sieve record")?;
     let opts = soft_sensor::SceneRecordOptions {
         estimator_cells,
         sensor,

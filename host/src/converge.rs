@@ -91,7 +91,7 @@ impl SolverJob for ConvergeJob<'_> {
         load(s, self.scene, self.fields)?;
         let bar = indicatif::ProgressBar::hidden();
         // Same output stops as `sieve run`, so a level reproduces the run of that grid.
-        let stats = time_loop(s, self.scene, &bar, |_, _, _| Ok(()))?;
+        let stats = time_loop(s, self.scene, &bar, None, |_, _, _| Ok(()))?;
         let n = s.len();
         Ok(LevelRun {
             phi: (0..n).map(|i| s.phi(i).to_f64()).collect(),
@@ -119,7 +119,7 @@ impl crate::run::FlowJob for ConvergeJob<'_> {
         } else {
             let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
             crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
-            time_loop(s, self.scene, &bar, |_, _, _| Ok(()))?.steps
+            time_loop(s, self.scene, &bar, None, |_, _, _| Ok(()))?.steps
         };
         let n = s.len();
         Ok(LevelRun {
@@ -201,6 +201,7 @@ fn phihat(r: &LevelRun) -> Vec<f64> {
 /// Runs the study and writes `converge.csv` and `converge.json` to the output directory.
 pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(Study, PathBuf)> {
     let (base, _) = scene::load(spec, sets)?;
+    crate::embedded::refuse(&base, "sieve converge")?;
     let mut levels = opts.levels.clone();
     levels.sort_unstable();
     levels.dedup();

@@ -129,6 +129,8 @@ pub struct Snapshot {
     pub u: Vec<[f64; 3]>,
     /// Pressure per cell, for scenes that solve a flow (written as the extra column/array p).
     pub p: Option<Vec<f64>>,
+    /// Open volume fraction per cell, for scenes with a geometry (the VTK array `volume`).
+    pub volume: Option<Vec<f64>>,
 }
 
 impl Snapshot {
@@ -146,6 +148,7 @@ impl Snapshot {
             temp: Vec::with_capacity(n),
             u: Vec::with_capacity(n),
             p: None,
+            volume: None,
         };
         debug_assert_eq!(n, scene.len());
         for i in 0..n {
@@ -170,6 +173,61 @@ impl Snapshot {
             .map(|(&p, &c)| if c > 1e-6 { p / c } else { 0.0 })
             .collect()
     }
+
+    /// phihat for the maps of a scene with a geometry: NaN (drawn as masked, not as
+    /// phihat = 0) in solid cells (open volume 0) and in empty cells (c <= 1e-6, the
+    /// solver's vacuum); as [`Self::phihat`] without a geometry.
+    pub fn phihat_masked(&self) -> Vec<f64> {
+        let Some(vol) = &self.volume else {
+            return self.phihat();
+        };
+        self.phi
+            .iter()
+            .zip(&self.c)
+            .zip(vol)
+            .map(|((&p, &c), &v)| if v > 0.0 && c > 1e-6 { p / c } else { f64::NAN })
+            .collect()
+    }
+}
+
+/// The `geometry` block of summary.json (scenes with cut cells).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct GeometrySummary {
+    /// "drum", "square-drum", "drum-baffle" or "hopper".
+    pub shape: String,
+    /// Open volume of the container on the grid, `sum V_i |C|` [m^2 in 2D, m^3 in 3D].
+    pub open_volume: f64,
+    /// Open volume over the box's volume.
+    pub open_fraction: f64,
+    /// Cells with an open fraction strictly between 0 and 1.
+    pub cut_cells: usize,
+    /// Small cut cells merged into a neighbour.
+    pub merged_cells: usize,
+    /// Slivers with no neighbour to merge with, folded into the solid.
+    pub removed_cells: usize,
+    /// Their open volume, lost to the solid [m^2 / m^3].
+    pub removed_volume: f64,
+    /// Smallest open fraction of a remaining cell.
+    pub min_volume_fraction: f64,
+    /// Smallest open fraction of a merged group (>= small).
+    pub min_group_volume: f64,
+    /// The merging threshold.
+    pub small: f64,
+}
+
+/// The `frame` block of summary.json (scenes with `[frame]`).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct FrameSummary {
+    /// "lab" or "rotating".
+    pub kind: String,
+    /// Speed [rev/s], positive counter-clockwise (x right, z up).
+    pub rev_per_s: f64,
+    /// Angular speed 2 pi rev_per_s [rad/s].
+    pub omega: f64,
+    /// Seconds per revolution (null at rest).
+    pub period: Option<f64>,
+    /// A point on the rotation axis (solver axis order) [m].
+    pub center: Vec<f64>,
 }
 
 /// The `flow` block of summary.json.

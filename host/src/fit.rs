@@ -288,6 +288,7 @@ impl FlowJob for FitJob<'_> {
                 })
                 .collect(),
             p: Some(frozen.p.clone()),
+            volume: None,
         };
         Ok(LevelOutcome {
             fit: LevelFit {

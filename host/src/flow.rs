@@ -17,10 +17,11 @@ use crate::data::{
 };
 use crate::error::{Error, Result};
 use crate::scene::validate::{FlowModel, WallSlip};
-use crate::scene::{solver_errors, BackCoupling, Equations, Fields, Scene, SpinUp};
+use crate::scene::{solver_errors, BackCoupling, Equations, Fields, FrameKind, Scene, SpinUp};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, Slip};
+use sieve_core::frame::{Frame, Rotation};
 use sieve_core::{Boundary, Grid, Real, Segregation};
 use std::time::Instant;
 
@@ -80,6 +81,19 @@ fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<
     cfg.t_min = R::from_f64(fm.t_min);
     // Only faded faces (next to a nearly empty cell) feel it: no effect on a filled box.
     cfg.free_surface_push = true;
+    // A rotating frame (docs/frames.md): the grid turns with the container; validation
+    // allows it with a coupled flow only and checks the centre, axis and rate.
+    if let Some(fr) = scene
+        .frame
+        .as_ref()
+        .filter(|f| f.kind == FrameKind::Rotating)
+    {
+        cfg.frame = Frame::Rotating(Rotation {
+            omega: R::from_f64(fr.omega),
+            center: core::array::from_fn(|a| R::from_f64(fr.center[a])),
+            axis: fr.axis,
+        });
+    }
     cfg
 }
 

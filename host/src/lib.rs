@@ -10,6 +10,7 @@
 pub mod cli;
 pub mod converge;
 pub mod data;
+pub mod embedded;
 pub mod error;
 pub mod fit;
 pub mod flow;

@@ -12,6 +12,7 @@ use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{solver_errors, Fields, Precision, Scene};
 use indicatif::ProgressBar;
 use sieve_core::flow::Flow;
+use sieve_core::geometry::CutCells;
 use sieve_core::segregation::SegregationConfig;
 use sieve_core::{diagnose, DirectionMode, Grid, Real, Segregation, TemperatureMode};
 use std::time::Instant;
@@ -182,16 +183,20 @@ pub fn load<R: Real, const D: usize, const N: usize>(
 }
 
 /// Advances `s` from 0 to `scene.t_end`, stopping at every output time to record diagnostics
-/// and call `on_output(k, t, s)`. The stepping is timed alone.
+/// and call `on_output(k, t, s)`. The stepping is timed alone. With cut cells (`geo`, a scene
+/// with a geometry) the embedded step, time step and diagnostics run instead of the box's.
 pub fn time_loop<R: Real, const D: usize, const N: usize>(
     s: &mut Segregation<R, D, N>,
     scene: &Scene,
     progress: &ProgressBar,
+    geo: Option<&CutCells<R, D, N>>,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
     let times = output_times(scene.t_end, scene.output_interval);
     let mut stats = LoopStats {
-        dt: s.stable_dt().to_f64(),
+        dt: geo
+            .map_or_else(|| s.stable_dt(), |g| s.stable_dt_embedded(g))
+            .to_f64(),
         ..LoopStats::default()
     };
     let mut timer = SegregationTimer::new(scene.psi_threshold);
@@ -202,11 +207,17 @@ pub fn time_loop<R: Real, const D: usize, const N: usize>(
         let target = R::from_f64(t);
         while s.time() < target {
             let start = Instant::now();
-            stats.steps += s.advance_to(target, chunk);
+            stats.steps += match geo {
+                Some(g) => s.advance_to_embedded(target, chunk, g),
+                None => s.advance_to(target, chunk),
+            };
             stats.stepping += start.elapsed();
             progress.set_position((s.time().to_f64() / scene.t_end * 1000.0) as u64);
         }
-        let d = diagnose(s);
+        let d = match geo {
+            Some(g) => sieve_core::diagnose_embedded(s, g),
+            None => diagnose(s),
+        };
         let row = SeriesRow {
             t,
             psi: d.psi.to_f64(),
@@ -256,6 +267,7 @@ struct RunOutcome {
     exact_l1: Option<f64>,
     flow: Option<crate::data::FlowSummary>,
     profiles: Option<crate::data::Profiles>,
+    geometry: Option<crate::data::GeometrySummary>,
     discharge: Option<crate::silo::DischargeSeries>,
 }
 
@@ -318,14 +330,22 @@ impl SolverJob for RunJob<'_> {
     ) -> Result<RunOutcome> {
         let scene = self.scene;
         load(s, scene, self.fields)?;
+        let geo = crate::embedded::build(s, scene)?;
+        let geo = geo.as_deref();
+        if let Some(g) = geo {
+            crate::embedded::prepare(s, scene, g)?;
+        }
+        let volume = geo.map(crate::embedded::volumes);
         let bar = progress_bar(self.quiet, &scene.name);
         let mut pvd = Vec::new();
-        let stats = time_loop(s, scene, &bar, |k, t, s| {
-            let snap = Snapshot::of(s, scene);
+        let stats = time_loop(s, scene, &bar, geo, |k, t, s| {
+            let mut snap = Snapshot::of(s, scene);
+            snap.volume = volume.clone();
             self.output(k, t, &snap, &mut pvd)
         })?;
         bar.finish_and_clear();
-        let snap = Snapshot::of(s, scene);
+        let mut snap = Snapshot::of(s, scene);
+        snap.volume = volume.clone();
         let (hash, exact_l1) = self.finish(s, &snap)?;
         Ok(RunOutcome {
             stats,
@@ -334,6 +354,7 @@ impl SolverJob for RunJob<'_> {
             exact_l1,
             flow: None,
             profiles: None,
+            geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
             discharge: None,
         })
     }
@@ -365,7 +386,7 @@ impl FlowJob for RunJob<'_> {
         } else {
             let frozen = crate::flow::spin_up(f, scene, self.fields)?;
             crate::flow::hand_over_frozen(s, scene, self.fields, &frozen)?;
-            let stats = time_loop(s, scene, &bar, |k, t, s| {
+            let stats = time_loop(s, scene, &bar, None, |k, t, s| {
                 let mut snap = Snapshot::of(s, scene);
                 snap.p = Some(frozen.p.clone());
                 self.output(k, t, &snap, &mut pvd)
@@ -383,6 +404,7 @@ impl FlowJob for RunJob<'_> {
             exact_l1,
             flow: Some(summary),
             profiles: Some(crate::flow::profiles(scene, &snap)),
+            geometry: None,
             discharge,
         })
     }
@@ -472,6 +494,17 @@ pub fn run_scene(
         state_hash: format!("{:016x}", out.hash),
         exact,
         flow: out.flow.clone(),
+        geometry: out.geometry.clone(),
+        frame: scene.frame.as_ref().map(|f| crate::data::FrameSummary {
+            kind: match f.kind {
+                crate::scene::FrameKind::Lab => "lab".into(),
+                crate::scene::FrameKind::Rotating => "rotating".into(),
+            },
+            rev_per_s: f.rev_per_s,
+            omega: std::f64::consts::TAU * f.rev_per_s,
+            period: (f.rev_per_s != 0.0).then(|| 1.0 / f.rev_per_s.abs()),
+            center: f.center.clone(),
+        }),
     };
     summary.write(&staging.path().join("summary.json"))?;
     // The pictures come from the files just written, as `sieve plot DIR` draws them.

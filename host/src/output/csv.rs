@@ -35,7 +35,8 @@ pub fn write_series(path: &Path, rows: &[SeriesRow]) -> Result<()> {
 pub const FINAL_HEADER_FLOW: &str = "x,y,z,c,phi,phihat,T,ux,uy,uz,p";
 
 /// Writes one row per cell (solver cell order, x fastest); absent axes are 0. With a pressure
-/// (flow scenes) the header is [`FINAL_HEADER_FLOW`].
+/// (flow scenes) the header is [`FINAL_HEADER_FLOW`]; scenes with a geometry add the open
+/// volume fraction of each cell as a last column `volume` (0 = solid).
 pub fn write_final(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
     let phihat = snap.phihat();
     let mut s = String::with_capacity(120 * (snap.c.len() + 1));
@@ -44,6 +45,9 @@ pub fn write_final(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
     } else {
         FINAL_HEADER
     });
+    if snap.volume.is_some() {
+        s.push_str(",volume");
+    }
     s.push('\n');
     for i in 0..snap.c.len() {
         let p = scene.center(i);
@@ -65,6 +69,10 @@ pub fn write_final(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
         if let Some(p) = &snap.p {
             s.pop();
             let _ = writeln!(s, ",{}", num(p[i]));
+        }
+        if let Some(v) = &snap.volume {
+            s.pop();
+            let _ = writeln!(s, ",{}", num(v[i]));
         }
     }
     write_file(path, s.as_bytes())

@@ -79,6 +79,12 @@ pub struct Summary {
     /// Flow diagnostics, for scenes that solve a flow (absent for prescribed scenes).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub flow: Option<crate::data::FlowSummary>,
+    /// The container on cut cells, for scenes with a `[geometry]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<crate::data::GeometrySummary>,
+    /// The frame of reference, for scenes with a `[frame]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frame: Option<crate::data::FrameSummary>,
 }
 
 impl Summary {

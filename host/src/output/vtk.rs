@@ -10,8 +10,8 @@ use crate::scene::Scene;
 use std::fmt::Write;
 use std::path::Path;
 
-/// Writes one snapshot as `.vti`: cell arrays c, phi, phihat, T, the vector u and, for scenes
-/// that solve a flow, the pressure p.
+/// Writes one snapshot as `.vti`: cell arrays c, phi, phihat, T, the vector u, for scenes
+/// that solve a flow the pressure p, for scenes with a geometry the open volume fraction.
 pub fn write_vti(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
     let mut cells = [0usize; 3];
     let mut origin = [0.0f64; 3];
@@ -34,6 +34,11 @@ pub fn write_vti(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
     ];
     if let Some(p) = &snap.p {
         arrays.push(("p", 1, p));
+    }
+    // Scenes with a geometry: the open volume fraction (0 = solid; threshold it at > 0 in
+    // ParaView to hide the container's walls).
+    if let Some(v) = &snap.volume {
+        arrays.push(("volume", 1, v));
     }
     let mut xml = String::new();
     let _ = writeln!(xml, "<?xml version=\"1.0\"?>");

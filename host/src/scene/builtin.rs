@@ -33,6 +33,7 @@ builtins!(
     "shear-cell",
     "column-collapse",
     "silo",
+    "drum-settling",
 );
 
 /// The scene `sieve run` runs without a SCENE argument: 2D, segregates visibly (mixes, then

@@ -16,6 +16,8 @@ use crate::error::{Error, Result};
 use serde::Deserialize;
 use sieve_core::{Boundary, Phase, Scheme};
 
+pub use validate::frame::{FrameKind, FrameModel, FrameSpec};
+pub use validate::geometry::{Geometry, GeometrySpec, ShapeKind};
 pub use validate::{Fields, Scene};
 
 /// A scene file as written, before validation. Unknown keys are errors.
@@ -50,6 +52,10 @@ pub struct SceneFile {
     pub run: RunSpec,
     /// Numerics of the granular flow (only with `model.equations` other than "prescribed").
     pub flow: Option<FlowSpec>,
+    /// A container with walls that are not grid faces (cut cells; 2D and 3D).
+    pub geometry: Option<GeometrySpec>,
+    /// The frame of reference of a turning container.
+    pub frame: Option<FrameSpec>,
 }
 
 /// `[model]`.

@@ -113,7 +113,20 @@ impl Scene {
                 None
             }
         };
+        // With a geometry only cells that may hold grains are evaluated; the others stay empty.
+        let open = self
+            .geometry
+            .as_ref()
+            .map(|g| g.open_cells(self.dim, &self.cells, &self.lower, &self.upper));
         for i in 0..n {
+            if open.as_ref().is_some_and(|o| !o[i]) {
+                f.c.push(0.0);
+                f.t.push(0.0);
+                f.phi.push(0.0);
+                f.inflow.push(0.0);
+                f.u.iter_mut().for_each(|u| u.push(0.0));
+                continue;
+            }
             let pt = self.center(i);
             let c = eval(&mut p, &self.c, pt, 0.0, "initial.c");
             let c_ok = match c {

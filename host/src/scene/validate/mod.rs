@@ -11,6 +11,8 @@
 
 mod boundary;
 mod flow;
+pub mod frame;
+pub mod geometry;
 mod grid;
 mod initial;
 mod material;
@@ -199,6 +201,10 @@ pub struct Scene {
     pub exact: Option<ExactKind>,
     /// The flow model, if the scene solves one.
     pub flow: Option<FlowModel>,
+    /// The container's walls on cut cells, if any.
+    pub geometry: Option<geometry::Geometry>,
+    /// The frame of reference, if `[frame]` is given.
+    pub frame: Option<frame::FrameModel>,
 }
 
 /// The fields of a scene evaluated at the cell centres (f64, solver cell order).
@@ -291,6 +297,21 @@ impl Scene {
         } else {
             None
         };
+        let grid_box = grid
+            .as_ref()
+            .map(|g| (g.cells.as_slice(), g.lower.as_slice(), g.upper.as_slice()));
+        let geo = dim.and_then(|d| geometry::check(&mut p, l, &f, d, grid_box));
+        let frame = dim.and_then(|d| {
+            frame::check(
+                &mut p,
+                l,
+                &f,
+                d,
+                geo.as_ref().map(|g| g.center.as_slice()),
+                grid_box.map(|(_, lo, up)| (lo, up)),
+                bounds.as_ref().map(|(b, _)| b.as_slice()),
+            )
+        });
         p.finish()?;
         // Every section that gave None recorded a problem, so all are Some here.
         let (
@@ -315,6 +336,8 @@ impl Scene {
         }
         let scene = Scene {
             flow,
+            geometry: geo,
+            frame,
             label: label.to_string(),
             name: f.name,
             description: f.description,
