@@ -182,6 +182,9 @@ impl fmt::Display for CouplingError {
             CouplingError::Segregation(e) => {
                 write!(f, "the segregation solver rejected the flow's fields: {e}")
             }
+            CouplingError::GeometryNeedsCoupled => f.write_str(
+                "cut-cell walls need the coupled mode (the flow's face mass fluxes carry the small grains)",
+            ),
             CouplingError::NotSteady(r) => write!(
                 f,
                 "the flow did not become steady within the step limit (last residual {r:e} 1/s)"

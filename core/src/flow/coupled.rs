@@ -30,6 +30,7 @@
 
 use super::{Flow, FlowError};
 use crate::closure::Packing;
+use crate::geometry::CutCells;
 use crate::real::Real;
 use crate::segregation::{Discharge, Segregation, SetupError};
 
@@ -87,6 +88,8 @@ pub enum CouplingError {
     /// The flow did not reach the steady-state tolerance within `max_flow_steps`
     /// (carries the last residual).
     NotSteady(R64),
+    /// Cut-cell walls need the coupled mode (the flow's face mass fluxes carry phi).
+    GeometryNeedsCoupled,
 }
 
 /// A residual as f64 (keeps [`CouplingError`] non-generic).
@@ -105,9 +108,64 @@ pub struct Coupled<'a, R: Real, const D: usize, const N: usize> {
     out_small: [[R; 2]; D],
     out_total: [[R; 2]; D],
     last: Option<Discharge<R, D>>,
+    /// Cut-cell walls (coupled mode only): the flow carries them itself
+    /// ([`Flow::set_geometry`]); the segregation runs its embedded step on them.
+    geo: Option<&'a CutCells<R, D, N>>,
 }
 
 impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
+    /// [`Self::new`] for a container with cut-cell walls (coupled mode): the flow must have
+    /// been given the same geometry ([`Flow::set_geometry`]); the segregation solver then runs
+    /// its percolation on cut cells and carries phi on the flow's aperture-weighted face
+    /// mass fluxes, group by group ([`Segregation::carry_mass_fluxes_embedded`]).
+    pub fn new_embedded(
+        flow: &'a mut Flow<R, D, N>,
+        seg: &'a mut Segregation<R, D, N>,
+        cfg: CouplingConfig<R>,
+        geo: &'a CutCells<R, D, N>,
+    ) -> Result<Self, CouplingError> {
+        if cfg.mode != Mode::Coupled {
+            return Err(CouplingError::GeometryNeedsCoupled);
+        }
+        if flow.grid() != seg.grid() {
+            return Err(CouplingError::GridMismatch);
+        }
+        let mut s = Self::unprepared(flow, seg, cfg);
+        s.geo = Some(geo);
+        s.set_segregation_cells();
+        s.apply_packing();
+        s.flow.prepare().map_err(CouplingError::Flow)?;
+        s.prepare_segregation()
+            .map_err(CouplingError::Segregation)?;
+        Ok(s)
+    }
+
+    fn unprepared(
+        flow: &'a mut Flow<R, D, N>,
+        seg: &'a mut Segregation<R, D, N>,
+        cfg: CouplingConfig<R>,
+    ) -> Self {
+        Self {
+            flow,
+            seg,
+            cfg,
+            frozen: false,
+            flow_steps_to_steady: 0,
+            guarded: R::ZERO,
+            out_small: [[R::ZERO; 2]; D],
+            out_total: [[R::ZERO; 2]; D],
+            last: None,
+            geo: None,
+        }
+    }
+
+    fn prepare_segregation(&mut self) -> Result<(), SetupError> {
+        match self.geo {
+            Some(g) => self.seg.prepare_embedded(g),
+            None => self.seg.prepare(),
+        }
+    }
+
     /// Couples two solvers set up on the same grid (the flow with its initial fields, the
     /// segregation solver with its initial `phi`).
     pub fn new(
@@ -118,17 +176,7 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
         if flow.grid() != seg.grid() {
             return Err(CouplingError::GridMismatch);
         }
-        let mut s = Self {
-            flow,
-            seg,
-            cfg,
-            frozen: false,
-            flow_steps_to_steady: 0,
-            guarded: R::ZERO,
-            out_small: [[R::ZERO; 2]; D],
-            out_total: [[R::ZERO; 2]; D],
-            last: None,
-        };
+        let mut s = Self::unprepared(flow, seg, cfg);
         match cfg.mode {
             Mode::Prescribed => {}
             Mode::Frozen => {
@@ -274,7 +322,11 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
                 Ok(dt)
             }
             Mode::Coupled => {
-                let dt = self.flow.stable_dt().min(self.seg.stable_dt());
+                let seg_dt = match self.geo {
+                    Some(g) => self.seg.stable_dt_embedded(g),
+                    None => self.seg.stable_dt(),
+                };
+                let dt = self.flow.stable_dt().min(seg_dt);
                 self.step_with(dt)?;
                 Ok(dt)
             }
@@ -284,9 +336,19 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     /// One coupled step of length `dt` (at most the smaller stable step of the two solvers):
     /// percolation, flow, carried transport, packing, hand-over of `T` and `u` (module docs).
     pub fn step_with(&mut self, dt: R) -> Result<(), CouplingError> {
-        self.seg.step_percolation(dt);
-        self.flow.step(dt);
-        let d = self.seg.carry_mass_fluxes(self.flow.mass_fluxes());
+        let d = match self.geo {
+            Some(g) => {
+                self.seg.step_percolation_embedded(dt, g);
+                self.flow.step(dt);
+                self.seg
+                    .carry_mass_fluxes_embedded(self.flow.mass_fluxes(), g)
+            }
+            None => {
+                self.seg.step_percolation(dt);
+                self.flow.step(dt);
+                self.seg.carry_mass_fluxes(self.flow.mass_fluxes())
+            }
+        };
         for a in 0..D {
             for side in 0..2 {
                 self.out_small[a][side] += d.small[a][side];
@@ -301,7 +363,8 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
             self.seg
                 .set_flow_state(i, self.flow.temperature(i), self.flow.velocity(i));
         }
-        self.seg.prepare().map_err(CouplingError::Segregation)
+        self.prepare_segregation()
+            .map_err(CouplingError::Segregation)
     }
 
     /// Steps until the segregation clock reaches `t_end` (last step may overshoot by less than

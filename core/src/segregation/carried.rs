@@ -31,6 +31,7 @@
 
 use super::{Phase, Segregation};
 use crate::boundary::Boundary;
+use crate::geometry::CutCells;
 use crate::real::Real;
 
 /// The face mass fluxes one flow step applied (time-integrated, in content units: the change
@@ -232,5 +233,173 @@ fn small_part<R: Real>(small: bool, f: R, qhat: R) -> R {
         q
     } else {
         f * (R::ONE - qhat)
+    }
+}
+
+impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
+    /// [`Self::carry_mass_fluxes`] on cut cells. The flow's face amounts are then content per
+    /// full cell (aperture-weighted; zero inside a merge group), and a merge group is one
+    /// control volume of volume `V_g` ([`CutCells::group_volume`]): the group keeps the share
+    /// `(V_g c - outflow_g) / (V_g c)` of both phases (in `[0, 1]` by the flow's donor limiter
+    /// on groups) and receives the non-negative amounts `F qhat_donor`, `F (1 - qhat_donor)`,
+    /// all in content units at its master; each phase's content is then divided by `V_g` and
+    /// copied to the members. Both phases stay non-negative with the same argument as in the
+    /// box, so `0 <= phi <= c` holds exactly; with `V_g = 1` and no groups the update is the
+    /// box one. Expects group-uniform fields (as [`Self::prepare_embedded`] leaves them).
+    pub fn carry_mass_fluxes_embedded(
+        &mut self,
+        fx: MassFluxes<'_, R, D, N>,
+        geo: &CutCells<R, D, N>,
+    ) -> Discharge<R, D> {
+        let n = self.grid.len();
+        let grid = self.grid;
+        let vol = grid.cell_volume();
+        let mut out = Discharge {
+            small: [[R::ZERO; 2]; D],
+            total: [[R::ZERO; 2]; D],
+            guarded: R::ZERO,
+        };
+        // Outflow of every cell (content per full cell), gathered at the masters below.
+        self.rhs[..n].fill(R::ZERO);
+        for a in 0..D {
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            let periodic = self.bc[a][0] == Boundary::Periodic;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let f = fx.faces[a][l];
+                    if f > R::ZERO {
+                        self.rhs[l] += f;
+                    } else if f < R::ZERO {
+                        self.rhs[l + s] -= f;
+                    }
+                }
+            }
+            let rhs = &mut self.rhs;
+            grid.for_each_boundary_cell(a, true, |last, first| {
+                let f = fx.faces[a][last];
+                if f > R::ZERO {
+                    rhs[last] += f;
+                } else if f < R::ZERO && periodic {
+                    rhs[first] -= f;
+                }
+            });
+            if !periodic {
+                grid.for_each_boundary_cell(a, false, |first, _| {
+                    let g = fx.low[a][first];
+                    if g < R::ZERO {
+                        rhs[first] -= g;
+                    }
+                });
+            }
+        }
+        for i in 0..n {
+            let m = geo.master(i);
+            if m != i {
+                self.rhs[m] += self.rhs[i];
+            }
+        }
+        // Keep the share of each group, as content at the master; members hold nothing
+        // until the end. `flux` holds every cell's tracked fraction (uniform in a group).
+        let mut guarded = R::ZERO;
+        for i in 0..n {
+            let c = self.c[i];
+            let mut q = self.q[i];
+            if q < R::ZERO {
+                guarded -= q;
+                q = R::ZERO;
+            } else if q > c {
+                guarded += c - q;
+                q = c;
+            }
+            self.flux[i] = if c > R::ZERO {
+                (q / c).min(R::ONE)
+            } else {
+                R::ZERO
+            };
+            if geo.master(i) != i || geo.is_solid(i) {
+                self.q[i] = R::ZERO;
+                self.k[0][i] = R::ZERO;
+                continue;
+            }
+            let vg = geo.group_volume(i);
+            let content = vg * c;
+            let keep = if c > R::ZERO {
+                ((content - self.rhs[i]) / content).max(R::ZERO)
+            } else {
+                R::ONE
+            };
+            self.q[i] = vg * q * keep;
+            self.k[0][i] = vg * (c - q) * keep;
+        }
+        out.guarded = guarded * vol;
+        let small = self.cfg.phase == Phase::Small;
+        for a in 0..D {
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            let periodic = self.bc[a][0] == Boundary::Periodic;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let f = fx.faces[a][l];
+                    if f > R::ZERO {
+                        self.receive(geo.master(l + s), f, self.flux[l]);
+                    } else if f < R::ZERO {
+                        self.receive(geo.master(l), -f, self.flux[l + s]);
+                    }
+                }
+            }
+            grid.for_each_boundary_cell(a, true, |last, first| {
+                let f = fx.faces[a][last];
+                if periodic {
+                    if f > R::ZERO {
+                        self.receive(geo.master(first), f, self.flux[last]);
+                    } else if f < R::ZERO {
+                        self.receive(geo.master(last), -f, self.flux[first]);
+                    }
+                } else if f > R::ZERO {
+                    out.small[a][1] += small_part(small, f, self.flux[last]) * vol;
+                    out.total[a][1] += f * vol;
+                } else if f < R::ZERO {
+                    let qhat = self.inflow_fraction(last);
+                    self.receive(geo.master(last), -f, qhat);
+                    out.small[a][1] -= small_part(small, -f, qhat) * vol;
+                    out.total[a][1] += f * vol;
+                }
+            });
+            if !periodic {
+                grid.for_each_boundary_cell(a, false, |first, _| {
+                    let g = fx.low[a][first];
+                    if g < R::ZERO {
+                        out.small[a][0] += small_part(small, -g, self.flux[first]) * vol;
+                        out.total[a][0] -= g * vol;
+                    } else if g > R::ZERO {
+                        let qhat = self.inflow_fraction(first);
+                        self.receive(geo.master(first), g, qhat);
+                        out.small[a][0] -= small_part(small, g, qhat) * vol;
+                        out.total[a][0] -= g * vol;
+                    }
+                });
+            }
+        }
+        // Content -> fractions at the masters, then the members copy them.
+        for i in 0..n {
+            if geo.master(i) == i && !geo.is_solid(i) {
+                let vg = geo.group_volume(i);
+                self.q[i] = self.q[i] / vg;
+                self.k[0][i] = self.k[0][i] / vg;
+            }
+        }
+        for i in 0..n {
+            let m = geo.master(i);
+            if m != i {
+                self.q[i] = self.q[m];
+                self.k[0][i] = self.k[0][m];
+            }
+            self.c[i] = self.q[i] + self.k[0][i];
+        }
+        self.prepared = false;
+        out
     }
 }

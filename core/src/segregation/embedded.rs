@@ -41,7 +41,7 @@
 //! [`prepare_embedded`]: Segregation::prepare_embedded
 //! [`stable_dt_embedded`]: Segregation::stable_dt_embedded
 
-use super::step::{face, AxisConst, Godunov, Kernel, Modified, Side, Slices, Upwind};
+use super::step::{face, AxisConst, Godunov, Kernel, Modified, Percolation, Side, Slices, Upwind};
 use super::{Scheme, Segregation, SetupError};
 use crate::boundary::Boundary;
 use crate::geometry::CutCells;
@@ -219,6 +219,26 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             (Scheme::Godunov, true) => self.embedded_with::<Godunov, true>(dt, geo),
             (Scheme::Upwind, false) => self.embedded_with::<Upwind, false>(dt, geo),
             (Scheme::Upwind, true) => self.embedded_with::<Upwind, true>(dt, geo),
+        }
+        self.time += dt;
+        self.steps += 1;
+    }
+
+    /// [`Self::step_percolation`] on cut cells: the segregation (and diffusion) flux alone,
+    /// the transport being carried by the flow's face mass fluxes
+    /// ([`Self::carry_mass_fluxes_embedded`]).
+    pub fn step_percolation_embedded(&mut self, dt: R, geo: &CutCells<R, D, N>) {
+        debug_assert!(self.prepared, "prepare_embedded() must follow any change");
+        debug_assert!(self.check_geometry(geo).is_ok());
+        match (self.cfg.scheme, self.cfg.diffusion > R::ZERO) {
+            (Scheme::Modified, false) => {
+                self.embedded_with::<Percolation<Modified>, false>(dt, geo)
+            }
+            (Scheme::Modified, true) => self.embedded_with::<Percolation<Modified>, true>(dt, geo),
+            (Scheme::Godunov, false) => self.embedded_with::<Percolation<Godunov>, false>(dt, geo),
+            (Scheme::Godunov, true) => self.embedded_with::<Percolation<Godunov>, true>(dt, geo),
+            (Scheme::Upwind, false) => self.embedded_with::<Percolation<Upwind>, false>(dt, geo),
+            (Scheme::Upwind, true) => self.embedded_with::<Percolation<Upwind>, true>(dt, geo),
         }
         self.time += dt;
         self.steps += 1;

@@ -31,7 +31,7 @@ pub(super) trait Kernel<R: Real> {
 }
 
 /// The segregation flux of `K` alone, without transport ([`Segregation::step_percolation`]).
-struct Percolation<K>(PhantomData<K>);
+pub(super) struct Percolation<K>(PhantomData<K>);
 
 impl<R: Real, K: Kernel<R>> Kernel<R> for Percolation<K> {
     const TRANSPORT: bool = false;
