@@ -113,9 +113,11 @@ impl crate::run::FlowJob for ConvergeJob<'_> {
         let bar = indicatif::ProgressBar::hidden();
         let coupled = self.scene.flow.as_ref().map(|m| m.equations) == Some(Equations::Coupled);
         let steps = if coupled {
-            crate::flow::coupled_loop(f, s, self.scene, self.fields, &bar, |_, _, _, _| Ok(()))?
-                .stats
-                .steps
+            crate::flow::coupled_loop(f, s, self.scene, self.fields, None, &bar, |_, _, _, _| {
+                Ok(())
+            })?
+            .stats
+            .steps
         } else {
             let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
             crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;

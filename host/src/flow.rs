@@ -20,7 +20,9 @@ use crate::scene::validate::{FlowModel, WallSlip};
 use crate::scene::{solver_errors, BackCoupling, Equations, Fields, FrameKind, Scene, SpinUp};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
-use sieve_core::flow::{Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, Slip};
+use sieve_core::flow::{
+    CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, Slip,
+};
 use sieve_core::frame::{Frame, Rotation};
 use sieve_core::{Boundary, Grid, Real, Segregation};
 use std::time::Instant;
@@ -338,6 +340,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     seg: &mut Segregation<R, D, N>,
     scene: &Scene,
     fields: &Fields,
+    geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
     progress: &indicatif::ProgressBar,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
 ) -> Result<CoupledStats> {
@@ -350,10 +353,24 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     cc.packing = packing(fm.back_coupling);
     cc.steady_tolerance = R::from_f64(fm.steady_tolerance);
     let fail = |e| Error::failure(format!("{}: coupled step failed: {e}", scene.label));
-    let mut cpl = Coupled::new(flow, seg, cc).map_err(fail)?;
+    let mut cpl = match geo {
+        Some(g) => {
+            // The container's wall: the law of the box's floor (z_low), at rest; a turning
+            // container turns through the rotating frame (docs/frames.md).
+            let floor = boundaries::<R, D>(scene, fm)[D - 1][0];
+            flow.set_geometry(g, CutWall::resting(floor.slip))
+                .map_err(|e| solver_errors::flow_error(scene, &e))?;
+            Coupled::new_embedded(flow, seg, cc, g).map_err(fail)?
+        }
+        None => Coupled::new(flow, seg, cc).map_err(fail)?,
+    };
+    let seg_dt = |s: &Segregation<R, D, N>| match geo {
+        Some(g) => s.stable_dt_embedded(g),
+        None => s.stable_dt(),
+    };
     let times = output_times(scene.t_end, scene.output_interval);
     let mut stats = LoopStats {
-        dt: cpl.seg.stable_dt().to_f64(),
+        dt: seg_dt(cpl.seg).to_f64(),
         ..Default::default()
     };
     let mut timer = SegregationTimer::new(scene.psi_threshold);
@@ -366,7 +383,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
             let dt = cpl
                 .flow
                 .stable_dt()
-                .min(cpl.seg.stable_dt())
+                .min(seg_dt(cpl.seg))
                 .min(target - cpl.seg.time());
             cpl.step_with(dt).map_err(fail)?;
             stats.steps += 1;
@@ -377,7 +394,10 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
         let el = start.elapsed();
         stats.stepping += el;
         flow_seconds += el.as_secs_f64();
-        let d = sieve_core::diagnose(cpl.seg);
+        let d = match geo {
+            Some(g) => sieve_core::diagnose_embedded(cpl.seg, g),
+            None => sieve_core::diagnose(cpl.seg),
+        };
         let row = SeriesRow {
             t,
             psi: d.psi.to_f64(),

@@ -370,16 +370,22 @@ impl FlowJob for RunJob<'_> {
         use crate::scene::Equations;
         let scene = self.scene;
         load(s, scene, self.fields)?;
+        // A container (coupled scenes only; validation refuses a frozen flow with one).
+        let geo = crate::embedded::build(s, scene)?;
+        let geo = geo.as_deref();
+        let volume = geo.map(crate::embedded::volumes);
         let bar = progress_bar(self.quiet, &scene.name);
         let mut pvd = Vec::new();
         let equations = scene.flow.as_ref().map(|m| m.equations);
         let mut discharge = None;
         let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
-            let cs = crate::flow::coupled_loop(f, s, scene, self.fields, &bar, |k, t, s, f| {
-                let mut snap = Snapshot::of(s, scene);
-                snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
-                self.output(k, t, &snap, &mut pvd)
-            })?;
+            let cs =
+                crate::flow::coupled_loop(f, s, scene, self.fields, geo, &bar, |k, t, s, f| {
+                    let mut snap = Snapshot::of(s, scene);
+                    snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
+                    snap.volume = volume.clone();
+                    self.output(k, t, &snap, &mut pvd)
+                })?;
             let p: Vec<f64> = (0..f.len()).map(|i| f.pressure(i).to_f64()).collect();
             discharge = cs.discharge;
             (cs.stats, cs.summary, p)
@@ -396,6 +402,7 @@ impl FlowJob for RunJob<'_> {
         bar.finish_and_clear();
         let mut snap = Snapshot::of(s, scene);
         snap.p = Some(p_final);
+        snap.volume = volume.clone();
         let (hash, exact_l1) = self.finish(s, &snap)?;
         Ok(RunOutcome {
             stats,
@@ -404,7 +411,7 @@ impl FlowJob for RunJob<'_> {
             exact_l1,
             flow: Some(summary),
             profiles: Some(crate::flow::profiles(scene, &snap)),
-            geometry: None,
+            geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
             discharge,
         })
     }

@@ -130,6 +130,13 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
         if flow.grid() != seg.grid() {
             return Err(CouplingError::GridMismatch);
         }
+        // Solid cells never hold grains, in either solver.
+        for i in 0..flow.len() {
+            if geo.is_solid(i) {
+                flow.set_cell(i, R::ZERO, [R::ZERO; D], R::ZERO);
+                seg.set_cell(i, R::ZERO, R::ZERO, [R::ZERO; D], R::ZERO);
+            }
+        }
         let mut s = Self::unprepared(flow, seg, cfg);
         s.geo = Some(geo);
         s.set_segregation_cells();

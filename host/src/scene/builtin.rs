@@ -34,6 +34,7 @@ builtins!(
     "column-collapse",
     "silo",
     "drum-settling",
+    "tumbler",
 );
 
 /// The scene `sieve run` runs without a SCENE argument: 2D, segregates visibly (mixes, then

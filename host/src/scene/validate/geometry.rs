@@ -7,10 +7,11 @@
 //! shape is a prism along y (the drum axis of model.md 7.5: horizontal, gravity along z); the
 //! box faces in y close it (walls: end walls; periodic: an axial slice).
 //!
-//! A geometry runs the segregation solver on cut cells for prescribed scenes; a scene that
-//! solves a flow with a geometry is refused: the flow runs on cut cells (`Flow::set_geometry`,
-//! docs/flow-walls.md), but the coupled driver does not yet hand the cut cells to the
-//! segregation step, and a frozen flow would need the same. No silent fallback to the box.
+//! A geometry runs the segregation solver on cut cells for prescribed scenes, and the flow
+//! and the segregation on cut cells for coupled scenes (`Flow::set_geometry`,
+//! `Coupled::new_embedded`; the cut wall takes the wall law of the box's `z_low` side, at rest:
+//! containers turn through a rotating `[frame]`). A frozen flow with a geometry is refused.
+//! No silent fallback to the box.
 
 use super::{axis_names, vector, Problems};
 use crate::error::Error;
@@ -274,15 +275,12 @@ pub(super) fn check(
         ));
         return None;
     }
-    if f.model.equations != crate::scene::Equations::Prescribed {
+    if f.model.equations == crate::scene::Equations::FrozenFlow {
         ok = false;
         p.push(Error::at(
             l,
             "geometry",
-            format!(
-                "not with model.equations = \"{}\" yet: the coupled driver does not run the segregation on cut cells (core flow/coupled.rs); allowed with model.equations = \"prescribed\"",
-                f.model.equations.name()
-            ),
+            "not with model.equations = \"frozen-flow\": allowed with \"prescribed\" (segregation on cut cells) or \"coupled\" (flow and segregation on cut cells)",
         ));
     }
     let needs = |kind: ShapeKind| g.shape == kind;
