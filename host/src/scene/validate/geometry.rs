@@ -337,13 +337,13 @@ pub(super) fn check(
         }
     }
     let small = g.small.unwrap_or(sieve_core::geometry::DEFAULT_SMALL);
-    if !(small.is_finite() && (0.0..1.0).contains(&small)) {
+    if !(small.is_finite() && (0.5..1.0).contains(&small)) {
         ok = false;
         p.push(Error::range(
             l,
             "geometry.small",
             small,
-            "0 <= small < 1 (open fraction below which a cut cell is merged)",
+            "0.5 <= small < 1 (open fraction below which a cut cell is merged; below 1/2 tiny cells would hold the flow's time step)",
         ));
     }
     let (cells, lower, upper) = grid?;
