@@ -37,6 +37,48 @@ pub enum Command {
     Record(RecordArgs),
     /// Run the soft sensor over a recording: estimate-against-truth error and state hash.
     Replay(ReplayArgs),
+    /// Run a scene for every combination of `--set key=v1,v2,...` values, each into
+    /// DIR/run-NNNN, plus a table of their summaries (sweep.csv, sweep.json) and sweep.png.
+    Sweep(SweepArgs),
+}
+
+/// Arguments of `sieve sweep`.
+#[derive(Debug, Args)]
+#[command(after_help = "\
+Combinations are numbered from 0 with the first swept key varying slowest (`--list` prints \
+them). On a cluster, run one combination per Slurm array task: \
+`sbatch --array=0-N-1 --wrap 'sieve sweep SCENE --set ... --out DIR'` (the task index comes \
+from SLURM_ARRAY_TASK_ID), then `sieve sweep SCENE --set ... --out DIR --collect` once all \
+tasks have finished.")]
+pub struct SweepArgs {
+    /// Built-in scene name or path to a scene TOML file.
+    pub scene: String,
+    /// A scene key and its values, e.g. --set material.s0=0.5,1,2 (repeatable; one value is a
+    /// fixed override for every run; commas inside [ ], ( ) or quotes do not split).
+    #[arg(long = "set", value_name = "KEY=V1,V2,...")]
+    pub set: Vec<String>,
+    /// Sweep directory [default: runs/<scene>-sweep].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Runs at once [default: the number of cores].
+    #[arg(long, short = 'j', value_name = "N")]
+    pub jobs: Option<usize>,
+    /// Print the combinations (index, key=value ...) and run nothing.
+    #[arg(long)]
+    pub list: bool,
+    /// Run only combination I (a Slurm array task) and write no table.
+    #[arg(long, value_name = "I", env = "SLURM_ARRAY_TASK_ID")]
+    pub task: Option<usize>,
+    /// Run nothing; build the table and the plot from the runs in DIR.
+    #[arg(long, conflicts_with_all = ["list", "task"])]
+    pub collect: bool,
+    /// Summary value drawn against the first swept key in sweep.png (a summary.json key;
+    /// nested ones dotted, e.g. flow.max_packing).
+    #[arg(long, value_name = "KEY", default_value = "psi_final")]
+    pub plot: String,
+    /// No per-run lines on stderr.
+    #[arg(long, short)]
+    pub quiet: bool,
 }
 
 /// Arguments of `sieve plot`.
@@ -375,6 +417,7 @@ pub fn execute(cli: Cli) -> Result<()> {
             soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
                 .map_err(|e| Error::failure(format!("stdout: {e}")))
         }
+        Command::Sweep(a) => sweep(&a),
         Command::Plot(a) => {
             let (dir, written) = crate::output::redraw::replot(&a.dir)?;
             println!("{}: {}", dir.display(), written.join(", "));
@@ -404,6 +447,72 @@ pub fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// `sieve sweep`: list, one Slurm task, collect, or the whole sweep on the local cores.
+fn sweep(a: &SweepArgs) -> Result<()> {
+    use crate::sweep;
+    let (axes, fixed) = sweep::parse_sets(&a.set)?;
+    if a.list {
+        print!("{}", sweep::list(&axes));
+        return Ok(());
+    }
+    // The scene must exist and every combination's keys must apply before anything runs.
+    let src = scene::locate(&a.scene)?;
+    for i in 0..sweep::combinations(&axes) {
+        let mut sets = fixed.clone();
+        sets.extend(
+            sweep::combination(&axes, i)
+                .into_iter()
+                .map(|(k, v)| format!("{k}={v}")),
+        );
+        scene::load(&a.scene, &sets)?;
+    }
+    let name = scene::deserialize(&src.label, scene::parse_table(&src.label, &src.text)?)?.name;
+    let opts = sweep::SweepOptions {
+        scene: a.scene.clone(),
+        axes,
+        fixed,
+        out: a
+            .out
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("runs").join(format!("{name}-sweep"))),
+        jobs: a.jobs.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+        }),
+        task: a.task,
+        plot: a.plot.clone(),
+        quiet: a.quiet,
+    };
+    if a.collect {
+        let missing = sweep::collect(&opts)?;
+        println!(
+            "{}: sweep.csv, sweep.json{}",
+            opts.out.display(),
+            if missing > 0 {
+                format!(" ({missing} combinations have no run yet)")
+            } else {
+                String::new()
+            }
+        );
+        return Ok(());
+    }
+    let failed = sweep::sweep(&opts)?;
+    let n = if opts.task.is_some() {
+        1
+    } else {
+        sweep::combinations(&opts.axes)
+    };
+    if failed > 0 {
+        return Err(Error::failure(format!(
+            "{}: {failed} of {n} runs failed (their messages are in run-NNNN.log)",
+            opts.out.display()
+        )));
+    }
+    if !a.quiet {
+        println!("{}: {n} runs", opts.out.display());
+    }
+    Ok(())
 }
 
 /// `NXxNZ` of `flag` with `lo..=hi` cells per axis.

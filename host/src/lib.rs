@@ -5,7 +5,7 @@
 //! diagnostics -> [`output`] (summary.json, series.csv, final.csv, VTK fields, PNG plots,
 //! written atomically). [`converge`] runs a scene on several grids; [`cli`] parses the command
 //! line; [`flow`] solves the granular flow of a scene (frozen or coupled) and [`fit`] fits S0 to a
-//! segregation time; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
+//! segregation time; [`sweep`] runs the product of `--set` values; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
 
 pub mod cli;
 pub mod converge;
@@ -19,5 +19,6 @@ pub mod run;
 pub mod scene;
 pub mod silo;
 pub mod soft_sensor;
+pub mod sweep;
 
 pub use error::{Error, Result};

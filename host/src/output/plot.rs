@@ -770,3 +770,70 @@ pub fn time_curves(
         .map_err(fail(path))?;
     root.present().map_err(fail(path))
 }
+
+/// Curves y(x) (one per label), e.g. a summary value against a swept key (`sieve sweep`).
+pub fn xy_curves(
+    path: &Path,
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    curves: &[(String, Vec<(f64, f64)>)],
+) -> Result<()> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();
+    root.fill(&WHITE).map_err(fail(path))?;
+    let pts = || curves.iter().flat_map(|(_, v)| v.iter().copied());
+    let (x0, x1) = pts().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (y0, y1) = pts().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    // A flat range still needs a visible axis.
+    let pad = |lo: f64, hi: f64| {
+        let w = (hi - lo)
+            .abs()
+            .max(1e-12 * lo.abs().max(hi.abs()))
+            .max(1e-300);
+        (lo - 0.05 * w, hi + 0.05 * w)
+    };
+    let (x0, x1) = pad(x0, x1);
+    let (y0, y1) = pad(y0, y1);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FONT_NAME, 20))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(fail(path))?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style((FONT_NAME, 15))
+        .axis_desc_style((FONT_NAME, 17))
+        .draw()
+        .map_err(fail(path))?;
+    let labelled = curves.len() > 1;
+    for (j, (label, v)) in curves.iter().enumerate() {
+        let colour = PALETTE[j % PALETTE.len()];
+        let series = chart
+            .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
+            .map_err(fail(path))?;
+        if labelled {
+            series.label(label.clone()).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+        }
+        chart
+            .draw_series(v.iter().map(|&p| Circle::new(p, 4, colour.filled())))
+            .map_err(fail(path))?;
+    }
+    if labelled {
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .border_style(BLACK)
+            .background_style(WHITE.mix(0.9))
+            .label_font((FONT_NAME, 15))
+            .draw()
+            .map_err(fail(path))?;
+    }
+    root.present().map_err(fail(path))
+}

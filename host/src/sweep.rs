@@ -1,0 +1,658 @@
+//! `sieve sweep`: the product of `--set key=v1,v2,...` values as independent runs.
+//!
+//! Each combination is an ordinary `sieve run` in its own run directory (`DIR/run-NNN`), run
+//! as a child process of this binary, so a sweep is exactly what a user would get by typing
+//! the runs one by one: same validation, same outputs, same bits. Combinations are numbered
+//! in a fixed order (the first swept key varies slowest), so a Slurm job array can pick one
+//! with its task index (`--task`, or `SLURM_ARRAY_TASK_ID`) and a final `--collect` builds
+//! the table from whatever runs exist. The table never depends on how many runs ran at once.
+
+use crate::error::{Error, Result};
+use crate::output::{self, plot};
+use serde_json::{Map, Value};
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Marker file of a sweep directory: sieve only writes into a directory that is empty or has it.
+pub const MARKER: &str = ".sieve-sweep";
+/// Most combinations one sweep may have (each is a run directory).
+pub const MAX_COMBINATIONS: usize = 10_000;
+
+/// One swept key and its values, in the order given.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Axis {
+    /// Dotted scene key.
+    pub key: String,
+    /// Values as TOML text.
+    pub values: Vec<String>,
+}
+
+/// What `sieve sweep` does.
+#[derive(Debug, Clone)]
+pub struct SweepOptions {
+    /// Built-in scene name or scene file.
+    pub scene: String,
+    /// The swept keys (product of their values).
+    pub axes: Vec<Axis>,
+    /// Plain `--set key=value` assignments applied to every run (before the swept ones).
+    pub fixed: Vec<String>,
+    /// The sweep directory.
+    pub out: PathBuf,
+    /// Runs at once.
+    pub jobs: usize,
+    /// Run only this combination (Slurm array task).
+    pub task: Option<usize>,
+    /// Summary value plotted against the first swept key.
+    pub plot: String,
+    /// No per-run lines.
+    pub quiet: bool,
+}
+
+/// Splits `--set` arguments into swept axes (a value list with a top-level comma) and fixed
+/// assignments. Commas inside brackets, parentheses or quotes do not split:
+/// `grid.cells=[32,32],[64,64]` is two values.
+pub fn parse_sets(sets: &[String]) -> Result<(Vec<Axis>, Vec<String>)> {
+    let mut axes: Vec<Axis> = Vec::new();
+    let mut fixed = Vec::new();
+    for s in sets {
+        let Some((key, rhs)) = s.split_once('=') else {
+            return Err(Error::Input(format!(
+                "--set {}: expected KEY=VALUE[,VALUE...], e.g. material.s0=0.5,1,2",
+                clip(s)
+            )));
+        };
+        let key = key.trim();
+        if key.is_empty() {
+            return Err(Error::Input(format!(
+                "--set {}: the key before '=' is empty",
+                clip(s)
+            )));
+        }
+        let values = split_top_level(rhs)?;
+        if values.iter().any(|v| v.trim().is_empty()) {
+            return Err(Error::Input(format!(
+                "--set {}: an empty value in the list; write KEY=V1,V2,...",
+                clip(s)
+            )));
+        }
+        if values.len() == 1 {
+            fixed.push(format!("{key}={}", values[0]));
+        } else if axes.iter().any(|a| a.key == key) {
+            return Err(Error::Input(format!(
+                "--set {key}: swept twice; give all its values in one --set"
+            )));
+        } else {
+            axes.push(Axis {
+                key: key.to_string(),
+                values,
+            });
+        }
+    }
+    let n = combinations(&axes);
+    if n > MAX_COMBINATIONS {
+        return Err(Error::Input(format!(
+            "--set: {n} combinations; at most {MAX_COMBINATIONS} per sweep (split it into several sweeps)"
+        )));
+    }
+    Ok((axes, fixed))
+}
+
+/// Splits at commas outside brackets, parentheses and quotes.
+fn split_top_level(s: &str) -> Result<Vec<String>> {
+    let mut out = Vec::new();
+    let mut depth = 0i64;
+    let mut quote: Option<char> = None;
+    let mut cur = String::new();
+    for ch in s.chars() {
+        match (quote, ch) {
+            (Some(q), c) if c == q => {
+                quote = None;
+                cur.push(c);
+            }
+            (Some(_), c) => cur.push(c),
+            (None, '"' | '\'') => {
+                quote = Some(ch);
+                cur.push(ch);
+            }
+            (None, '[' | '(' | '{') => {
+                depth += 1;
+                cur.push(ch);
+            }
+            (None, ']' | ')' | '}') => {
+                depth -= 1;
+                cur.push(ch);
+            }
+            (None, ',') if depth == 0 => out.push(std::mem::take(&mut cur)),
+            (None, c) => cur.push(c),
+        }
+    }
+    if depth != 0 || quote.is_some() {
+        return Err(Error::Input(format!(
+            "--set ...={}: unbalanced brackets or quotes in the value list",
+            clip(s)
+        )));
+    }
+    out.push(cur);
+    Ok(out.into_iter().map(|v| v.trim().to_string()).collect())
+}
+
+/// At most 60 characters of user text, so a huge argument is not echoed back whole.
+fn clip(s: &str) -> String {
+    if s.chars().count() <= 60 {
+        s.to_string()
+    } else {
+        format!("{}...", s.chars().take(57).collect::<String>())
+    }
+}
+
+/// Number of combinations (1 for no axes).
+pub fn combinations(axes: &[Axis]) -> usize {
+    axes.iter()
+        .map(|a| a.values.len())
+        .fold(1usize, |n, k| n.saturating_mul(k))
+}
+
+/// The values of combination `index`: the first axis varies slowest.
+pub fn combination(axes: &[Axis], index: usize) -> Vec<(String, String)> {
+    let mut rest = index;
+    let mut picks = vec![0usize; axes.len()];
+    for (j, a) in axes.iter().enumerate().rev() {
+        picks[j] = rest % a.values.len();
+        rest /= a.values.len();
+    }
+    axes.iter()
+        .zip(picks)
+        .map(|(a, k)| (a.key.clone(), a.values[k].clone()))
+        .collect()
+}
+
+/// The run directory of combination `index`.
+pub fn run_dir(out: &Path, index: usize) -> PathBuf {
+    out.join(format!("run-{index:04}"))
+}
+
+/// `--list`: one line per combination, `index<TAB>key=value ...`.
+pub fn list(axes: &[Axis]) -> String {
+    let mut s = String::new();
+    for i in 0..combinations(axes) {
+        let c = combination(axes, i);
+        let kv: Vec<String> = c.iter().map(|(k, v)| format!("{k}={v}")).collect();
+        s.push_str(&format!("{i}\t{}\n", kv.join(" ")));
+    }
+    s
+}
+
+/// Creates the sweep directory, or accepts it if it is empty or was written by a sweep.
+fn prepare_dir(out: &Path) -> Result<()> {
+    if out.exists() {
+        if !out.is_dir() {
+            return Err(Error::Input(format!(
+                "{}: --out exists and is not a directory; choose another --out",
+                out.display()
+            )));
+        }
+        let empty = std::fs::read_dir(out)
+            .map_err(|e| Error::io(out, e))?
+            .next()
+            .is_none();
+        if !empty && !out.join(MARKER).is_file() {
+            return Err(Error::Input(format!(
+                "{}: exists and was not written by sieve sweep; choose another --out or move its contents",
+                out.display()
+            )));
+        }
+    }
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    output::write_file_atomically(
+        &out.join(MARKER),
+        format!("sieve {} sweep\n", env!("CARGO_PKG_VERSION")).as_bytes(),
+    )
+}
+
+/// How one run ended.
+#[derive(Debug, Clone)]
+struct Outcome {
+    index: usize,
+    code: i32,
+    seconds: f64,
+    first_error: String,
+}
+
+/// Runs combination `index` as `sieve run` in a child process; its stderr goes to
+/// `DIR/run-NNNN.log`.
+fn run_one(opts: &SweepOptions, index: usize) -> Result<Outcome> {
+    let exe = std::env::current_exe().map_err(|e| Error::failure(format!("sieve binary: {e}")))?;
+    let dir = run_dir(&opts.out, index);
+    let log_path = opts.out.join(format!("run-{index:04}.log"));
+    let log = std::fs::File::create(&log_path).map_err(|e| Error::io(&log_path, e))?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("run").arg(&opts.scene);
+    for s in &opts.fixed {
+        cmd.arg("--set").arg(s);
+    }
+    for (k, v) in combination(&opts.axes, index) {
+        cmd.arg("--set").arg(format!("{k}={v}"));
+    }
+    cmd.arg("--out").arg(&dir).arg("--quiet");
+    cmd.stdin(Stdio::null()).stdout(Stdio::null()).stderr(log);
+    let start = Instant::now();
+    let status = cmd
+        .status()
+        .map_err(|e| Error::failure(format!("cannot start sieve run: {e}")))?;
+    let mut text = String::new();
+    if let Ok(mut f) = std::fs::File::open(&log_path) {
+        let _ = f.by_ref().take(4096).read_to_string(&mut text);
+    }
+    // A clean run's log is empty: keep only logs that say something.
+    if status.success() && text.is_empty() {
+        let _ = std::fs::remove_file(&log_path);
+    }
+    Ok(Outcome {
+        index,
+        code: status.code().unwrap_or(-1),
+        seconds: start.elapsed().as_secs_f64(),
+        first_error: text.lines().next().unwrap_or("").to_string(),
+    })
+}
+
+/// Runs the sweep (or one task of it) and, when every combination ran, writes the table.
+/// Returns the number of failed runs.
+pub fn sweep(opts: &SweepOptions) -> Result<usize> {
+    let n = combinations(&opts.axes);
+    if let Some(t) = opts.task {
+        if t >= n {
+            return Err(Error::Input(format!(
+                "--task {t} (or SLURM_ARRAY_TASK_ID) is out of range: allowed 0..={} for {n} combinations (see --list)",
+                n - 1
+            )));
+        }
+    }
+    prepare_dir(&opts.out)?;
+    let indices: Vec<usize> = match opts.task {
+        Some(t) => vec![t],
+        None => (0..n).collect(),
+    };
+    let next = AtomicUsize::new(0);
+    let finished = AtomicUsize::new(0);
+    let outcomes = Mutex::new(Vec::<Result<Outcome>>::new());
+    let jobs = opts.jobs.clamp(1, indices.len().max(1));
+    std::thread::scope(|s| {
+        for _ in 0..jobs {
+            s.spawn(|| loop {
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                let Some(&index) = indices.get(k) else { break };
+                let r = run_one(opts, index);
+                let k = finished.fetch_add(1, Ordering::Relaxed) + 1;
+                if !opts.quiet {
+                    report_line(opts, index, (k, indices.len()), &r);
+                }
+                outcomes.lock().unwrap_or_else(|e| e.into_inner()).push(r);
+            });
+        }
+    });
+    let mut outcomes = outcomes.into_inner().unwrap_or_else(|e| e.into_inner());
+    let failed_to_start = outcomes.iter().find_map(|r| r.as_ref().err().cloned());
+    if let Some(e) = failed_to_start {
+        return Err(e);
+    }
+    let mut done: Vec<Outcome> = outcomes.drain(..).filter_map(|r| r.ok()).collect();
+    done.sort_by_key(|o| o.index);
+    let failed = done.iter().filter(|o| o.code != 0).count();
+    if opts.task.is_none() {
+        collect(opts)?;
+    }
+    Ok(failed)
+}
+
+fn report_line(opts: &SweepOptions, index: usize, (k, n): (usize, usize), r: &Result<Outcome>) {
+    let kv: Vec<String> = combination(&opts.axes, index)
+        .iter()
+        .map(|(k, v)| format!("{k}={}", clip(v)))
+        .collect();
+    match r {
+        Ok(o) if o.code == 0 => eprintln!(
+            "sweep: [{k}/{n}] run-{index:04} ({}) done in {:.1} s",
+            kv.join(" "),
+            o.seconds
+        ),
+        Ok(o) => eprintln!(
+            "sweep: [{k}/{n}] run-{index:04} ({}) failed (exit {}): {}",
+            kv.join(" "),
+            o.code,
+            clip_line(&o.first_error)
+        ),
+        Err(e) => eprintln!("sweep: run-{index:04}: {e}"),
+    }
+}
+
+fn clip_line(s: &str) -> String {
+    if s.chars().count() <= 200 {
+        s.to_string()
+    } else {
+        format!("{}...", s.chars().take(197).collect::<String>())
+    }
+}
+
+/// Flattens a summary to `dotted.key -> value` for numbers, strings, booleans and null;
+/// arrays of numbers become `a;b;c`.
+fn flatten(prefix: &str, v: &Value, out: &mut BTreeMap<String, Value>) {
+    match v {
+        Value::Object(m) => {
+            for (k, x) in m {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                flatten(&key, x, out);
+            }
+        }
+        Value::Array(a) => {
+            let parts: Vec<String> = a.iter().map(cell).collect();
+            out.insert(prefix.to_string(), Value::String(parts.join(";")));
+        }
+        other => {
+            out.insert(prefix.to_string(), other.clone());
+        }
+    }
+}
+
+fn cell(v: &Value) -> String {
+    match v {
+        Value::Null => String::new(),
+        Value::String(s) => s.clone(),
+        other => other.to_string(),
+    }
+}
+
+/// CSV field quoting: fields with a comma, quote or line break are quoted.
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// The rows of the table: one per combination, `None` where the run has no summary.
+type Rows = Vec<(usize, Option<BTreeMap<String, Value>>)>;
+
+fn read_rows(opts: &SweepOptions) -> Result<Rows> {
+    let n = combinations(&opts.axes);
+    let mut rows = Vec::with_capacity(n);
+    for i in 0..n {
+        let path = run_dir(&opts.out, i).join("summary.json");
+        let row = match std::fs::read_to_string(&path) {
+            Ok(text) => {
+                let v: Value = serde_json::from_str(&text).map_err(|e| {
+                    Error::failure(format!("{}: not a sieve summary: {e}", path.display()))
+                })?;
+                let mut flat = BTreeMap::new();
+                flatten("", &v, &mut flat);
+                Some(flat)
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e) => return Err(Error::io(&path, e)),
+        };
+        rows.push((i, row));
+    }
+    Ok(rows)
+}
+
+/// Writes `sweep.csv`, `sweep.json` and `sweep.png` from the run directories that exist.
+/// Returns the number of combinations without a summary.
+pub fn collect(opts: &SweepOptions) -> Result<usize> {
+    let rows = read_rows(opts)?;
+    let missing = rows.iter().filter(|(_, r)| r.is_none()).count();
+    // Columns: the union of every summary's keys, sorted (summaries of one scene share them).
+    let mut columns: Vec<String> = rows
+        .iter()
+        .filter_map(|(_, r)| r.as_ref())
+        .flat_map(|r| r.keys().cloned())
+        .collect();
+    columns.sort();
+    columns.dedup();
+
+    let mut csv = String::from("index,run,status");
+    for a in &opts.axes {
+        csv.push(',');
+        csv.push_str(&csv_field(&a.key));
+    }
+    for c in &columns {
+        csv.push(',');
+        csv.push_str(&csv_field(c));
+    }
+    csv.push('\n');
+    let mut json_rows = Vec::new();
+    for (i, row) in &rows {
+        let status = if row.is_some() { "done" } else { "missing" };
+        let mut line = format!("{i},run-{i:04},{status}");
+        let mut obj = Map::new();
+        obj.insert("index".into(), Value::from(*i));
+        obj.insert("run".into(), Value::from(format!("run-{i:04}")));
+        obj.insert("status".into(), Value::from(status));
+        let mut swept = Map::new();
+        for (k, v) in combination(&opts.axes, *i) {
+            line.push(',');
+            line.push_str(&csv_field(&v));
+            swept.insert(k, Value::from(v));
+        }
+        obj.insert("set".into(), Value::Object(swept));
+        for c in &columns {
+            line.push(',');
+            let v = row.as_ref().and_then(|r| r.get(c));
+            line.push_str(&csv_field(&v.map(cell).unwrap_or_default()));
+        }
+        csv.push_str(&line);
+        csv.push('\n');
+        if let Some(r) = row {
+            obj.insert(
+                "summary".into(),
+                Value::Object(r.iter().map(|(k, v)| (k.clone(), v.clone())).collect()),
+            );
+        }
+        json_rows.push(Value::Object(obj));
+    }
+    let mut doc = Map::new();
+    doc.insert("scene".into(), Value::from(opts.scene.clone()));
+    doc.insert(
+        "fixed".into(),
+        Value::from(
+            opts.fixed
+                .iter()
+                .map(|s| Value::from(s.clone()))
+                .collect::<Vec<_>>(),
+        ),
+    );
+    doc.insert(
+        "axes".into(),
+        Value::from(
+            opts.axes
+                .iter()
+                .map(|a| {
+                    let mut m = Map::new();
+                    m.insert("key".into(), Value::from(a.key.clone()));
+                    m.insert("values".into(), Value::from(a.values.clone()));
+                    Value::Object(m)
+                })
+                .collect::<Vec<_>>(),
+        ),
+    );
+    doc.insert("runs".into(), Value::from(json_rows));
+    let mut text = serde_json::to_string_pretty(&Value::Object(doc)).map_err(Error::failure)?;
+    text.push('\n');
+    output::write_file_atomically(&opts.out.join("sweep.csv"), csv.as_bytes())?;
+    output::write_file_atomically(&opts.out.join("sweep.json"), text.as_bytes())?;
+    draw(opts, &rows)?;
+    Ok(missing)
+}
+
+/// `sweep.png`: the chosen summary value against the first swept key with numeric values,
+/// one curve per combination of the other keys. Skipped (with no error) when no swept key is
+/// numeric or the chosen value is not a number in any run.
+fn draw(opts: &SweepOptions, rows: &Rows) -> Result<()> {
+    let numeric =
+        |a: &Axis| -> Option<Vec<f64>> { a.values.iter().map(|v| v.parse().ok()).collect() };
+    let Some((ax, xs)) = opts
+        .axes
+        .iter()
+        .enumerate()
+        .find_map(|(j, a)| numeric(a).map(|xs| (j, xs)))
+    else {
+        return Ok(());
+    };
+    let others: Vec<Axis> = opts
+        .axes
+        .iter()
+        .enumerate()
+        .filter(|&(j, _)| j != ax)
+        .map(|(_, a)| a.clone())
+        .collect();
+    let mut curves: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    for j in 0..combinations(&others) {
+        let fixed = combination(&others, j);
+        let label = fixed
+            .iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join(" ");
+        let mut pts = Vec::new();
+        for (k, &x) in xs.iter().enumerate() {
+            let index = index_of(&opts.axes, ax, k, &fixed);
+            let y = rows
+                .get(index)
+                .and_then(|(_, r)| r.as_ref())
+                .and_then(|r| r.get(&opts.plot))
+                .and_then(Value::as_f64);
+            if let Some(y) = y.filter(|y| y.is_finite()) {
+                pts.push((x, y));
+            }
+        }
+        pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+        if !pts.is_empty() {
+            curves.push((label, pts));
+        }
+    }
+    if curves.is_empty() {
+        return Ok(());
+    }
+    let key = &opts.axes[ax].key;
+    plot::xy_curves(
+        &opts.out.join("sweep.png"),
+        &format!("{}: {} against {key}", opts.scene, opts.plot),
+        key,
+        &opts.plot,
+        &curves,
+    )
+}
+
+/// The index of the combination with value `k` on axis `ax` and the other axes as `fixed`
+/// (in axis order without `ax`).
+fn index_of(axes: &[Axis], ax: usize, k: usize, fixed: &[(String, String)]) -> usize {
+    let mut others = fixed.iter();
+    axes.iter().enumerate().fold(0, |index, (j, a)| {
+        let pick = if j == ax {
+            k
+        } else {
+            let (_, v) = others.next().expect("one fixed value per other axis");
+            a.values
+                .iter()
+                .position(|x| x == v)
+                .expect("value of the axis")
+        };
+        index * a.values.len() + pick
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn value_lists_split_at_top_level_commas_only() {
+        let (axes, fixed) = parse_sets(&[
+            "grid.cells=[32,32],[64,64]".into(),
+            "initial.phi=min(c,0.3),c/2".into(),
+            "material.s0=2".into(),
+            "numerics.scheme=\"a,b\",\"c\"".into(),
+        ])
+        .unwrap();
+        assert_eq!(axes.len(), 3);
+        assert_eq!(axes[0].values, ["[32,32]", "[64,64]"]);
+        assert_eq!(axes[1].values, ["min(c,0.3)", "c/2"]);
+        assert_eq!(axes[2].values, ["\"a,b\"", "\"c\""]);
+        assert_eq!(fixed, ["material.s0=2"]);
+    }
+
+    #[test]
+    fn combinations_are_numbered_first_key_slowest() {
+        let axes = vec![
+            Axis {
+                key: "a".into(),
+                values: vec!["1".into(), "2".into()],
+            },
+            Axis {
+                key: "b".into(),
+                values: vec!["x".into(), "y".into(), "z".into()],
+            },
+        ];
+        assert_eq!(combinations(&axes), 6);
+        assert_eq!(
+            combination(&axes, 4),
+            vec![("a".into(), "2".into()), ("b".into(), "y".into())]
+        );
+        assert_eq!(list(&axes).lines().nth(5), Some("5\ta=2 b=z"));
+    }
+
+    #[test]
+    fn index_of_inverts_combination() {
+        let axes = vec![
+            Axis {
+                key: "a".into(),
+                values: vec!["1".into(), "2".into()],
+            },
+            Axis {
+                key: "b".into(),
+                values: vec!["x".into(), "y".into(), "z".into()],
+            },
+            Axis {
+                key: "c".into(),
+                values: vec!["p".into(), "q".into()],
+            },
+        ];
+        for i in 0..combinations(&axes) {
+            let c = combination(&axes, i);
+            for ax in 0..3 {
+                let k = axes[ax].values.iter().position(|v| *v == c[ax].1).unwrap();
+                let fixed: Vec<_> = c
+                    .iter()
+                    .enumerate()
+                    .filter(|&(j, _)| j != ax)
+                    .map(|(_, p)| p.clone())
+                    .collect();
+                assert_eq!(index_of(&axes, ax, k, &fixed), i);
+            }
+        }
+    }
+
+    #[test]
+    fn bad_lists_are_one_line_input_errors() {
+        for bad in ["material.s0", "=1,2", "a=1,,2", "a=[1,2", "a=\"x,y"] {
+            let e = parse_sets(&[bad.into()]).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}");
+            assert_eq!(e.to_string().lines().count(), 1, "{bad}");
+        }
+        let twice = parse_sets(&["a=1,2".into(), "a=3,4".into()]).unwrap_err();
+        assert!(twice.to_string().contains("swept twice"));
+        let many: Vec<String> = (0..5).map(|k| format!("k{k}=1,2,3,4,5,6")).collect();
+        assert!(parse_sets(&many)
+            .unwrap_err()
+            .to_string()
+            .contains("15625 combinations"));
+    }
+}

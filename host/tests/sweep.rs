@@ -1,0 +1,205 @@
+//! `sieve sweep` (issue 12): the product of `--set` values as independent runs, the table of
+//! their summaries, and the Slurm array path (one task per combination, then `--collect`).
+
+use assert_cmd::Command;
+use std::path::Path;
+
+fn sieve(dir: &Path) -> Command {
+    let mut c = Command::cargo_bin("sieve").expect("binary sieve");
+    c.current_dir(dir).env_remove("SLURM_ARRAY_TASK_ID");
+    c
+}
+
+fn run(c: &mut Command) -> (i32, String, String) {
+    let out = c.output().expect("run sieve");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A 2 x 2 sweep of the exact column (short, so each run takes milliseconds).
+const SETS: [&str; 6] = [
+    "--set",
+    "grid.cells=[40],[80]",
+    "--set",
+    "material.s0=0.5,2",
+    "--set",
+    "run.t_end=0.4",
+];
+
+fn table(dir: &Path) -> Vec<serde_json::Value> {
+    let text = std::fs::read_to_string(dir.join("sweep.json")).expect("sweep.json");
+    let v: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+    v["runs"].as_array().expect("runs").clone()
+}
+
+fn hash(row: &serde_json::Value) -> String {
+    row["summary"]["state_hash"]
+        .as_str()
+        .expect("state_hash")
+        .to_string()
+}
+
+#[test]
+fn sweep_runs_every_combination_and_tabulates_them() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, out, err) = run(sieve(d.path())
+        .args(["sweep", "column-a", "--jobs", "2", "--out", "sw"])
+        .args(SETS));
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("4 runs"), "{out}");
+    assert_eq!(err.lines().filter(|l| l.contains("done in")).count(), 4);
+    let rows = table(&d.path().join("sw"));
+    assert_eq!(rows.len(), 4);
+    // First key slowest: (40, 0.5), (40, 2), (80, 0.5), (80, 2).
+    let expect = [
+        ("[40]", "0.5"),
+        ("[40]", "2"),
+        ("[80]", "0.5"),
+        ("[80]", "2"),
+    ];
+    for (i, (row, (cells, s0))) in rows.iter().zip(expect).enumerate() {
+        assert_eq!(row["index"], i);
+        assert_eq!(row["set"]["grid.cells"], cells);
+        assert_eq!(row["set"]["material.s0"], s0);
+        assert_eq!(row["summary"]["cell_count"], if i < 2 { 40 } else { 80 });
+        assert_eq!(row["summary"]["t_end"], 0.4);
+    }
+    // The swept value acts: column-a's exact Psi(t) = 1 - |S| t with |S| = S0 (model.md 7.1a).
+    for (row, s0) in rows.iter().zip([0.5, 2.0, 0.5, 2.0]) {
+        let psi_exact = row["summary"]["exact.psi_exact"].as_f64().unwrap();
+        assert!(
+            (psi_exact - (1.0 - s0 * 0.4f64).max(0.0)).abs() < 1e-12,
+            "{row}"
+        );
+    }
+    // A sweep run is the plain run, bit for bit.
+    let (code, _, err) = run(sieve(d.path()).args([
+        "run",
+        "column-a",
+        "--set",
+        "grid.cells=[80]",
+        "--set",
+        "material.s0=2",
+        "--set",
+        "run.t_end=0.4",
+        "--out",
+        "plain",
+        "--quiet",
+    ]));
+    assert_eq!(code, 0, "{err}");
+    let plain: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(d.path().join("plain/summary.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(hash(&rows[3]), plain["state_hash"].as_str().unwrap());
+    // The CSV holds the same rows; the picture is drawn.
+    let csv = std::fs::read_to_string(d.path().join("sw/sweep.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 5);
+    assert!(
+        csv.starts_with("index,run,status,grid.cells,material.s0,"),
+        "{csv}"
+    );
+    assert!(csv.lines().nth(4).unwrap().contains(&hash(&rows[3])));
+    assert!(
+        std::fs::metadata(d.path().join("sw/sweep.png"))
+            .unwrap()
+            .len()
+            > 1000
+    );
+}
+
+#[test]
+fn slurm_array_tasks_then_collect_give_the_same_table() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, out, _) = run(sieve(d.path())
+        .args(["sweep", "column-a", "--list"])
+        .args(SETS));
+    assert_eq!(code, 0);
+    assert_eq!(
+        out,
+        "0\tgrid.cells=[40] material.s0=0.5\n1\tgrid.cells=[40] material.s0=2\n\
+         2\tgrid.cells=[80] material.s0=0.5\n3\tgrid.cells=[80] material.s0=2\n"
+    );
+    // Each task as Slurm starts it: the index from the environment, tasks in any order.
+    for task in ["2", "0", "3"] {
+        let (code, _, err) = run(sieve(d.path())
+            .env("SLURM_ARRAY_TASK_ID", task)
+            .args(["sweep", "column-a", "--out", "sw", "--quiet"])
+            .args(SETS));
+        assert_eq!(code, 0, "task {task}: {err}");
+        assert!(d
+            .path()
+            .join(format!("sw/run-000{task}/summary.json"))
+            .is_file());
+    }
+    assert!(!d.path().join("sw/run-0001").exists());
+    assert!(
+        !d.path().join("sw/sweep.csv").exists(),
+        "a task writes no table"
+    );
+    let (code, out, _) = run(sieve(d.path())
+        .args(["sweep", "column-a", "--out", "sw", "--collect"])
+        .args(SETS));
+    assert_eq!(code, 0);
+    assert!(out.contains("1 combinations have no run yet"), "{out}");
+    assert_eq!(table(&d.path().join("sw"))[1]["status"], "missing");
+    let (code, _, _) = run(sieve(d.path())
+        .args(["sweep", "column-a", "--out", "sw", "--task", "1", "--quiet"])
+        .args(SETS));
+    assert_eq!(code, 0);
+    run(sieve(d.path())
+        .args(["sweep", "column-a", "--out", "sw", "--collect"])
+        .args(SETS));
+    let tasks = table(&d.path().join("sw"));
+    // The same sweep on the local cores gives the same states.
+    let (code, _, err) = run(sieve(d.path())
+        .args(["sweep", "column-a", "--out", "local", "--quiet", "-j", "2"])
+        .args(SETS));
+    assert_eq!(code, 0, "{err}");
+    let local = table(&d.path().join("local"));
+    assert_eq!(tasks.len(), 4);
+    for (a, b) in tasks.iter().zip(&local) {
+        assert_eq!(a["status"], "done");
+        assert_eq!(hash(a), hash(b));
+    }
+}
+
+#[test]
+fn a_sweep_that_cannot_succeed_says_so_before_it_starts() {
+    let d = tempfile::tempdir().unwrap();
+    // One bad value among good ones: one line naming the key and range, nothing written.
+    let (code, _, err) = run(sieve(d.path()).args([
+        "sweep",
+        "column-a",
+        "--set",
+        "numerics.courant=0.5,1.5",
+        "--out",
+        "sw",
+    ]));
+    assert_eq!(code, 2, "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("numerics.courant"), "{err}");
+    assert!(!d.path().join("sw").exists());
+    // A task index beyond the list.
+    let (code, _, err) = run(sieve(d.path())
+        .args(["sweep", "column-a", "--task", "9", "--out", "sw"])
+        .args(SETS));
+    assert_eq!(code, 2);
+    assert!(err.contains("allowed 0..=3"), "{err}");
+    // A directory sieve did not write is never written into.
+    std::fs::create_dir(d.path().join("mine")).unwrap();
+    std::fs::write(d.path().join("mine/notes.txt"), "keep me").unwrap();
+    let (code, _, err) = run(sieve(d.path())
+        .args(["sweep", "column-a", "--out", "mine"])
+        .args(SETS));
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("not written by sieve"), "{err}");
+    assert_eq!(
+        std::fs::read_dir(d.path().join("mine")).unwrap().count(),
+        1,
+        "only notes.txt"
+    );
+}
