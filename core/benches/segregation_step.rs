@@ -13,6 +13,14 @@
 //!   per-face arithmetic as the 1D modified step (face velocity, upwind transport, modified
 //!   Godunov flux, flux difference) with nothing else: no boundaries, no per-axis dispatch.
 //!
+//! - `step_1d_vanishing`: 6400 cells of column a (c = 0.64) whose upper 90 % creeps (T = 1e-6,
+//!   so its segregation rate is 1e-3 of the lower part's) and holds subnormal phi = 1e-310,
+//!   as the shear cell of model.md 7.4 does after hundreds of seconds; with the flush of
+//!   docs/model.md 5.6 (`flush_below` = 2^-800, the default) and without (0): the cost of
+//!   subnormal arithmetic and what the flush saves. `step_1d_flush` is `step_1d` (modified,
+//!   f64, no subnormals) with and without the flush: what the flush costs where it has
+//!   nothing to do.
+//!
 //! The allocation profiler shows that a step allocates nothing.
 
 use divan::counter::ItemsCount;
@@ -88,6 +96,49 @@ fn solver_2d<R: Real>(scheme: Scheme) -> Box<Segregation<R, 2, N2>> {
 #[divan::bench(types = [f32, f64], args = Scheme::ALL)]
 fn step_1d<R: Real>(bencher: Bencher, scheme: Scheme) {
     let mut s = solver_1d::<R>(scheme);
+    let dt = s.stable_dt();
+    bencher
+        .counter(ItemsCount::new(N1))
+        .bench_local(|| s.step(black_box(dt)));
+}
+
+/// Column a with a creeping, subnormal upper part (see the module doc).
+fn solver_1d_vanishing(flush_below: f64) -> Box<Segregation<f64, 1, N1>> {
+    let mut s = boxed::<f64, 1, N1>();
+    let grid = Grid::new([N1], [0.0], [1.0], N1).unwrap();
+    let mut cfg = SegregationConfig::new();
+    cfg.flush_below = flush_below;
+    s.setup(grid, [[Boundary::Wall; 2]], cfg).unwrap();
+    for i in 0..N1 {
+        let z = grid.center(i)[0];
+        let (t, phi) = if z < 0.1 { (1.0, 0.32) } else { (1e-6, 1e-310) };
+        s.set_cell(i, 0.64, t, [0.0], phi);
+    }
+    s.prepare().unwrap();
+    s
+}
+
+#[divan::bench(args = [2f64.powi(-800), 0.0])]
+fn step_1d_vanishing(bencher: Bencher, flush_below: f64) {
+    let mut s = solver_1d_vanishing(flush_below);
+    let dt = s.stable_dt();
+    bencher
+        .counter(ItemsCount::new(N1))
+        .bench_local(|| s.step(black_box(dt)));
+}
+
+#[divan::bench(args = [2f64.powi(-800), 0.0])]
+fn step_1d_flush(bencher: Bencher, flush_below: f64) {
+    let mut s = solver_1d::<f64>(Scheme::Modified);
+    let mut cfg = *s.config();
+    cfg.flush_below = flush_below;
+    let grid = *s.grid();
+    let cells: Vec<_> = (0..N1).map(|i| (s.c(i), s.phi(i))).collect();
+    s.setup(grid, [[Boundary::Wall; 2]], cfg).unwrap();
+    for (i, (c, phi)) in cells.into_iter().enumerate() {
+        s.set_cell(i, c, 1.0, [0.0], phi);
+    }
+    s.prepare().unwrap();
     let dt = s.stable_dt();
     bencher
         .counter(ItemsCount::new(N1))

@@ -37,6 +37,11 @@ pub trait Real:
     const TWO: Self;
     /// -1
     const NEG_ONE: Self;
+    /// Default [`crate::segregation::SegregationConfig::flush_below`]: tracked fractions
+    /// smaller than this are set to zero after each update. f64: 2^-800 (about 1.5e-241), far
+    /// enough above the subnormal range (below 2^-1022) that products with any flux
+    /// coefficient stay normal; f32: 0 (off), see docs/model.md 5.6.
+    const FLUSH_BELOW: Self;
     /// Default volume fraction below which a cell counts as empty (1e-6).
     const VACUUM: Self;
     /// Largest finite value.
@@ -96,7 +101,7 @@ pub trait Real:
 }
 
 macro_rules! impl_real {
-    ($t:ty, $name:literal, $sqrt:path, $ln:path, $exp:path, $sin:path, $cos:path, $pow:path, $abs:path) => {
+    ($t:ty, $name:literal, $flush:expr, $sqrt:path, $ln:path, $exp:path, $sin:path, $cos:path, $pow:path, $abs:path) => {
         impl Real for $t {
             const ZERO: Self = 0.0;
             const ONE: Self = 1.0;
@@ -104,6 +109,7 @@ macro_rules! impl_real {
             const TWO: Self = 2.0;
             const NEG_ONE: Self = -1.0;
             const VACUUM: Self = 1e-6;
+            const FLUSH_BELOW: Self = $flush;
             const MAX: Self = <$t>::MAX;
             const EPSILON: Self = <$t>::EPSILON;
             const NAME: &'static str = $name;
@@ -163,6 +169,7 @@ macro_rules! impl_real {
 impl_real!(
     f64,
     "f64",
+    f64::from_bits(223u64 << 52), // 2^-800
     libm::sqrt,
     libm::log,
     libm::exp,
@@ -174,6 +181,7 @@ impl_real!(
 impl_real!(
     f32,
     "f32",
+    0.0,
     libm::sqrtf,
     libm::logf,
     libm::expf,

@@ -41,6 +41,9 @@ pub struct LoopStats {
     /// The solver's running bound violations `(max(phi - c), max(-phi))` over every cell after
     /// every step ([`sieve_core::Segregation::bound_violations`]), not only at output times.
     pub every_step: (f64, f64),
+    /// Small-phase mass flushed to zero as vanishing fractions
+    /// ([`sieve_core::Segregation::flushed_small_mass`], docs/model.md 5.6).
+    pub flushed: f64,
 }
 
 impl LoopStats {
@@ -65,6 +68,7 @@ impl LoopStats {
     ) {
         let (above, below) = s.bound_violations();
         self.every_step = (above.to_f64().max(0.0), below.to_f64().max(0.0));
+        self.flushed = s.flushed_small_mass().to_f64();
     }
 }
 

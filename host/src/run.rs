@@ -487,10 +487,11 @@ pub fn run_scene(
         },
         mass_initial,
         mass_final,
+        mass_flushed: stats.flushed,
         mass_rel_drift: if mass_initial != 0.0 {
-            (mass_final - mass_initial).abs() / mass_initial.abs()
+            (mass_final + stats.flushed - mass_initial).abs() / mass_initial.abs()
         } else {
-            (mass_final - mass_initial).abs()
+            (mass_final + stats.flushed - mass_initial).abs()
         },
         overshoot_max: stats.overshoot_max(),
         undershoot_max: stats.undershoot_max(),

@@ -290,6 +290,31 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
         }
         self.excess = [above, below];
+        self.flush_groups(geo);
+    }
+
+    /// The flush of [`SegregationConfig::flush_below`](super::SegregationConfig) on cut cells:
+    /// per merge group (one control volume), its content counted with the group's open volume.
+    fn flush_groups(&mut self, geo: &CutCells<R, D, N>) {
+        let floor = self.cfg.flush_below;
+        if floor <= R::ZERO || self.steps % super::step::FLUSH_EVERY != 0 {
+            return;
+        }
+        let mut any = false;
+        for i in 0..self.grid.len() {
+            if geo.is_solid(i) || geo.master(i) != i {
+                continue;
+            }
+            let v = self.q[i];
+            if v != R::ZERO && v.abs() < floor {
+                self.flushed += v * geo.group_volume(i);
+                self.q[i] = R::ZERO;
+                any = true;
+            }
+        }
+        if any {
+            geo.copy_from_masters(&mut self.q[..self.grid.len()]);
+        }
     }
 
     /// The content increments along `axis`, in the box step's order per cell (minus the

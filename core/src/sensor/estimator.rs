@@ -217,6 +217,9 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             diffusion: cfg.diffusion,
             courant: cfg.courant,
             vacuum: R::VACUUM,
+            // The FPU of the Cortex-M4F computes subnormals in hardware at full speed, and an
+            // f32 floor cannot sit far enough above them to matter (docs/model.md 5.6).
+            flush_below: R::ZERO,
             // A sensor runs for days in f32: carry the rounding of every cell update so the
             // mass does not drift (see `SegregationConfig::compensated`).
             compensated: true,

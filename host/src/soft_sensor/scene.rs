@@ -246,6 +246,7 @@ impl Scene {
             courant: 0.5,
             vacuum: f64::VACUUM,
             compensated: false,
+            flush_below: f64::FLUSH_BELOW,
         };
         let mut t: Box<Truth> = Box::default();
         t.setup(grid, self.boundaries(), cfg)
