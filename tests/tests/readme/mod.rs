@@ -17,6 +17,12 @@ pub fn soft_sensor_doc() -> &'static str {
     include_str!("../../../docs/soft-sensor.md")
 }
 
+/// `doc` with every run of whitespace (line breaks included) made one space, for markers in
+/// wrapped prose.
+pub fn prose(doc: &str) -> String {
+    doc.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
 /// The table row of `doc` whose first cell starts with `first_cell` (one row exactly).
 pub fn table_row<'a>(doc: &'a str, first_cell: &str) -> &'a str {
     let key = format!("| {first_cell}");
