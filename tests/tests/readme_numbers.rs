@@ -10,8 +10,15 @@
 //!   work each and stay "measured once". These compare the estimator with the scene's own run
 //!   (the recorder's truth); the estimator against an independent exact solution is
 //!   `sensor_accuracy.rs`.
+//! * README "Verification": column-a shock positions at t = 0.5 on 200 cells, the L1 errors on
+//!   100..800 cells and their observed order, against the exact solution of model.md 7.1a
+//!   written here (shocks at S m t and 1 - S (1 - m) t; `sieve_core::exact` is not used).
 
+mod common;
 mod readme;
+
+use common::{centres, column, crossing, observed_order, phihat, Column};
+use sieve_core::{Phase, Scheme};
 
 use sieve::soft_sensor::{record_scene, replay_bytes, ReplayOptions, SceneRecordOptions};
 use sieve_core::flow::Flow;
@@ -128,4 +135,60 @@ fn sieve_record_table_shear_cell_mixed_and_readme_sentence() {
 #[test]
 fn sieve_record_table_gray_thornton_shear() {
     check_record_row("gray-thornton-shear", "`gray-thornton-shear` (200 x 100");
+}
+
+/// Column 7.1a (S = 1, m = 1/2, height 1): phihat 1 below t/2, 1/2 up to 1 - t/2, 0 above.
+fn column_a_cell_average(z0: f64, z1: f64, t: f64) -> f64 {
+    let (lo, hi) = (0.5 * t, 1.0 - 0.5 * t);
+    let overlap = |a: f64, b: f64| (b.min(z1) - a.max(z0)).max(0.0);
+    (overlap(0.0, lo) + 0.5 * overlap(lo, hi)) / (z1 - z0)
+}
+
+#[test]
+fn column_a_shocks_l1_errors_and_order() {
+    let prose = readme::prose(readme::readme());
+    let shocks = readme::stated(
+        &prose,
+        "shocks at t = 0.5 within a cell (measured",
+        "on 200",
+        2,
+    );
+    let errors = readme::stated(&prose, "L1 error of phihat", "on 100-800", 4);
+    let order = readme::stated(&prose, "100-800 cells: **observed order", "**.", 1);
+    // shock positions on 200 cells: crossings of the mid-values 0.75 and 0.25
+    let mut s = column::<f64>(Column::A, 200, Scheme::Modified, Phase::Small);
+    s.advance_to(0.5, u64::MAX);
+    let neg: Vec<f64> = phihat(&*s).iter().map(|p| -p).collect();
+    let z = centres(200, 1.0);
+    let lower = crossing(&z, &neg, -0.75).expect("lower shock");
+    let upper = crossing(&z, &neg, -0.25).expect("upper shock");
+    readme::check("column-a lower shock, 200 cells", lower, &shocks[0]);
+    readme::check("column-a upper shock, 200 cells", upper, &shocks[1]);
+    // exact: 0.25 and 0.75, within a cell
+    assert!((lower - 0.25).abs() < 1.0 / 200.0 && (upper - 0.75).abs() < 1.0 / 200.0);
+    let levels = [100usize, 200, 400, 800];
+    let h: Vec<f64> = levels.iter().map(|&n| 1.0 / n as f64).collect();
+    let e: Vec<f64> = levels
+        .iter()
+        .map(|&n| {
+            let mut s = column::<f64>(Column::A, n, Scheme::Modified, Phase::Small);
+            s.advance_to(0.5, u64::MAX);
+            let h = 1.0 / n as f64;
+            phihat(&*s)
+                .iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    (p - column_a_cell_average(i as f64 * h, (i + 1) as f64 * h, 0.5)).abs() * h
+                })
+                .sum()
+        })
+        .collect();
+    for (k, (ek, sk)) in e.iter().zip(&errors).enumerate() {
+        readme::check(&format!("column-a L1 error, {} cells", levels[k]), *ek, sk);
+    }
+    readme::check(
+        "column-a observed L1 order",
+        observed_order(&h, &e),
+        &order[0],
+    );
 }

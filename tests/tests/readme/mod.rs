@@ -74,7 +74,7 @@ pub fn numbers(s: &str) -> Vec<Stated> {
             i += 1;
             continue;
         }
-        let neg = i > 0 && b[i - 1] == b'-';
+        let neg = i > 0 && b[i - 1] == b'-' && (i == 1 || !b[i - 2].is_ascii_alphanumeric());
         let mut j = i;
         let mut mant = String::new();
         let mut decimals: i32 = 0;
