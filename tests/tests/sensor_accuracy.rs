@@ -219,8 +219,8 @@ fn run(scene: Scene, estimator: [u16; 2], sensor: [u8; 2], noise: f64) -> Accura
 #[test]
 fn exact_solutions_are_what_model_md_says() {
     let col = Exact::of(Scene::ShearCell);
-    for t in [0.0, 0.25, 0.5, 0.9, 1.0, 1.4] {
-        let want = (1.0 - t as f64).max(0.0);
+    for t in [0.0f64, 0.25, 0.5, 0.9, 1.0, 1.4] {
+        let want = (1.0 - t).max(0.0);
         assert!((col.psi(t) - want).abs() < 1e-12, "{t}: {}", col.psi(t));
         // small-grain mass of the column stays q0 L (cell averages over 32 rows)
         let m: f64 = (0..32)
