@@ -20,8 +20,9 @@
 //!   same amounts (model.md 6, E_seg = 0).
 //!
 //! Every constant of the exact solutions is written here from model.md; nothing is taken from
-//! the solver. The error measures: max over ticks of |psi_est - psi_exact|, and the mean over
-//! ticks of the mean over estimator cells of |phihat_est - exact cell average|.
+//! the solver. The error measures: max over ticks of |psi_est - psi_exact| (psi_exact: model.md 6
+//! on the exact cell averages of the estimator grid, the best state a grid can hold), and the
+//! mean over ticks of the mean over estimator cells of |phihat_est - exact cell average|.
 //! The table of docs/soft-sensor.md ("Accuracy") is read back and every cell asserted.
 
 mod readme;
