@@ -1,5 +1,11 @@
 //! A dilute column settling under gravity to rest (issue 3 hard cases: dilute column, near-empty
 //! cells at a free surface, lithostatic pressure), glass beads of model.md 7.4, f64 and f32.
+//!
+//! The README's flow table row "dilute column" is read back and each of its numbers asserted
+//! to its last written digit (issue 10): mass (f64 / f32), max c/c_rcp, peak and final T,
+//! lithostatic balance.
+
+mod readme;
 
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
@@ -103,10 +109,24 @@ fn settle<R: Real>(t_end: f64, t_min: f64) -> Outcome {
     out
 }
 
+/// The README row of this test.
+fn row() -> &'static str {
+    readme::table_row(readme::readme(), "dilute column (c = 0.3) settles")
+}
+
 #[test]
 fn dilute_column_settles_to_a_lithostatic_rest_f64() {
     run_big(|| {
         let o = settle::<f64>(2.0, T_MIN);
+        let mass = readme::stated(row(), "mass", "rel.", 2);
+        readme::check("mass drift, f64", o.mass_error, &mass[0]);
+        let packing = readme::stated(row(), "max c/c_rcp", ", peak", 1);
+        readme::check("max c/c_rcp", o.max_packing, &packing[0]);
+        let t = readme::stated(row(), "peak T", ", litho", 2);
+        readme::check("peak T", o.peak_t, &t[0]);
+        readme::check("final T", o.final_t, &t[1]);
+        let litho = readme::stated(row(), "profile within", " |", 1);
+        readme::check("lithostatic balance", o.worst_balance, &litho[0]);
         assert!(!o.nonfinite);
         assert!(o.mass_error < 1e-13, "mass {}", o.mass_error);
         // c stays below c_max = (1 - 1e-3) c_rcp throughout, although the impact compacts hard
@@ -129,7 +149,7 @@ fn dilute_column_settles_to_a_lithostatic_rest_f64() {
             o.peak_speed,
             o.final_speed
         );
-        // measured 1.2e-2 (mid-bed), 6e-5 at the floor
+        // mid-bed; 6e-5 at the floor
         assert!(o.worst_balance < 2e-2, "lithostatic {}", o.worst_balance);
         // measured 1.9e-5
         assert!(
@@ -145,6 +165,8 @@ fn dilute_column_settles_f32() {
     run_big(|| {
         let o = settle::<f32>(1.0, T_MIN);
         assert!(!o.nonfinite);
+        let mass = readme::stated(row(), "mass", "rel.", 2);
+        readme::check("mass drift, f32", o.mass_error, &mass[1]);
         assert!(o.mass_error < 1e-5, "mass {}", o.mass_error);
         assert!(o.max_packing <= 0.999 + 1e-6, "{}", o.max_packing);
         assert!(
