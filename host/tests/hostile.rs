@@ -224,3 +224,129 @@ fn damaged_files_say_what_is_damaged_in_words() {
     refused(dir.path(), "v.rec", &v, &["version 9", "allowed 2"]);
     refused(dir.path(), "empty.rec", b"", &["not a sieve recording"]);
 }
+
+/// A finished run directory of `scene` for the test `tag` (written once per test binary;
+/// each test damages its own copy).
+fn run_dir(scene: &str, tag: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "sieve-hostile-{}-{tag}-{scene}",
+        std::process::id()
+    ));
+    if !dir.join("summary.json").is_file() {
+        let out = dir.to_str().expect("utf-8").to_owned();
+        let (code, _, err) = sieve(&["run", scene, "--out", &out, "--quiet"]);
+        assert_eq!(code, 0, "{err}");
+    }
+    dir
+}
+
+/// The files of a run directory that `sieve plot` reads.
+fn plot_inputs(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut v = vec![
+        dir.join("summary.json"),
+        dir.join("series.csv"),
+        dir.join("fields/series.pvd"),
+    ];
+    let mut vti: Vec<_> = std::fs::read_dir(dir.join("fields"))
+        .expect("fields")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "vti"))
+        .collect();
+    vti.sort();
+    v.extend(vti.into_iter().take(2));
+    v
+}
+
+/// `sieve plot` on run directories whose .vti once could not be trusted: a reversed extent
+/// (an underflow panic), an offset near `usize::MAX` (an overflow panic), a grid larger than
+/// its arrays (an index out of bounds).
+#[test]
+fn plot_refuses_lying_vti_files() {
+    let dir = run_dir("column-a", "vti");
+    let vti = plot_inputs(&dir)[3].clone();
+    let bytes = std::fs::read(&vti).expect("read");
+    let marker = b"<AppendedData";
+    let head_end = bytes
+        .windows(marker.len())
+        .position(|w| w == marker)
+        .expect("appended data");
+    let good = String::from_utf8(bytes[..head_end].to_vec()).expect("the header is text");
+    let ext = good
+        .split("WholeExtent=\"")
+        .nth(1)
+        .and_then(|r| r.split('"').next())
+        .expect("WholeExtent")
+        .to_string();
+    let swap = |from: &str, to: &str| -> Vec<u8> {
+        let head = String::from_utf8_lossy(&bytes[..head_end]).replacen(from, to, 1);
+        let mut b = head.into_bytes();
+        b.extend_from_slice(&bytes[head_end..]);
+        b
+    };
+    let cases = [
+        swap(
+            &format!("WholeExtent=\"{ext}\""),
+            "WholeExtent=\"0 0 0 0 5 2\"",
+        ),
+        swap(
+            &format!("WholeExtent=\"{ext}\""),
+            "WholeExtent=\"0 0 0 0 0 100000\"",
+        ),
+        swap("offset=\"0\"", "offset=\"18446744073709551615\""),
+    ];
+    for (k, b) in cases.iter().enumerate() {
+        std::fs::write(&vti, b).expect("write");
+        let (code, out, err) = sieve(&["plot", dir.to_str().unwrap()]);
+        std::fs::write(&vti, &bytes).expect("restore");
+        assert_eq!(code, 1, "case {k}: {out} {err}");
+        assert_eq!(err.lines().count(), 1, "case {k}: {err}");
+        assert!(err.contains(".vti"), "case {k}: {err}");
+    }
+    let (code, _, err) = sieve(&["plot", dir.to_str().unwrap()]);
+    assert_eq!(code, 0, "restored: {err}");
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config {
+        cases: std::env::var("SIEVE_FUZZ_CASES_PLOT").ok().and_then(|v| v.parse().ok()).unwrap_or(12),
+        ..proptest::test_runner::Config::default()
+    })]
+
+    /// The reader behind `sieve plot` (summary.json, series.csv, series.pvd, .vti) on a run
+    /// directory with one file damaged: bytes flipped, cut, replaced or a number rewritten.
+    /// Never a panic; an error is one line.
+    #[test]
+    fn plot_reader_never_panics(two_d in proptest::bool::ANY, which in 0usize..5, at in proptest::num::usize::ANY,
+                                how in 0u8..4, byte in proptest::num::u8::ANY,
+                                number in proptest::sample::select(vec!["nan", "inf", "-1", "1e308", "0", "18446744073709551615", "-0", "x"])) {
+        let dir = run_dir(if two_d { "shear-cell-inverse" } else { "column-a" }, "fuzz");
+        let files = plot_inputs(&dir);
+        let f = &files[which % files.len()];
+        let orig = std::fs::read(f).expect("read");
+        let mut b = orig.clone();
+        let n = b.len().max(1);
+        match how {
+            0 => { if !b.is_empty() { b[at % n] ^= byte | 1; } }
+            1 => b.truncate(at % n),
+            2 => { b.splice(at % (b.len() + 1)..at % (b.len() + 1), number.bytes()); }
+            _ => {
+                // Rewrite the digits around a position.
+                let i = at % n;
+                let s = (0..=i.min(b.len().saturating_sub(1))).rev().take_while(|&j| b.get(j).is_some_and(|c| c.is_ascii_digit())).last();
+                if let Some(s) = s {
+                    let e = (s..b.len()).find(|&j| !b[j].is_ascii_digit()).unwrap_or(b.len());
+                    b.splice(s..e, number.bytes());
+                }
+            }
+        }
+        std::fs::write(f, &b).expect("write");
+        let plots = tempfile::tempdir().expect("temp dir");
+        let r = std::panic::catch_unwind(|| sieve::output::redraw::redraw(&dir, plots.path()));
+        std::fs::write(f, &orig).expect("restore");
+        match r {
+            Err(_) => proptest::prop_assert!(false, "panic on {} ({how}, {at}, {byte}, {number})", f.display()),
+            Ok(Err(e)) => proptest::prop_assert_eq!(e.lines().count(), 1, "{}", e),
+            Ok(Ok(_)) => {}
+        }
+    }
+}
