@@ -60,9 +60,7 @@ fn explain(bytes: &[u8], e: RecordingError) -> String {
         RecordingError::Crc => format!(
             "the file's CRC-32 does not match its contents (corrupt bytes); {DAMAGED}"
         ),
-        RecordingError::Header => format!(
-            "the header (sensor configuration, scene name) cannot be decoded although its CRC is valid; it was not written by this sieve: record it again"
-        ),
+        RecordingError::Header => "the header (sensor configuration, scene name) cannot be decoded although its CRC is valid; it was not written by this sieve: record it again".to_string(),
     }
 }
 
