@@ -407,13 +407,9 @@ pub fn execute(cli: Cli) -> Result<()> {
                     soft_sensor::Faults::NONE
                 },
             };
-            let report = soft_sensor::replay(&a.file, &opts).map_err(|e| {
-                Error::at(
-                    &a.file.display().to_string(),
-                    "",
-                    format!("not a valid recording: {e}"),
-                )
-            })?;
+            // The replay's messages say what is wrong with the file; the file goes in front.
+            let report = soft_sensor::replay(&a.file, &opts)
+                .map_err(|e| Error::at(&a.file.display().to_string(), "", e))?;
             soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
                 .map_err(|e| Error::failure(format!("stdout: {e}")))
         }

@@ -305,14 +305,17 @@ fn bad_options_exit_2_with_one_line() {
     let dir = tempfile::tempdir().expect("temp dir");
     let text = dir.path().join("notes.rec");
     std::fs::write(&text, "not a recording\n").expect("write");
-    assert_bad(&["replay", text.to_str().unwrap()], "not a valid recording");
+    assert_bad(&["replay", text.to_str().unwrap()], "not a sieve recording");
     let committed = std::fs::read(recordings().join("shear-cell.rec")).expect("committed");
     let cut = dir.path().join("cut.rec");
     std::fs::write(&cut, &committed[..committed.len() / 2]).expect("write");
-    assert_bad(&["replay", cut.to_str().unwrap()], "not a valid recording");
+    assert_bad(
+        &["replay", cut.to_str().unwrap()],
+        "the recording is damaged",
+    );
     let missing = dir.path().join("missing.rec");
     assert_bad(
         &["replay", missing.to_str().unwrap()],
-        "not a valid recording",
+        "cannot read the recording",
     );
 }

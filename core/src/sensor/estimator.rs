@@ -45,6 +45,17 @@ pub struct Counters {
     pub phi_excursions: u32,
 }
 
+/// Serial-number order of sequence numbers (RFC 1982 with 32 bits): `a` comes after `b` if it
+/// is ahead by 1 to 2^31 - 1, counting modulo 2^32. A sensor that counts past `u32::MAX`
+/// wraps to 0; with plain `>` every later frame would look old and the estimator would freeze
+/// for good. A jump of 2^31 or more counts as old (a duplicate or garbage), so a frame cannot
+/// claim billions of lost periods. For numbers less than 2^31 apart this is the plain `>`,
+/// which is why the golden hashes of recordings are unchanged.
+#[inline]
+pub fn seq_after(a: u32, b: u32) -> bool {
+    (a.wrapping_sub(b) as i32) > 0
+}
+
 /// Cells per row segment whose x interpolation weights `map_velocity` keeps on the stack.
 const MAP_CHUNK: usize = 64;
 
@@ -68,8 +79,9 @@ pub struct TickProfile {
 /// * [`Self::submit`] validates a frame and, if it is good, feeds it to the input filter and
 ///   books the frame's `period` for this tick. Checks, in order: dimensions ([`Reject::Dims`]), finiteness of the
 ///   period and every value ([`Reject::NonFinite`]), `0 < period <= max_period_factor *
-///   tick_period` and `|u| <= reject_speed` ([`Reject::Range`]), `seq` greater than the last
-///   accepted one ([`Reject::Seq`]). A rejected frame changes nothing but the counters and
+///   tick_period` and `|u| <= reject_speed` ([`Reject::Range`]), `seq` after the last
+///   accepted one in serial-number order ([`seq_after`], so the count may wrap past
+///   `u32::MAX`; [`Reject::Seq`]). A rejected frame changes nothing but the counters and
 ///   the tick's health flags.
 /// * Input handling of a good frame: each value is compared with the median of its 3x3
 ///   sensor neighbourhood (fewer at the edges) and replaced by it if they differ by more
@@ -294,7 +306,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         if f.u.iter().any(|&v| R::from_f32(v).abs() > limit) {
             return Err(Reject::Range);
         }
-        if self.have_velocity && f.seq <= self.last_seq {
+        if self.have_velocity && !seq_after(f.seq, self.last_seq) {
             return Err(Reject::Seq);
         }
         Ok(())
@@ -311,17 +323,17 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         bump(&mut self.counters.accepted);
         if self.have_velocity {
             let next = self.covered.wrapping_add(1);
-            if f.seq > next {
-                let gap = f.seq - next;
+            if seq_after(f.seq, next) {
+                let gap = f.seq.wrapping_sub(next);
                 self.counters.lost_periods = self.counters.lost_periods.wrapping_add(gap);
                 self.lag += self.cfg.tick_period * R::from_f64(gap as f64);
-                self.covered = f.seq - 1;
+                self.covered = f.seq.wrapping_sub(1);
             }
         } else {
             self.covered = f.seq.wrapping_sub(1);
         }
         self.update_filter(f);
-        if f.seq > self.covered || !self.have_velocity {
+        if seq_after(f.seq, self.covered) || !self.have_velocity {
             self.pending += R::from_f32(f.period);
             self.covered = f.seq;
         }

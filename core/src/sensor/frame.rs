@@ -20,7 +20,8 @@ use serde::{de::DeserializeOwned, Deserialize, Serialize};
 /// One measured velocity field on the sensor grid.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VelocityFrame {
-    /// Sequence number; must strictly increase (frame `k` covers the `k`-th period).
+    /// Sequence number; must advance (frame `k` covers the `k`-th period), in serial-number
+    /// order: it may wrap past `u32::MAX` to 0 (see `estimator::seq_after`).
     pub seq: u32,
     /// Sensor timestamp of the end of the period [s] (informative only; time is advanced by
     /// `period`, so a drifting f32 clock cannot make runs irreproducible).

@@ -29,7 +29,7 @@ pub mod recording;
 pub mod snapshot;
 
 pub use config::{ConfigError, Region, SensorConfig};
-pub use estimator::{Counters, SoftSensor, TickProfile};
+pub use estimator::{seq_after, Counters, SoftSensor, TickProfile};
 pub use frame::{Estimate, FrameDecoder, Reject, VelocityFrame, WireCounters};
 
 /// Re-exported so users of the wire types (the host CLI) need no direct dependency.

@@ -138,6 +138,16 @@ fn masked_plane(v: &Vti) -> Result<Vec<f64>> {
         return Err(Error::failure("a .vti without phihat or c"));
     };
     let [nx, ny, nz] = v.cells;
+    // One value per cell, or the file lies about its grid (a hostile extent once indexed out
+    // of bounds); the arrays are bounded by the file's size, so this bounds the grid too.
+    let n = nx.checked_mul(ny).and_then(|m| m.checked_mul(nz));
+    if n.is_none_or(|n| phihat.len() != n || c.len() != n) {
+        return Err(Error::failure(format!(
+            "a .vti whose arrays ({} phihat, {} c values) do not match its grid of {nx} x {ny} x {nz} cells",
+            phihat.len(),
+            c.len()
+        )));
+    }
     let iy = ny / 2;
     let mut out = Vec::with_capacity(nx * nz);
     for iz in 0..nz {

@@ -170,11 +170,12 @@ pub fn read_vti(path: &Path) -> Result<Vti> {
     }
     // Point extents: an absent axis has extent 0..0 (one point, no cell width) yet one layer
     // of cell data.
-    let cells = [
-        (ext[1] - ext[0]).max(1),
-        (ext[3] - ext[2]).max(1),
-        (ext[5] - ext[4]).max(1),
-    ];
+    // Checked: a hostile file's reversed extent once underflowed (a panic).
+    let width = |a: usize| ext[2 * a + 1].checked_sub(ext[2 * a]).map(|w| w.max(1));
+    let (Some(c0), Some(c1), Some(c2)) = (width(0), width(1), width(2)) else {
+        return Err(bad("WholeExtent has an upper bound below its lower bound"));
+    };
+    let cells = [c0, c1, c2];
     let origin = attr(image, "Origin")
         .and_then(three)
         .ok_or_else(|| bad("no Origin"))?;
@@ -202,12 +203,18 @@ pub fn read_vti(path: &Path) -> Result<Vti> {
         let offset: usize = attr(tag, "offset")
             .and_then(|c| c.parse().ok())
             .ok_or_else(|| bad("DataArray without offset"))?;
+        // Offsets and lengths come from the file: checked sums, sliced only within the file.
+        let start = offset
+            .checked_add(8)
+            .ok_or_else(|| bad("offset out of range"))?;
         let len_bytes = data
-            .get(offset..offset + 8)
+            .get(offset..start)
             .ok_or_else(|| bad("truncated data"))?;
-        let len = u64::from_le_bytes(len_bytes.try_into().map_err(|_| bad("length"))?) as usize;
-        let raw = data
-            .get(offset + 8..offset + 8 + len)
+        let len = u64::from_le_bytes(len_bytes.try_into().map_err(|_| bad("length"))?);
+        let raw = usize::try_from(len)
+            .ok()
+            .and_then(|l| start.checked_add(l))
+            .and_then(|end| data.get(start..end))
             .ok_or_else(|| bad("truncated data"))?;
         let values = raw
             .chunks_exact(8)

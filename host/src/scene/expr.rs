@@ -112,6 +112,7 @@ impl Expr {
             }
             ExprSrc::Text(t) => t.clone(),
         };
+        check_size(&text).map_err(|m| Error::at(file, key, m))?;
         let tree = evalexpr::build_operator_tree::<DefaultNumericTypes>(&floatify(&text))
             .map_err(|e| Error::at(file, key, format!("bad expression `{text}`: {e}")))?;
         let allowed: &[&str] = if allow_c {
@@ -175,6 +176,57 @@ impl Expr {
             )),
         }
     }
+}
+
+/// Longest expression accepted, in bytes. The longest in the built-in scenes is under 60; a
+/// physics formula that needs more belongs in several keys or a field file.
+pub const MAX_EXPR_BYTES: usize = 1024;
+/// Deepest nesting of parentheses accepted.
+pub const MAX_EXPR_DEPTH: usize = 32;
+/// Most operators (binary and unary, and argument commas) in one expression.
+pub const MAX_EXPR_OPERATORS: usize = 256;
+
+/// Bounds an expression before evalexpr sees it (issue 10): evalexpr builds and evaluates its
+/// tree recursively, so 40,000 `+0` terms or 50,000 nested parentheses overflowed the stack
+/// (an abort, no message) and 100,000 unary minus signs took minutes to parse. With at most
+/// [`MAX_EXPR_OPERATORS`] operators and [`MAX_EXPR_DEPTH`] levels of parentheses, no tree is
+/// deeper than a few hundred nodes, whatever the text. The scan itself is one loop: it never
+/// recurses.
+pub fn check_size(text: &str) -> std::result::Result<(), String> {
+    if text.len() > MAX_EXPR_BYTES {
+        return Err(format!(
+            "the expression is {} bytes long: allowed at most {MAX_EXPR_BYTES}; shorten it (e.g. define the field in fewer terms)",
+            text.len()
+        ));
+    }
+    let (mut depth, mut deepest, mut ops) = (0usize, 0usize, 0usize);
+    let mut in_string = false;
+    for ch in text.chars() {
+        match ch {
+            '"' => in_string = !in_string,
+            _ if in_string => {}
+            '(' => {
+                depth += 1;
+                deepest = deepest.max(depth);
+            }
+            ')' => depth = depth.saturating_sub(1),
+            '+' | '-' | '*' | '/' | '%' | '^' | '<' | '>' | '=' | '!' | '&' | '|' | ',' | ';' => {
+                ops += 1
+            }
+            _ => {}
+        }
+    }
+    if deepest > MAX_EXPR_DEPTH {
+        return Err(format!(
+            "the expression nests parentheses {deepest} deep: allowed at most {MAX_EXPR_DEPTH}; remove redundant parentheses"
+        ));
+    }
+    if ops > MAX_EXPR_OPERATORS {
+        return Err(format!(
+            "the expression has {ops} operators: allowed at most {MAX_EXPR_OPERATORS}; simplify it"
+        ));
+    }
+    Ok(())
 }
 
 /// Rewrites integer literals as floats (`2` -> `2.0`), leaving identifiers (`x1`), floats
@@ -275,6 +327,56 @@ mod tests {
             .unwrap();
         let want = libm::exp(0.3) + libm::pow(0.3, 3.0) + libm::log(8.0) / libm::log(2.0);
         assert_eq!(v.to_bits(), want.to_bits());
+    }
+
+    /// The inputs that once aborted or hung now give one line naming the key and the limit,
+    /// and the largest expressions within the limits compile and evaluate.
+    #[test]
+    fn hostile_expressions_are_bounded() {
+        let compile = |t: String| Expr::compile("s.toml", "initial.phi", &ExprSrc::Text(t), true);
+        let cases = [
+            (
+                "0".to_string() + &"+0".repeat(40_000),
+                "allowed at most 1024",
+            ),
+            (
+                "(".repeat(50_000) + "1" + &")".repeat(50_000),
+                "allowed at most 1024",
+            ),
+            ("-".repeat(100_000) + "1", "allowed at most 1024"),
+            (
+                "(".repeat(33) + "1" + &")".repeat(33),
+                "nests parentheses 33 deep",
+            ),
+            ("1".to_string() + &"+1".repeat(257), "257 operators"),
+        ];
+        for (text, want) in cases {
+            let t0 = std::time::Instant::now();
+            let e = compile(text).unwrap_err().to_string();
+            assert!(t0.elapsed().as_secs_f64() < 1.0, "{e}");
+            assert!(e.starts_with("s.toml: initial.phi: "), "{e}");
+            assert!(e.contains(want), "{e}");
+            assert_eq!(e.lines().count(), 1);
+        }
+        // At the limits: 256 operators, 32 levels, 1024 bytes (nested) evaluate exactly.
+        let sum = "1".to_string() + &"+1".repeat(256);
+        let v = compile(sum).unwrap();
+        let mut vars = Vars::new();
+        assert_eq!(v.eval(&mut vars, [0.0; 3], 0.0, "f", "k").unwrap(), 257.0);
+        let nested = "(".repeat(32) + "z" + &")".repeat(32);
+        let v = compile(nested).unwrap();
+        assert_eq!(
+            v.eval(&mut vars, [0.0, 0.0, 0.25], 0.0, "f", "k").unwrap(),
+            0.25
+        );
+        let minus = "-".repeat(256) + "z";
+        let v = compile(minus).unwrap();
+        assert_eq!(
+            v.eval(&mut vars, [0.0, 0.0, 0.5], 0.0, "f", "k").unwrap(),
+            0.5
+        );
+        let long = "z".to_string() + &" ".repeat(MAX_EXPR_BYTES - 1);
+        assert!(compile(long).is_ok());
     }
 
     #[test]

@@ -26,6 +26,7 @@
 //! [`crate::Error`] (input errors name the scene file and key).
 
 pub mod catalogue;
+pub mod check;
 mod record;
 mod replay;
 mod scene;

@@ -1,10 +1,11 @@
 //! Replay: the firmware's soft-sensor loop on the host, compared with the recorded truth.
 
+use super::check;
 use super::scene::coarsen;
 use super::ESTIMATOR_CAPACITY;
 use sieve_core::sensor::feeder::{feed_bytes, Faults, Feeder, InjectedFaults};
 use sieve_core::sensor::frame::FRAME_WIRE_MAX;
-use sieve_core::sensor::recording::{Recording, TruthRecord};
+use sieve_core::sensor::recording::TruthRecord;
 use sieve_core::sensor::{Counters, FrameDecoder, SoftSensor, WireCounters};
 use std::io::Write;
 use std::path::Path;
@@ -67,7 +68,8 @@ pub struct ReplayReport {
     pub lag: f32,
     /// Relative change of the small-phase mass over the run (f64 sum). The estimator never
     /// clamps phi, so in a closed box this is f32 round-off only (about 1e-7 per step at
-    /// most); open boundaries add their inflow and outflow.
+    /// most); open boundaries add their inflow and outflow. Relative to the total grain
+    /// volume when the box starts without small grains.
     pub mass_drift: f64,
     /// Final state hash (as printed by firmware-sim).
     pub final_state_hash: u64,
@@ -75,12 +77,15 @@ pub struct ReplayReport {
 
 /// Replays recording bytes.
 pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, String> {
-    let rec = Recording::parse(bytes).map_err(|e| format!("recording: {e}"))?;
-    let truth: Vec<TruthRecord> = rec.truth().collect();
+    // Everything the replay sizes or indexes by is bounded first (check.rs): a valid CRC
+    // does not make a header sane.
+    let rec = check::parse(bytes)?;
+    check::header(&rec.header)?;
+    let truth: Vec<TruthRecord> = check::truth(&rec)?;
     let mut sensor: Box<SoftSensor<f32, ESTIMATOR_CAPACITY>> = Box::default();
     sensor
         .configure(&rec.header.config)
-        .map_err(|e| format!("configuration: {e}"))?;
+        .map_err(|e| format!("header field config: {e}; record it again"))?;
     let mut decoder: Box<FrameDecoder<FRAME_WIRE_MAX>> = Box::default();
     let mut feeder = Box::new(Feeder::new(rec.stream, opts.faults));
     let cfg = rec.header.config.clone();
@@ -126,14 +131,46 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
                 regions: e.regions.to_vec(),
             });
         }
+        if !e.psi.is_finite() {
+            return Err(format!(
+                "the estimate became non-finite at tick {tick} (psi = {}): the recorded configuration is outside what the f32 estimator can integrate; record it again with smaller s0, gravity or speeds",
+                e.psi
+            ));
+        }
         tick += 1;
     }
+    // `f64::max` drops NaN: a NaN error must stay visible, never become a 0.
+    let nan_max = |a: f64, b: f64| {
+        if a.is_nan() || b.is_nan() {
+            f64::NAN
+        } else {
+            a.max(b)
+        }
+    };
     let max_psi_error = rows
         .iter()
         .map(|r| (r.psi as f64 - r.psi_truth as f64).abs())
-        .fold(0.0, f64::max);
-    let max_l1 = rows.iter().map(|r| r.l1).fold(0.0, f64::max);
+        .fold(0.0, nan_max);
+    let max_l1 = rows.iter().map(|r| r.l1).fold(0.0, nan_max);
     let mean_l1 = rows.iter().map(|r| r.l1).sum::<f64>() / rows.len().max(1) as f64;
+    let mass1 = mass(&sensor);
+    if !(mass1.is_finite() && max_psi_error.is_finite() && max_l1.is_finite()) {
+        return Err(format!(
+            "the replay produced a non-finite result (mass {mass1}, max_psi_error {max_psi_error}, max_l1 {max_l1}): the recorded configuration is outside what the f32 estimator can integrate; record it again"
+        ));
+    }
+    // Relative to the initial small-grain mass; a box that starts without small grains
+    // (initial_phihat = 0) has none to be relative to, so its drift is relative to the
+    // total grain volume instead (never 0/0 = NaN).
+    let grains: f64 = {
+        let g = sensor.segregation();
+        (0..g.len()).map(|i| g.c(i) as f64).sum()
+    };
+    let scale = if mass0 > 0.0 {
+        mass0
+    } else {
+        grains.max(f64::MIN_POSITIVE)
+    };
     Ok(ReplayReport {
         scene: rec.header.scene.as_str().to_string(),
         rows,
@@ -145,14 +182,14 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
         wire: decoder.counters,
         injected: feeder.injected,
         lag: sensor.lag(),
-        mass_drift: (mass(&sensor) - mass0) / mass0,
+        mass_drift: (mass1 - mass0) / scale,
         final_state_hash: sensor.state_hash(),
     })
 }
 
 /// Replays a recording file: the soft sensor (f32, firmware loop) against the truth.
 pub fn replay(path: &Path, opts: &ReplayOptions) -> Result<ReplayReport, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read the recording: {e}"))?;
     replay_bytes(&bytes, opts)
 }
 

@@ -1,0 +1,352 @@
+//! Hostile files (issue 10): recordings whose CRC is valid but whose header, configuration or
+//! truth is not what `sieve record` writes, corrupt and truncated files, and expressions built
+//! to exhaust the stack or the clock. Each case once panicked, aborted, hung or reported a
+//! NaN as 0; each must now end with exit code 2 and one line that names the file and the field.
+
+use assert_cmd::Command;
+use sieve::soft_sensor::{record_to_bytes, RecordOptions, Scene};
+use sieve_core::sensor::recording::{write_recording, Recording, RecordingHeader, TruthRecord};
+use std::path::Path;
+
+/// Runs `sieve args...`; returns (exit code, stdout, stderr).
+fn sieve(args: &[&str]) -> (i32, String, String) {
+    let out = Command::cargo_bin("sieve")
+        .expect("binary sieve")
+        .args(args)
+        .timeout(std::time::Duration::from_secs(60))
+        .output()
+        .expect("run sieve");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A short valid recording of the idealised shear cell (30 frames).
+fn valid() -> Vec<u8> {
+    let mut o = RecordOptions::new(Scene::ShearCell);
+    o.frames = 30;
+    record_to_bytes(&o).expect("record").0
+}
+
+/// Rewrites a recording with `edit` applied to its header and truth records, with a fresh
+/// (valid) CRC: what a careless or hostile writer produces.
+fn rewrite(
+    bytes: &[u8],
+    edit: impl FnOnce(&mut RecordingHeader, &mut Vec<TruthRecord>),
+) -> Vec<u8> {
+    let rec = Recording::parse(bytes).expect("valid recording");
+    let mut header = rec.header.clone();
+    let mut truth: Vec<TruthRecord> = rec.truth().collect();
+    edit(&mut header, &mut truth);
+    let mut tb = Vec::new();
+    for t in &truth {
+        assert!(t.encode_into(|b| tb.extend_from_slice(b)));
+    }
+    let mut out = Vec::new();
+    let mut scratch = vec![0u8; 4096];
+    write_recording(
+        &header,
+        rec.stream,
+        &tb,
+        &mut scratch,
+        |b| {
+            out.extend_from_slice(b);
+            Ok::<(), ()>(())
+        },
+        (),
+    )
+    .expect("write");
+    out
+}
+
+/// Writes `bytes` to `name` in `dir`, replays it and asserts exit 2 with one line that names
+/// the file and contains each of `needles`.
+fn refused(dir: &Path, name: &str, bytes: &[u8], needles: &[&str]) -> String {
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).expect("write");
+    let (code, out, err) = sieve(&["replay", path.to_str().expect("utf-8")]);
+    assert_eq!(code, 2, "{name}: stdout {out} stderr {err}");
+    assert_eq!(err.lines().count(), 1, "{name}: one line expected: {err}");
+    assert!(err.starts_with("error: "), "{err}");
+    assert!(err.contains(name), "{name}: the file is not named: {err}");
+    for n in needles {
+        assert!(err.contains(n), "{name}: `{n}` missing in {err}");
+    }
+    assert!(!err.contains("Crc") && !err.contains("Truncated"), "{err}");
+    err
+}
+
+#[test]
+fn header_sizes_are_bounded_before_anything_is_allocated() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let good = valid();
+    // Once: index out of bounds in coarsen (panic, exit 101).
+    let zero = rewrite(&good, |h, _| h.truth_coarse = [0, 0]);
+    refused(dir.path(), "zero.rec", &zero, &["truth_coarse", "1 to 16"]);
+    // Once: a 34 GB allocation (abort).
+    let huge = rewrite(&good, |h, _| h.truth_coarse = [65535, 65535]);
+    refused(dir.path(), "huge.rec", &huge, &["truth_coarse", "65535"]);
+    // The stored truth must match the coarse grid it claims.
+    let other = rewrite(&good, |h, _| h.truth_coarse = [4, 4]);
+    refused(dir.path(), "other.rec", &other, &["truth record 1", "16"]);
+    let cells = rewrite(&good, |h, _| h.config.cells = [64, 64]);
+    refused(dir.path(), "cells.rec", &cells, &["config.cells", "1024"]);
+    let budget = rewrite(&good, |h, _| h.config.max_substeps = u16::MAX);
+    refused(dir.path(), "budget.rec", &budget, &["config.max_substeps"]);
+}
+
+#[test]
+fn nan_truth_is_an_error_not_a_zero_error() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let good = valid();
+    let psi = rewrite(&good, |_, t| t[4].psi = f32::NAN);
+    refused(
+        dir.path(),
+        "psi.rec",
+        &psi,
+        &["truth record 5", "psi = NaN"],
+    );
+    let phihat = rewrite(&good, |_, t| t[7].phihat[3] = f32::NAN);
+    refused(
+        dir.path(),
+        "ph.rec",
+        &phihat,
+        &["truth record 8", "phihat[3]"],
+    );
+    let big = rewrite(&good, |_, t| t[0].phihat[0] = 7.0);
+    refused(dir.path(), "big.rec", &big, &["phihat[0] = 7", "0 to 1"]);
+    // Trailing garbage in the truth section was once skipped silently.
+    let rec = Recording::parse(&good).expect("valid");
+    let mut tail = rec.truth_bytes.to_vec();
+    tail.extend_from_slice(&[0xff; 3]);
+    let mut out = Vec::new();
+    write_recording(
+        &rec.header,
+        rec.stream,
+        &tail,
+        &mut vec![0u8; 4096],
+        |b| {
+            out.extend_from_slice(b);
+            Ok::<(), ()>(())
+        },
+        (),
+    )
+    .expect("write");
+    refused(dir.path(), "tail.rec", &out, &["truth record 31"]);
+}
+
+#[test]
+fn absurd_recorded_configurations_are_refused_by_field() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let good = valid();
+    type Edit = fn(&mut RecordingHeader);
+    let cases: [(&str, Edit, &str); 8] = [
+        (
+            "g.rec",
+            |h| h.config.gravity = [0.0, -1e30],
+            "config.gravity[1]",
+        ),
+        ("s0.rec", |h| h.config.s0 = 1e30, "config.s0"),
+        (
+            "ext.rec",
+            |h| h.config.extent = [1e-30, 0.025],
+            "config.extent[0]",
+        ),
+        ("c.rec", |h| h.config.c = 0.0, "config.c"),
+        ("nan.rec", |h| h.config.eps0 = f32::NAN, "config.eps0"),
+        ("d.rec", |h| h.config.diffusion = 1e30, "config.diffusion"),
+        (
+            "rs.rec",
+            |h| h.config.reject_speed = f32::INFINITY,
+            "config.reject_speed",
+        ),
+        (
+            "per.rec",
+            |h| h.config.tick_period = 0.0,
+            "config.tick_period",
+        ),
+    ];
+    for (name, edit, needle) in cases {
+        let bytes = rewrite(&good, |h, _| edit(h));
+        refused(dir.path(), name, &bytes, &[needle, "allowed"]);
+    }
+    // A box without small grains is legal: its drift is finite (once 0/0 = NaN).
+    let empty = rewrite(&good, |h, _| h.config.initial_phihat = 0.0);
+    let path = dir.path().join("empty.rec");
+    std::fs::write(&path, empty).expect("write");
+    let (code, out, err) = sieve(&["replay", path.to_str().unwrap(), "--every", "1000"]);
+    assert_eq!(code, 0, "{err}");
+    let drift = out
+        .lines()
+        .find_map(|l| l.split("mass_drift=").nth(1))
+        .expect("mass_drift line");
+    let drift: f64 = drift.trim().parse().expect("number");
+    assert!(drift.is_finite() && drift.abs() < 1e-5, "{out}");
+}
+
+#[test]
+fn damaged_files_say_what_is_damaged_in_words() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let good = valid();
+    // One flipped bit in the middle of the frame stream.
+    let mut flip = good.clone();
+    let mid = flip.len() / 2;
+    flip[mid] ^= 0x10;
+    refused(
+        dir.path(),
+        "flip.rec",
+        &flip,
+        &["CRC-32 does not match", "the recording is damaged"],
+    );
+    // Cut in the stream: the stream length names itself.
+    let hl = u32::from_le_bytes(good[12..16].try_into().unwrap()) as usize;
+    let cut = &good[..16 + hl + 4 + 10];
+    refused(
+        dir.path(),
+        "cut.rec",
+        cut,
+        &["stream length", "only 10 bytes"],
+    );
+    // Trailing bytes after the CRC.
+    let mut long = good.clone();
+    long.extend_from_slice(b"xyz");
+    refused(
+        dir.path(),
+        "long.rec",
+        &long,
+        &["3 bytes follow the CRC-32"],
+    );
+    // Another version.
+    let mut v = good.clone();
+    v[8] = 9;
+    refused(dir.path(), "v.rec", &v, &["version 9", "allowed 2"]);
+    refused(dir.path(), "empty.rec", b"", &["not a sieve recording"]);
+}
+
+/// A finished run directory of `scene` for the test `tag` (written once per test binary;
+/// each test damages its own copy).
+fn run_dir(scene: &str, tag: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "sieve-hostile-{}-{tag}-{scene}",
+        std::process::id()
+    ));
+    if !dir.join("summary.json").is_file() {
+        let out = dir.to_str().expect("utf-8").to_owned();
+        let (code, _, err) = sieve(&["run", scene, "--out", &out, "--quiet"]);
+        assert_eq!(code, 0, "{err}");
+    }
+    dir
+}
+
+/// The files of a run directory that `sieve plot` reads.
+fn plot_inputs(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut v = vec![
+        dir.join("summary.json"),
+        dir.join("series.csv"),
+        dir.join("fields/series.pvd"),
+    ];
+    let mut vti: Vec<_> = std::fs::read_dir(dir.join("fields"))
+        .expect("fields")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "vti"))
+        .collect();
+    vti.sort();
+    v.extend(vti.into_iter().take(2));
+    v
+}
+
+/// `sieve plot` on run directories whose .vti once could not be trusted: a reversed extent
+/// (an underflow panic), an offset near `usize::MAX` (an overflow panic), a grid larger than
+/// its arrays (an index out of bounds).
+#[test]
+fn plot_refuses_lying_vti_files() {
+    let dir = run_dir("column-a", "vti");
+    let vti = plot_inputs(&dir)[3].clone();
+    let bytes = std::fs::read(&vti).expect("read");
+    let marker = b"<AppendedData";
+    let head_end = bytes
+        .windows(marker.len())
+        .position(|w| w == marker)
+        .expect("appended data");
+    let good = String::from_utf8(bytes[..head_end].to_vec()).expect("the header is text");
+    let ext = good
+        .split("WholeExtent=\"")
+        .nth(1)
+        .and_then(|r| r.split('"').next())
+        .expect("WholeExtent")
+        .to_string();
+    let swap = |from: &str, to: &str| -> Vec<u8> {
+        let head = String::from_utf8_lossy(&bytes[..head_end]).replacen(from, to, 1);
+        let mut b = head.into_bytes();
+        b.extend_from_slice(&bytes[head_end..]);
+        b
+    };
+    let cases = [
+        swap(
+            &format!("WholeExtent=\"{ext}\""),
+            "WholeExtent=\"0 0 0 0 5 2\"",
+        ),
+        swap(
+            &format!("WholeExtent=\"{ext}\""),
+            "WholeExtent=\"0 0 0 0 0 100000\"",
+        ),
+        swap("offset=\"0\"", "offset=\"18446744073709551615\""),
+    ];
+    for (k, b) in cases.iter().enumerate() {
+        std::fs::write(&vti, b).expect("write");
+        let (code, out, err) = sieve(&["plot", dir.to_str().unwrap()]);
+        std::fs::write(&vti, &bytes).expect("restore");
+        assert_eq!(code, 1, "case {k}: {out} {err}");
+        assert_eq!(err.lines().count(), 1, "case {k}: {err}");
+        assert!(err.contains(".vti"), "case {k}: {err}");
+    }
+    let (code, _, err) = sieve(&["plot", dir.to_str().unwrap()]);
+    assert_eq!(code, 0, "restored: {err}");
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config {
+        cases: std::env::var("SIEVE_FUZZ_CASES_PLOT").ok().and_then(|v| v.parse().ok()).unwrap_or(12),
+        ..proptest::test_runner::Config::default()
+    })]
+
+    /// The reader behind `sieve plot` (summary.json, series.csv, series.pvd, .vti) on a run
+    /// directory with one file damaged: bytes flipped, cut, replaced or a number rewritten.
+    /// Never a panic; an error is one line.
+    #[test]
+    fn plot_reader_never_panics(two_d in proptest::bool::ANY, which in 0usize..5, at in proptest::num::usize::ANY,
+                                how in 0u8..4, byte in proptest::num::u8::ANY,
+                                number in proptest::sample::select(vec!["nan", "inf", "-1", "1e308", "0", "18446744073709551615", "-0", "x"])) {
+        let dir = run_dir(if two_d { "shear-cell-inverse" } else { "column-a" }, "fuzz");
+        let files = plot_inputs(&dir);
+        let f = &files[which % files.len()];
+        let orig = std::fs::read(f).expect("read");
+        let mut b = orig.clone();
+        let n = b.len().max(1);
+        match how {
+            0 => { if !b.is_empty() { b[at % n] ^= byte | 1; } }
+            1 => b.truncate(at % n),
+            2 => { b.splice(at % (b.len() + 1)..at % (b.len() + 1), number.bytes()); }
+            _ => {
+                // Rewrite the digits around a position.
+                let i = at % n;
+                let s = (0..=i.min(b.len().saturating_sub(1))).rev().take_while(|&j| b.get(j).is_some_and(|c| c.is_ascii_digit())).last();
+                if let Some(s) = s {
+                    let e = (s..b.len()).find(|&j| !b[j].is_ascii_digit()).unwrap_or(b.len());
+                    b.splice(s..e, number.bytes());
+                }
+            }
+        }
+        std::fs::write(f, &b).expect("write");
+        let plots = tempfile::tempdir().expect("temp dir");
+        let r = std::panic::catch_unwind(|| sieve::output::redraw::redraw(&dir, plots.path()));
+        std::fs::write(f, &orig).expect("restore");
+        match r {
+            Err(_) => proptest::prop_assert!(false, "panic on {} ({how}, {at}, {byte}, {number})", f.display()),
+            Ok(Err(e)) => proptest::prop_assert_eq!(e.lines().count(), 1, "{}", e),
+            Ok(Ok(_)) => {}
+        }
+    }
+}
