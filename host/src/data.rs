@@ -41,6 +41,9 @@ pub struct LoopStats {
     /// The solver's running bound violations `(max(phi - c), max(-phi))` over every cell after
     /// every step ([`sieve_core::Segregation::bound_violations`]), not only at output times.
     pub every_step: (f64, f64),
+    /// Why the loop stopped before its end time (a signal, a non-finite value); None if it
+    /// ran to the end. Set only by the `*_until_stop` loops (host/src/interrupt.rs).
+    pub stop: Option<crate::interrupt::Stop>,
 }
 
 impl LoopStats {
