@@ -393,3 +393,89 @@ fn a_non_finite_state_stops_the_run_with_exit_3_and_keeps_it() {
     assert!(p.join("tiny/series.csv").exists());
     assert_no_debris(p);
 }
+
+/// Waits until `dir` holds the staging directory of `out`.
+fn wait_for_staging(dir: &Path, out: &str, child: &mut Child) -> PathBuf {
+    let start = Instant::now();
+    loop {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the command ended early"
+        );
+        if let Some(n) = names(dir)
+            .into_iter()
+            .find(|n| n.starts_with(&format!(".{out}.tmp-")))
+        {
+            return dir.join(n);
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no staging directory"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_coupled_flow_run_stops_on_sigterm_and_keeps_its_flow_block() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path();
+    let mut child = sieve_in(p)
+        .args(["run", "column-collapse", "--out", "cc", "-q"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let staged = wait_for_staging(p, "cc", &mut child);
+    // The t = 0 output, then some coupled steps.
+    let start = Instant::now();
+    while !staged.join("fields/state_0000.vti").exists() {
+        assert!(start.elapsed() < Duration::from_secs(60));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    kill(&child, "-TERM");
+    let (code, err) = finish(child);
+    assert_eq!(code, 143, "{err}");
+    one_error_line(
+        &err,
+        &["interrupted by SIGTERM", "partial output kept in cc"],
+    );
+    let s = summary(&p.join("cc"));
+    assert_eq!(s["status"], "interrupted", "{s}");
+    assert!(s["stopped"]["step"].as_u64().unwrap() > 0, "{s}");
+    assert_eq!(s["flow"]["equations"], "coupled");
+    assert_eq!(s["flow"]["flow_steps"], s["steps"]);
+    assert!(s["stopped"]["t"].as_f64().unwrap() < 1.0);
+    assert!(p.join("cc/final.csv").exists() && p.join("cc/profiles.csv").exists());
+    assert_no_debris(p);
+}
+
+#[test]
+fn an_interrupted_convergence_study_writes_nothing_and_leaves_nothing() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path();
+    let mut child = sieve_in(p)
+        .args([
+            "converge",
+            "column-a",
+            "--levels",
+            "2000,4000",
+            "--t-end",
+            "2000",
+            "--out",
+            "conv",
+            "-q",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_staging(p, "conv", &mut child);
+    std::thread::sleep(Duration::from_millis(300));
+    kill(&child, "-INT");
+    let (code, err) = finish(child);
+    assert_eq!(code, 130, "{err}");
+    one_error_line(&err, &["interrupted by SIGINT at t = ", "nothing written"]);
+    assert_eq!(names(p), Vec::<String>::new());
+}
