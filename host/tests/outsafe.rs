@@ -479,3 +479,37 @@ fn an_interrupted_convergence_study_writes_nothing_and_leaves_nothing() {
     one_error_line(&err, &["interrupted by SIGINT at t = ", "nothing written"]);
     assert_eq!(names(p), Vec::<String>::new());
 }
+
+#[test]
+fn record_never_writes_over_a_file_it_did_not_write() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path();
+    std::fs::write(p.join("notes.txt"), "mine").unwrap();
+    let args = |out: &str| {
+        [
+            "record",
+            "idealised-shear-cell",
+            "--frames",
+            "3",
+            "--out",
+            out,
+        ]
+        .map(String::from)
+    };
+    let out = sieve_in(p).args(args("notes.txt")).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    one_error_line(&err, &["notes.txt: exists and was not written by sieve"]);
+    assert_eq!(
+        std::fs::read_to_string(p.join("notes.txt")).unwrap(),
+        "mine"
+    );
+    let out = sieve_in(p).args(args(".")).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    // A recording sieve wrote is replaced.
+    for _ in 0..2 {
+        let out = sieve_in(p).args(args("a.rec")).output().unwrap();
+        assert!(out.status.success(), "{out:?}");
+    }
+    assert_eq!(names(p), ["a.rec", "notes.txt"]);
+}

@@ -359,3 +359,30 @@ pub fn claim(target: &Path) -> Result<Lock> {
     }
     Ok(lock)
 }
+
+/// Checks that sieve may write the single file `path` (`sieve record --out FILE`): never a
+/// directory, never an existing file that does not start with `magic` (a file sieve wrote
+/// before); exit 2 otherwise. The file itself is then written atomically.
+pub fn claim_file(path: &Path, magic: &[u8]) -> Result<()> {
+    use std::io::Read;
+    if path.is_dir() || path.file_name().is_none() {
+        return Err(Error::Input(format!(
+            "{}: is a directory; --out takes a file name, e.g. --out runs/NAME.rec",
+            path.display()
+        )));
+    }
+    if path.exists() {
+        let mut head = vec![0u8; magic.len()];
+        let ours = std::fs::File::open(path)
+            .and_then(|mut f| f.read_exact(&mut head))
+            .is_ok()
+            && head == magic;
+        if !ours {
+            return Err(Error::Input(format!(
+                "{}: exists and was not written by sieve; choose another --out or move it",
+                path.display()
+            )));
+        }
+    }
+    Ok(())
+}
