@@ -150,7 +150,7 @@ impl Stop {
             Reason::Signal(s) => format!(
                 "interrupted by {} at t = {} s, step {}",
                 s.name(),
-                crate::output::num(self.t),
+                num(self.t),
                 self.step
             ),
             Reason::NonFinite {
@@ -166,13 +166,13 @@ impl Stop {
                 format!(
                     "the run failed numerically at step {} (t = {} s): {field} = {value}{at}",
                     self.step,
-                    crate::output::num(self.t)
+                    num(self.t)
                 )
             }
             Reason::Core(m) => format!(
                 "the run failed numerically at step {} (t = {} s): {m}",
                 self.step,
-                crate::output::num(self.t)
+                num(self.t)
             ),
         }
     }
@@ -194,6 +194,17 @@ impl Stop {
             )),
             Reason::Core(_) => Error::Numerical(format!("{}; {kept}", self.describe())),
         }
+    }
+}
+
+/// A time in the shortest form that reads back to the same f64 (as `output::num`; this
+/// module stays below `data` and `output` in the import graph, host/tests/house.rs).
+fn num(x: f64) -> String {
+    let a = x.abs();
+    if x == 0.0 || (1e-4..1e15).contains(&a) || !x.is_finite() {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
     }
 }
 
