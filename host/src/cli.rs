@@ -586,6 +586,8 @@ fn record(a: &RecordArgs) -> Result<()> {
             return Err(Error::range("command line", "--frames", n, "1..=100000"));
         }
     }
+    // Never over a file sieve did not write (host/src/output/target.rs).
+    crate::output::target::claim_file(&a.out, &sieve_core::sensor::recording::RECORDING_MAGIC)?;
     let start = std::time::Instant::now();
     let sensor = [sensor[0] as u8, sensor[1] as u8];
     let estimator_cells = [est[0] as u16, est[1] as u16];

@@ -44,6 +44,9 @@ pub struct LoopStats {
     /// Small-phase mass flushed to zero as vanishing fractions
     /// ([`sieve_core::Segregation::flushed_small_mass`], docs/model.md 5.6).
     pub flushed: f64,
+    /// Why the loop stopped before its end time (a signal, a non-finite value); None if it
+    /// ran to the end. Set only by the `*_until_stop` loops (host/src/interrupt.rs).
+    pub stop: Option<crate::interrupt::Stop>,
 }
 
 impl LoopStats {

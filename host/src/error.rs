@@ -13,6 +13,16 @@ pub enum Error {
     Input(String),
     /// Anything else: I/O, plotting, an internal failure (exit code 1).
     Failure(String),
+    /// Stopped by SIGINT or SIGTERM (exit code 130 or 143, `code`); the message says what was
+    /// kept.
+    Interrupted {
+        /// 128 + the signal number.
+        code: i32,
+        /// One line.
+        message: String,
+    },
+    /// The run failed numerically: a non-finite time step or state (exit code 3).
+    Numerical(String),
 }
 
 /// Result alias of the host crate.
@@ -57,7 +67,8 @@ impl Error {
     /// The lines of the message (several for [`Error::many`]).
     pub fn lines(&self) -> impl Iterator<Item = &str> {
         match self {
-            Error::Input(m) | Error::Failure(m) => m.lines(),
+            Error::Input(m) | Error::Failure(m) | Error::Numerical(m) => m.lines(),
+            Error::Interrupted { message, .. } => message.lines(),
         }
     }
 
@@ -71,11 +82,14 @@ impl Error {
         Error::failure(format!("{}: {e}", path.display()))
     }
 
-    /// The process exit code: 2 for bad input, 1 otherwise.
+    /// The process exit code: 2 for bad input, 3 for a numerical failure, 130/143 for
+    /// SIGINT/SIGTERM, 1 otherwise.
     pub fn exit_code(&self) -> i32 {
         match self {
             Error::Input(_) => 2,
             Error::Failure(_) => 1,
+            Error::Numerical(_) => 3,
+            Error::Interrupted { code, .. } => *code,
         }
     }
 }
@@ -83,7 +97,8 @@ impl Error {
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Error::Input(m) | Error::Failure(m) => f.write_str(m),
+            Error::Input(m) | Error::Failure(m) | Error::Numerical(m) => f.write_str(m),
+            Error::Interrupted { message, .. } => f.write_str(message),
         }
     }
 }

@@ -147,6 +147,7 @@ fn evaluate<R: Real, const D: usize, const N: usize>(
     let mut rows = Vec::new();
     let mut k = 0u64;
     loop {
+        crate::interrupt::check("sieve fit")?;
         let t = (k as f64 * every).min(t_max);
         s.advance_to(R::from_f64(t), u64::MAX);
         let d = diagnose(s);

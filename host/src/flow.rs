@@ -240,6 +240,19 @@ pub fn spin_up<R: Real, const D: usize, const N: usize>(
     setup(flow, scene, fields, columns)?;
     let tol = R::from_f64(fm.steady_tolerance);
     loop {
+        // Nothing of a spin-up is kept: a signal ends it with nothing written.
+        crate::interrupt::check("the flow spin-up")?;
+        let dt = flow.stable_dt().to_f64();
+        if let Some(reason) =
+            crate::interrupt::bad_dt(dt).or_else(|| crate::interrupt::scan_flow(flow))
+        {
+            let stop = crate::interrupt::Stop {
+                reason,
+                t: flow.time().to_f64(),
+                step: flow.steps(),
+            };
+            return Err(stop.error(None));
+        }
         flow.step(flow.stable_dt());
         let k = flow.steps();
         if k >= fm.min_steps && flow.residual() < tol {
@@ -334,8 +347,28 @@ pub struct CoupledStats {
 
 /// Coupled mode: flow and segregation on the full grid with a common step (the last step
 /// before an output time shortened to land on it), packing back-coupled if switched on.
-/// `on_output(k, t, seg, flow)` is called at every output time.
+/// `on_output(k, t, seg, flow)` is called at every output time. A signal or a non-finite value
+/// ends it with an error; `sieve run` uses [`coupled_loop_until_stop`] to keep the partial run.
 pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
+    flow: &mut Flow<R, D, N>,
+    seg: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    fields: &Fields,
+    geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
+    progress: &indicatif::ProgressBar,
+    on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
+) -> Result<CoupledStats> {
+    let cs = coupled_loop_until_stop(flow, seg, scene, fields, geo, progress, on_output)?;
+    match &cs.stats.stop {
+        Some(stop) => Err(stop.error(None)),
+        None => Ok(cs),
+    }
+}
+
+/// [`coupled_loop`] that ends early, with `stats.stop` set, on a signal, a non-finite time
+/// step or state (checked after every step: one pass over the cells, small next to a flow
+/// step) or a step the core refuses.
+pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
     flow: &mut Flow<R, D, N>,
     seg: &mut Segregation<R, D, N>,
     scene: &Scene,
@@ -376,7 +409,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     let mut timer = SegregationTimer::new(scene.psi_threshold);
     let mut flow_seconds = 0.0;
     let mut discharge = crate::silo::has_outlets(scene).then(crate::silo::DischargeSeries::default);
-    for (k, &t) in times.iter().enumerate() {
+    'outputs: for (k, &t) in times.iter().enumerate() {
         let target = R::from_f64(t);
         let start = Instant::now();
         while cpl.seg.time() < target {
@@ -385,8 +418,35 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
                 .stable_dt()
                 .min(seg_dt(cpl.seg))
                 .min(target - cpl.seg.time());
-            cpl.step_with(dt).map_err(fail)?;
-            stats.steps += 1;
+            let stepped = match crate::interrupt::bad_dt(dt.to_f64()) {
+                Some(r) => Err(r),
+                None => cpl.step_with(dt).map_err(|e| {
+                    // The core names what it refused; a non-finite cell says more.
+                    crate::interrupt::scan_segregation(cpl.seg)
+                        .or_else(|| crate::interrupt::scan_flow(cpl.flow))
+                        .unwrap_or(crate::interrupt::Reason::Core(e.to_string()))
+                }),
+            };
+            if stepped.is_ok() {
+                stats.steps += 1;
+            }
+            let reason = stepped.err().or_else(|| {
+                crate::interrupt::pending()
+                    .map(crate::interrupt::Reason::Signal)
+                    .or_else(|| crate::interrupt::scan_segregation(cpl.seg))
+                    .or_else(|| crate::interrupt::scan_flow(cpl.flow))
+            });
+            if let Some(reason) = reason {
+                stats.stop = Some(crate::interrupt::Stop {
+                    reason,
+                    t: cpl.seg.time().to_f64(),
+                    step: stats.steps,
+                });
+                let el = start.elapsed();
+                stats.stepping += el;
+                flow_seconds += el.as_secs_f64();
+                break 'outputs;
+            }
             if stats.steps % 256 == 0 {
                 progress.set_position((cpl.seg.time().to_f64() / scene.t_end * 1000.0) as u64);
             }

@@ -5,7 +5,9 @@
 //! diagnostics -> [`output`] (summary.json, series.csv, final.csv, VTK fields, PNG plots,
 //! written atomically). [`converge`] runs a scene on several grids; [`cli`] parses the command
 //! line; [`flow`] solves the granular flow of a scene (frozen or coupled) and [`fit`] fits S0 to a
-//! segregation time; [`sweep`] runs the product of `--set` values; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
+//! segregation time; [`sweep`] runs the product of `--set` values; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 3 for a
+//! numerical failure, 130/143 for SIGINT/SIGTERM, 1 otherwise); [`interrupt`] stops a run early
+//! and keeps what it wrote.
 
 pub mod cli;
 pub mod converge;
@@ -14,6 +16,7 @@ pub mod embedded;
 pub mod error;
 pub mod fit;
 pub mod flow;
+pub mod interrupt;
 pub mod output;
 pub mod run;
 pub mod scene;

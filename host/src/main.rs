@@ -4,11 +4,20 @@ use std::process::ExitCode;
 
 fn main() -> ExitCode {
     let cli = sieve::cli::Cli::parse();
+    // SIGINT/SIGTERM stop the step loops, which keep what was written (host/src/interrupt.rs).
+    if let Err(e) = sieve::interrupt::install() {
+        eprintln!("warning: cannot handle SIGINT/SIGTERM ({e}); a signal ends sieve at once");
+    }
     match sieve::cli::execute(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            // An interruption is the user's choice, not an error.
+            let prefix = match e {
+                sieve::error::Error::Interrupted { .. } => "sieve",
+                _ => "error",
+            };
             for line in e.lines() {
-                eprintln!("error: {line}");
+                eprintln!("{prefix}: {line}");
             }
             ExitCode::from(e.exit_code() as u8)
         }

@@ -185,7 +185,25 @@ pub fn load<R: Real, const D: usize, const N: usize>(
 /// Advances `s` from 0 to `scene.t_end`, stopping at every output time to record diagnostics
 /// and call `on_output(k, t, s)`. The stepping is timed alone. With cut cells (`geo`, a scene
 /// with a geometry) the embedded step, time step and diagnostics run instead of the box's.
+/// A signal or a non-finite value ends it with an error ([`crate::interrupt`]); `sieve run`
+/// uses [`time_loop_until_stop`] to keep the partial run.
 pub fn time_loop<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    progress: &ProgressBar,
+    geo: Option<&CutCells<R, D, N>>,
+    on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
+) -> Result<LoopStats> {
+    let stats = time_loop_until_stop(s, scene, progress, geo, on_output)?;
+    match &stats.stop {
+        Some(stop) => Err(stop.error(None)),
+        None => Ok(stats),
+    }
+}
+
+/// [`time_loop`] that ends early, with `stats.stop` set, on a signal or a non-finite time step,
+/// clock or state (checked after every chunk of steps: [`crate::interrupt::after_steps`]).
+pub fn time_loop_until_stop<R: Real, const D: usize, const N: usize>(
     s: &mut Segregation<R, D, N>,
     scene: &Scene,
     progress: &ProgressBar,
@@ -203,7 +221,12 @@ pub fn time_loop<R: Real, const D: usize, const N: usize>(
     // Bounded chunks keep the progress bar moving on large grids; the step sequence is the
     // same as one call (advance_to only shortens the step that lands on the target).
     let chunk = (4_000_000 / scene.len()).max(1) as u64;
-    for (k, &t) in times.iter().enumerate() {
+    // The prepared state first: a non-finite coefficient stops the run before any step.
+    stats.stop = crate::interrupt::after_steps(s, stats.dt, 0);
+    'outputs: for (k, &t) in times.iter().enumerate() {
+        if stats.stop.is_some() {
+            break;
+        }
         let target = R::from_f64(t);
         while s.time() < target {
             let start = Instant::now();
@@ -213,6 +236,11 @@ pub fn time_loop<R: Real, const D: usize, const N: usize>(
             };
             stats.stepping += start.elapsed();
             progress.set_position((s.time().to_f64() / scene.t_end * 1000.0) as u64);
+            // The step the chunk took (the prepared state's: constant over the run).
+            if let Some(stop) = crate::interrupt::after_steps(s, stats.dt, stats.steps) {
+                stats.stop = Some(stop);
+                break 'outputs;
+            }
         }
         let d = match geo {
             Some(g) => sieve_core::diagnose_embedded(s, g),
@@ -338,7 +366,7 @@ impl SolverJob for RunJob<'_> {
         let volume = geo.map(crate::embedded::volumes);
         let bar = progress_bar(self.quiet, &scene.name);
         let mut pvd = Vec::new();
-        let stats = time_loop(s, scene, &bar, geo, |k, t, s| {
+        let stats = time_loop_until_stop(s, scene, &bar, geo, |k, t, s| {
             let mut snap = Snapshot::of(s, scene);
             snap.volume = volume.clone();
             self.output(k, t, &snap, &mut pvd)
@@ -379,20 +407,27 @@ impl FlowJob for RunJob<'_> {
         let equations = scene.flow.as_ref().map(|m| m.equations);
         let mut discharge = None;
         let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
-            let cs =
-                crate::flow::coupled_loop(f, s, scene, self.fields, geo, &bar, |k, t, s, f| {
+            let cs = crate::flow::coupled_loop_until_stop(
+                f,
+                s,
+                scene,
+                self.fields,
+                geo,
+                &bar,
+                |k, t, s, f| {
                     let mut snap = Snapshot::of(s, scene);
                     snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
                     snap.volume = volume.clone();
                     self.output(k, t, &snap, &mut pvd)
-                })?;
+                },
+            )?;
             let p: Vec<f64> = (0..f.len()).map(|i| f.pressure(i).to_f64()).collect();
             discharge = cs.discharge;
             (cs.stats, cs.summary, p)
         } else {
             let frozen = crate::flow::spin_up(f, scene, self.fields)?;
             crate::flow::hand_over_frozen(s, scene, self.fields, &frozen)?;
-            let stats = time_loop(s, scene, &bar, None, |k, t, s| {
+            let stats = time_loop_until_stop(s, scene, &bar, None, |k, t, s| {
                 let mut snap = Snapshot::of(s, scene);
                 snap.p = Some(frozen.p.clone());
                 self.output(k, t, &snap, &mut pvd)
@@ -461,7 +496,10 @@ pub fn run_scene(
         psi_exact: ex.psi(scene.t_end),
         segregation_time_exact: ex.segregation_time(scene.psi_threshold),
     });
+    let stop = stats.stop.as_ref();
     let summary = summary::Summary {
+        status: stop.map_or("complete", |s| s.status()).into(),
+        stopped: stop.map(summary::Stopped::of),
         scene: scene.name.clone(),
         scene_file: scene.label.clone(),
         scheme: scene.scheme.name().into(),
@@ -516,7 +554,24 @@ pub fn run_scene(
     };
     summary.write(&staging.path().join("summary.json"))?;
     // The pictures come from the files just written, as `sieve plot DIR` draws them.
-    redraw::redraw(staging.path(), &plots_dir)?;
-    staging.commit()?;
-    Ok(summary)
+    let drawn = output::without_panic(|| redraw::redraw(staging.path(), &plots_dir));
+    let Some(stop) = stop else {
+        if let Err(e) = drawn {
+            // The run is complete: keep it, and say the pictures failed (exit 1).
+            let dir = staging.commit()?;
+            return Err(Error::failure(format!(
+                "{}: the run is complete but its plots could not be drawn ({e}); its files are kept",
+                dir.display()
+            )));
+        }
+        staging.commit()?;
+        return Ok(summary);
+    };
+    // A stopped run keeps its files even if its (partial, perhaps non-finite) data cannot
+    // be drawn.
+    if let Err(e) = drawn {
+        eprintln!("warning: {}: plots not drawn: {e}", opts.out.display());
+    }
+    let dir = staging.commit()?;
+    Err(stop.error(Some(&dir)))
 }

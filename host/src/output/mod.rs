@@ -1,55 +1,47 @@
 //! The run directory: everything is written into a temporary sibling of DIR and renamed into
 //! place at the end ([`Staging::commit`]), so a failed run never leaves a half-written DIR.
+//! Before anything is created, [`target::claim`] checks that sieve may replace DIR (never a
+//! directory sieve did not write, never the current directory or its parents), takes DIR's
+//! lock and removes what killed runs left; a run stopped by a signal or a numerical failure
+//! commits what it wrote (docs/outputs.md).
 
 pub mod csv;
 pub mod plot;
 pub mod redraw;
 pub mod summary;
+pub mod target;
 pub mod vtk;
 
 use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
+use target::{parent_of, stem_of, Marker};
 
 /// A temporary directory next to the target that becomes the target on [`Staging::commit`].
-/// Dropped without commit, it is deleted.
+/// Dropped without commit, it is deleted. It holds the target's lock until dropped.
 #[derive(Debug)]
 pub struct Staging {
     tmp: tempfile::TempDir,
     target: PathBuf,
-}
-
-fn parent_of(target: &Path) -> PathBuf {
-    match target.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    }
-}
-
-fn stem_of(target: &Path) -> String {
-    target
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "run".into())
+    // Declared last: dropped after the staging directory is gone.
+    _lock: target::Lock,
 }
 
 impl Staging {
-    /// Creates the staging directory (and the parent of `target` if needed).
+    /// Checks and locks `target` ([`target::claim`]), then creates the marked staging
+    /// directory (and the parent of `target` if needed).
     pub fn new(target: &Path) -> Result<Self> {
-        if target.exists() && !target.is_dir() {
-            return Err(Error::Input(format!(
-                "{}: output path exists and is not a directory",
-                target.display()
-            )));
-        }
+        let lock = target::claim(target)?;
         let parent = parent_of(target);
-        std::fs::create_dir_all(&parent).map_err(|e| Error::io(&parent, e))?;
         let tmp = tempfile::Builder::new()
             .prefix(&format!(".{}.tmp-", stem_of(target)))
             .tempdir_in(&parent)
             .map_err(|e| Error::io(&parent, e))?;
+        // Marked from the start: if this process is killed, a later run knows it is sieve's.
+        Marker::now(Vec::new()).write(tmp.path())?;
         Ok(Self {
             tmp,
             target: target.to_path_buf(),
+            _lock: lock,
         })
     }
 
@@ -65,11 +57,13 @@ impl Staging {
         Ok(p)
     }
 
-    /// Renames the staging directory to the target. An existing target is moved aside first
-    /// and deleted only after the rename succeeded (restored if it failed).
+    /// Lists the written files in the marker and renames the staging directory to the
+    /// target. An existing target (checked by [`target::claim`]) is moved aside first and
+    /// deleted only after the rename succeeded (restored if it failed).
     pub fn commit(self) -> Result<PathBuf> {
-        let staged = self.tmp.keep();
-        let target = self.target;
+        Marker::now(target::files_under(self.path())?).write(self.path())?;
+        let Staging { tmp, target, _lock } = self;
+        let staged = tmp.keep();
         let aside = if target.exists() {
             let aside = tempfile::Builder::new()
                 .prefix(&format!(".{}.old-", stem_of(&target)))
@@ -93,8 +87,27 @@ impl Staging {
         if let Some(aside) = aside {
             std::fs::remove_dir_all(&aside).map_err(|e| Error::io(&aside, e))?;
         }
+        drop(_lock);
         Ok(target)
     }
+}
+
+/// Runs `f`, turning a panic into an error (its message, one line) without printing a
+/// backtrace: the plotting library panics on some extreme or non-finite data, and a run must
+/// not lose its files over a picture.
+pub fn without_panic<T>(f: impl FnOnce() -> Result<T>) -> Result<T> {
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    std::panic::set_hook(hook);
+    r.unwrap_or_else(|p| {
+        let m = p
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "a panic".into());
+        Err(Error::failure(m))
+    })
 }
 
 /// Writes `bytes` to `path`, naming the path in an error.

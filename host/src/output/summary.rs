@@ -18,9 +18,70 @@ pub struct ExactComparison {
     pub segregation_time_exact: f64,
 }
 
+/// Where and why a run stopped before `t_end` (`stopped` in summary.json).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Stopped {
+    /// One line, as printed on stderr.
+    pub reason: String,
+    /// Simulated time reached [s].
+    pub t: f64,
+    /// Steps taken (a non-finite value is detected after this step).
+    pub step: u64,
+    /// `SIGINT` or `SIGTERM` (interrupted runs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub signal: Option<String>,
+    /// The field that is not finite: `dt`, `t`, `phi`, `c`, `T`, `u_x`, ..., `flow c`, ...
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub field: Option<String>,
+    /// The cell (solver order) and its integer coordinates per axis.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cell: Option<usize>,
+    /// Integer coordinates of `cell` per axis.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coords: Option<Vec<usize>>,
+}
+
+impl Stopped {
+    /// The summary of a loop's stop.
+    pub fn of(stop: &crate::interrupt::Stop) -> Self {
+        use crate::interrupt::Reason;
+        let mut s = Self {
+            reason: stop.describe(),
+            t: stop.t,
+            step: stop.step,
+            signal: None,
+            field: None,
+            cell: None,
+            coords: None,
+        };
+        match &stop.reason {
+            Reason::Signal(sig) => s.signal = Some(sig.name().into()),
+            Reason::NonFinite {
+                field,
+                cell,
+                coords,
+                ..
+            } => {
+                s.field = Some(field.clone());
+                s.cell = *cell;
+                s.coords = cell.map(|_| coords.clone());
+            }
+            Reason::Core(_) => {}
+        }
+        s
+    }
+}
+
 /// The contents of `summary.json`.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Summary {
+    /// `"complete"`: ran to `t_end` (or until a silo emptied); `"interrupted"`: stopped by
+    /// SIGINT/SIGTERM; `"failed"`: stopped by a non-finite time step or state. The files of a
+    /// stopped run hold what was computed up to `stopped.t` (final.csv: the state there).
+    pub status: String,
+    /// Where and why the run stopped early (absent when complete).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stopped: Option<Stopped>,
     /// Scene name.
     pub scene: String,
     /// Scene file (or `scenes/<name>.toml` for a built-in).

@@ -489,6 +489,7 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
     let mut writer = Writer::new(opts.sensor, period, sigma, opts.seed).map_err(fail)?;
     let mut final_psi = 0.0;
     for k in 1..=frames {
+        crate::interrupt::check("sieve record")?;
         writer
             .frame(k, |ix, iz| [sx[ix + ns[0] * iz], sz[ix + ns[0] * iz]])
             .map_err(fail)?;
