@@ -41,6 +41,19 @@ pub struct LoopStats {
     /// The solver's running bound violations `(max(phi - c), max(-phi))` over every cell after
     /// every step ([`sieve_core::Segregation::bound_violations`]), not only at output times.
     pub every_step: (f64, f64),
+    /// Smallest, largest and last stable time step actually stepped with (the steps shortened
+    /// to land on an output time not counted); `None` before any step or when nothing moves.
+    pub dt_taken: Option<[f64; 3]>,
+}
+
+impl LoopStats {
+    /// Records a stable step `dt` taken.
+    pub fn took_dt(&mut self, dt: f64) {
+        self.dt_taken = Some(match self.dt_taken {
+            None => [dt, dt, dt],
+            Some([lo, hi, _]) => [lo.min(dt), hi.max(dt), dt],
+        });
+    }
 }
 
 impl LoopStats {

@@ -12,12 +12,15 @@ pub mod converge;
 pub mod data;
 pub mod embedded;
 pub mod error;
+pub mod estimate;
 pub mod fit;
 pub mod flow;
 pub mod output;
+pub mod progress;
 pub mod run;
 pub mod scene;
 pub mod silo;
 pub mod soft_sensor;
+pub mod text;
 
 pub use error::{Error, Result};

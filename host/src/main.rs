@@ -1,9 +1,8 @@
 //! The `sieve` binary: parse the command line, run it, map errors to exit codes.
-use clap::Parser;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    let cli = sieve::cli::Cli::parse();
+    let cli = sieve::cli::parse_args();
     match sieve::cli::execute(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
