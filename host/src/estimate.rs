@@ -76,7 +76,7 @@ pub fn check_steps(scene: &Scene, dt: f64, seconds_per_step: f64) -> Result<()> 
         format!(
             "t_end = {} with a stable time step of {} would take {} steps ({} cell updates, {rate}), above {flag} = {}: raise {flag} or shorten run.t_end (or check grid.upper, material.s0, material.diffusion, initial.u and initial.T, which set the time step)",
             num(scene.t_end),
-            num(dt),
+            crate::text::approx(dt),
             short(n),
             short(cell_steps),
             num(limit),
@@ -318,30 +318,4 @@ pub fn bounds_warning(
         scene.label,
         crate::text::approx(amount),
     ))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn byte_sizes_parse() {
-        assert_eq!(parse_bytes("500M").unwrap(), 5e8);
-        assert_eq!(parse_bytes("8G").unwrap(), 8e9);
-        assert_eq!(parse_bytes("1e10").unwrap(), 1e10);
-        assert_eq!(parse_bytes("2k").unwrap(), 2e3);
-        assert!(parse_bytes("-1G").is_err());
-        assert!(parse_bytes("lots").is_err());
-        assert_eq!(parse_count("1e9").unwrap(), 1e9);
-        assert!(parse_count("0").is_err());
-        assert_eq!(bytes_text(8.2e9), "8.2 GB");
-    }
-
-    #[test]
-    fn free_space_of_a_missing_directory_is_its_parent_s() {
-        let d = tempfile::tempdir().unwrap();
-        let a = free_space(d.path()).unwrap();
-        let b = free_space(&d.path().join("not/yet/there")).unwrap();
-        assert!(a > 0 && b > 0);
-    }
 }

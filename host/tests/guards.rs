@@ -121,7 +121,7 @@ fn max_steps_is_a_limit_the_user_can_raise() {
     );
     refused(
         &["run", "column-a", "--max-cell-steps", "1e5", "--out", "o"],
-        &["1.2e5 cell updates", "--max-cell-steps = 1e5"],
+        &["1.2e5 cell updates", "--max-cell-steps = 100000"],
         20,
     );
     let d = tmp();
@@ -661,4 +661,75 @@ fn compressed_and_thinned_vtk_holds_the_raw_arrays() {
         (est - written as f64).abs() / (written as f64) < 0.05,
         "{est} vs {written}"
     );
+}
+
+// ---- message and estimate helpers (host/src/text.rs, host/src/estimate.rs) ----
+mod helpers {
+    use sieve::estimate::{bytes_text, free_space, parse_bytes, parse_count};
+    use sieve::text::{approx, num, shorten};
+
+    #[test]
+    fn long_numbers_become_exponents() {
+        let big = format!("{}", 1e300);
+        assert_eq!(big.len(), 301);
+        assert_eq!(shorten(&format!("t = {big} is out")), "t = 1e300 is out");
+        assert_eq!(
+            shorten("output_interval >= 10000000000000000000000000"),
+            "output_interval >= 1e25"
+        );
+        assert_eq!(shorten(&format!("[{big}, 2]")), "[1e300, 2]");
+        // short numbers and words stay as they are
+        assert_eq!(
+            shorten("grid.cells[0] = 0.125 ok"),
+            "grid.cells[0] = 0.125 ok"
+        );
+        assert_eq!(shorten("column-a 1..=65536"), "column-a 1..=65536");
+    }
+
+    #[test]
+    fn long_words_are_clipped() {
+        let name = "a".repeat(1 << 20);
+        let s = shorten(&format!("{name}: unknown scene"));
+        assert!(s.len() < 120, "{}", s.len());
+        assert!(s.contains("(1048577 chars)"), "{s}");
+        assert!(s.ends_with(" unknown scene"));
+    }
+
+    #[test]
+    fn numbers_for_messages() {
+        assert_eq!(num(3.2e14), "3.2e14");
+        assert_eq!(num(0.5), "0.5");
+        assert_eq!(num(1e-12), "1e-12");
+        assert_eq!(num(0.0), "0");
+        assert_eq!(approx(1e300 / 1e5), "1e295");
+        assert_eq!(approx(0.0123456), "1.235e-2");
+        assert_eq!(approx(0.5), "0.5");
+    }
+
+    #[test]
+    fn byte_sizes_parse() {
+        assert_eq!(parse_bytes("500M").unwrap(), 5e8);
+        assert_eq!(parse_bytes("8G").unwrap(), 8e9);
+        assert_eq!(parse_bytes("1e10").unwrap(), 1e10);
+        assert_eq!(parse_bytes("2k").unwrap(), 2e3);
+        assert!(parse_bytes("-1G").is_err());
+        assert!(parse_bytes("lots").is_err());
+        assert_eq!(parse_count("1e9").unwrap(), 1e9);
+        assert!(parse_count("0").is_err());
+        assert_eq!(bytes_text(8.2e9), "8.2 GB");
+    }
+
+    #[test]
+    fn free_space_of_a_missing_directory_is_its_parent_s() {
+        let d = tempfile::tempdir().unwrap();
+        let a = free_space(d.path()).unwrap();
+        let b = free_space(&d.path().join("not/yet/there")).unwrap();
+        assert!(a > 0 && b > 0);
+    }
+
+    #[test]
+    fn command_line_definition_is_consistent() {
+        use clap::CommandFactory;
+        sieve::cli::Cli::command().debug_assert();
+    }
 }
