@@ -2,6 +2,7 @@
 
 use crate::converge::{self, ConvergeOptions};
 use crate::error::{Error, Result};
+use crate::estimate;
 use crate::run::{self, RunOptions};
 use crate::scene::{self, builtin};
 use crate::soft_sensor;
@@ -116,11 +117,16 @@ pub struct RecordArgs {
     #[arg(long = "truth-grid", value_name = "NXxNZ")]
     pub truth_grid: Option<String>,
     /// Velocity noise: standard deviation relative to the scene's largest speed.
-    #[arg(long, value_name = "SIGMA", default_value_t = 0.05)]
+    #[arg(
+        long,
+        value_name = "SIGMA",
+        default_value_t = 0.05,
+        allow_negative_numbers = true
+    )]
     pub noise: f64,
     /// Frame rate [Hz] [default: 2 stable estimator substeps per frame; 100 for the legacy
     /// scenes].
-    #[arg(long, value_name = "HZ")]
+    #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
     pub rate: Option<f64>,
     /// Number of frames [default: cover the scene's run.t_end, at most 20000].
     #[arg(long, value_name = "N")]
@@ -189,10 +195,10 @@ pub struct RunArgs {
     #[arg(long, value_name = "NXxNY[xNZ]")]
     pub grid: Option<String>,
     /// End time (overrides run.t_end).
-    #[arg(long = "t-end", value_name = "T")]
+    #[arg(long = "t-end", value_name = "T", allow_negative_numbers = true)]
     pub t_end: Option<String>,
     /// Courant number, 0 < C < 1 (overrides numerics.courant).
-    #[arg(long, value_name = "C")]
+    #[arg(long, value_name = "C", allow_negative_numbers = true)]
     pub cfl: Option<String>,
     /// Override any scene key in dotted form, e.g. --set material.s0=2 (repeatable; applied
     /// before the options above).
@@ -201,6 +207,26 @@ pub struct RunArgs {
     /// No progress bar and no closing line.
     #[arg(long, short)]
     pub quiet: bool,
+    /// VTK arrays to write, comma separated, among phihat, phi, c, T, u, p, volume (phihat
+    /// and c always; overrides output.fields).
+    #[arg(long, value_name = "NAME,NAME,...", value_delimiter = ',')]
+    pub fields: Vec<String>,
+    /// Write a VTK snapshot at every N-th output time only (the first and last always;
+    /// overrides output.vtk_every).
+    #[arg(long = "vtk-every", value_name = "N")]
+    pub vtk_every: Option<String>,
+    /// zlib-compress the VTK arrays (vtkZLibDataCompressor; overrides output.compress).
+    #[arg(long)]
+    pub compress: bool,
+    /// Refuse a run estimated (t_end / first stable dt) to need more time steps than this.
+    #[arg(long = "max-steps", value_name = "N", value_parser = estimate::parse_count, default_value = "1e8")]
+    pub max_steps: f64,
+    /// Refuse a run estimated to need more cell updates (steps x cells) than this.
+    #[arg(long = "max-cell-steps", value_name = "N", value_parser = estimate::parse_count, default_value = "1e11")]
+    pub max_cell_steps: f64,
+    /// Refuse a run estimated to write more than this (bytes; suffixes k, M, G, T: 500M, 8G).
+    #[arg(long = "max-output", value_name = "BYTES", value_parser = estimate::parse_bytes, default_value = "4G")]
+    pub max_output: f64,
 }
 
 /// Arguments of `sieve converge`.
@@ -216,7 +242,7 @@ pub struct ConvergeArgs {
     pub scheme: Option<SchemeArg>,
     /// End time of every level (overrides run.t_end), e.g. 0.5 for column-a before the
     /// shocks meet.
-    #[arg(long = "t-end", value_name = "T")]
+    #[arg(long = "t-end", value_name = "T", allow_negative_numbers = true)]
     pub t_end: Option<String>,
     /// Output directory for converge.csv and converge.json [default: runs/<scene>-converge].
     #[arg(long, value_name = "DIR")]
@@ -235,16 +261,26 @@ pub struct FitArgs {
     /// Built-in scene name or path to a scene TOML file (model.equations = "frozen-flow").
     pub scene: String,
     /// Target segregation time [s].
-    #[arg(long = "target-time", value_name = "T", default_value_t = 700.0)]
+    #[arg(
+        long = "target-time",
+        value_name = "T",
+        default_value_t = 700.0,
+        allow_negative_numbers = true
+    )]
     pub target_time: f64,
     /// Cells along the vertical axis, comma separated [default: the scene's grid].
     #[arg(long, value_name = "N,N,...", value_delimiter = ',')]
     pub levels: Vec<usize>,
     /// Psi threshold of "re-segregated" [default: the scene's run.psi_threshold].
-    #[arg(long, value_name = "PSI")]
+    #[arg(long, value_name = "PSI", allow_negative_numbers = true)]
     pub threshold: Option<f64>,
     /// Relative tolerance on the segregation time.
-    #[arg(long, value_name = "REL", default_value_t = 0.01)]
+    #[arg(
+        long,
+        value_name = "REL",
+        default_value_t = 0.01,
+        allow_negative_numbers = true
+    )]
     pub tolerance: f64,
     /// Output directory [default: runs/<scene>-fit].
     #[arg(long, value_name = "DIR")]
@@ -257,6 +293,51 @@ pub struct FitArgs {
     pub quiet: bool,
 }
 
+/// Parses the command line; a usage error is one line on stderr and exit code 2 (issue 10,
+/// "Messages": no usage block, no `-- -1` tip, what the user typed echoed short). `--help`
+/// and `--version` print as clap prints them and exit 0.
+pub fn parse_args() -> Cli {
+    use clap::error::ErrorKind;
+    match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) => {
+            e.exit()
+        }
+        Err(e) => {
+            eprintln!("error: {}", clap_line(&e));
+            std::process::exit(2)
+        }
+    }
+}
+
+/// clap's message folded into one line: the error and its useful tips, without the usage
+/// block, the "For more information" line and the `-- VALUE` tip.
+pub fn clap_line(e: &clap::Error) -> String {
+    use clap::error::ErrorKind;
+    if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+        return "no command given: use one of scenes, run, converge, plot, fit, record, replay (see `sieve --help`)".into();
+    }
+    let text = e.render().to_string();
+    let mut parts: Vec<String> = Vec::new();
+    for line in text.lines() {
+        let l = line.trim();
+        if l.is_empty()
+            || l.starts_with("Usage:")
+            || l.starts_with("For more information")
+            || l.contains("as a value, use '--")
+            || (!parts.is_empty() && line.starts_with("  ") && l.starts_with("sieve "))
+        {
+            continue;
+        }
+        parts.push(l.trim_start_matches("error: ").to_string());
+    }
+    let mut line = parts.join("; ");
+    if !line.contains("--help") {
+        line.push_str(" (see `sieve --help`)");
+    }
+    crate::text::shorten(&line)
+}
+
 /// `--grid NXxNY[xNZ]` as a TOML array.
 fn grid_array(grid: &str) -> Result<String> {
     let parts: Vec<&str> = grid.split(['x', 'X']).collect();
@@ -266,7 +347,7 @@ fn grid_array(grid: &str) -> Result<String> {
             .iter()
             .all(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()));
     if !ok {
-        return Err(Error::Input(format!(
+        return Err(Error::input(format!(
             "--grid {grid}: expected cells per axis as NXxNY[xNZ], e.g. 128x64"
         )));
     }
@@ -295,6 +376,16 @@ fn run_overrides(a: &RunArgs, spec: &str) -> Result<Vec<String>> {
     }
     if let Some(c) = &a.cfl {
         sets.push(format!("numerics.courant={c}"));
+    }
+    if !a.fields.is_empty() {
+        let quoted: Vec<String> = a.fields.iter().map(|f| format!("{:?}", f.trim())).collect();
+        sets.push(format!("output.fields=[{}]", quoted.join(",")));
+    }
+    if let Some(n) = &a.vtk_every {
+        sets.push(format!("output.vtk_every={n}"));
+    }
+    if a.compress {
+        sets.push("output.compress=true".into());
     }
     Ok(sets)
 }
@@ -334,7 +425,12 @@ pub fn execute(cli: Cli) -> Result<()> {
                 .clone()
                 .unwrap_or_else(|| builtin::DEFAULT_SCENE.into());
             let sets = run_overrides(&a, &spec)?;
-            let (scene, fields) = scene::load(&spec, &sets)?;
+            let (mut scene, fields) = scene::load(&spec, &sets)?;
+            scene.limits = estimate::Limits {
+                max_steps: a.max_steps,
+                max_cell_steps: a.max_cell_steps,
+                max_output: a.max_output,
+            };
             let out = a
                 .out
                 .clone()
@@ -514,7 +610,7 @@ fn sweep(a: &SweepArgs) -> Result<()> {
 /// `NXxNZ` of `flag` with `lo..=hi` cells per axis.
 fn two_axes(flag: &str, value: &str, lo: u64, hi: u64) -> Result<[u64; 2]> {
     let grid = grid_array(value).map_err(|_| {
-        Error::Input(format!(
+        Error::input(format!(
             "{flag} {value}: expected NXxNZ with {lo}..={hi} per axis, e.g. 8x8"
         ))
     })?;

@@ -89,7 +89,7 @@ impl SolverJob for ConvergeJob<'_> {
         s: &mut Segregation<R, D, N>,
     ) -> Result<LevelRun> {
         load(s, self.scene, self.fields)?;
-        let bar = indicatif::ProgressBar::hidden();
+        let bar = crate::progress::Progress::hidden();
         // Same output stops as `sieve run`, so a level reproduces the run of that grid.
         let stats = time_loop(s, self.scene, &bar, None, |_, _, _| Ok(()))?;
         let n = s.len();
@@ -110,7 +110,7 @@ impl crate::run::FlowJob for ConvergeJob<'_> {
     ) -> Result<LevelRun> {
         use crate::scene::Equations;
         load(s, self.scene, self.fields)?;
-        let bar = indicatif::ProgressBar::hidden();
+        let bar = crate::progress::Progress::hidden();
         let coupled = self.scene.flow.as_ref().map(|m| m.equations) == Some(Equations::Coupled);
         let steps = if coupled {
             crate::flow::coupled_loop(f, s, self.scene, self.fields, None, &bar, |_, _, _, _| {
@@ -200,8 +200,49 @@ fn phihat(r: &LevelRun) -> Vec<f64> {
         .collect()
 }
 
+/// Column a's default `t_end` (1.5) lies after the shocks meet at `t = H / S` (model.md 7.1a):
+/// from then on the exact state is fully segregated and every grid reaches it, so the errors
+/// are round-off (1e-14) and the orders meaningless. Without `--t-end` (no `run.t_end` among
+/// `sets`) the study then measures at half that time, with a note; with it, a one-line
+/// warning. Returns the `t_end` to use, if changed.
+fn before_completion(spec: &str, sets: &[String], quiet: bool) -> Result<Option<f64>> {
+    let (scene, fields) = scene::load(spec, sets)?;
+    let Some(ex) = scene.column_a(&fields) else {
+        return Ok(None);
+    };
+    let done = ex.segregation_time(0.0);
+    if scene.t_end < done {
+        return Ok(None);
+    }
+    let given = sets
+        .iter()
+        .any(|s| s.split('=').next().is_some_and(|k| k.trim() == "run.t_end"));
+    if given {
+        if !quiet {
+            eprintln!(
+                "warning: {}: run.t_end = {} is after segregation completes (t = {done}): every grid reaches the fully segregated state, so errors are round-off and orders meaningless; choose --t-end below {done}",
+                scene.label, scene.t_end
+            );
+        }
+        return Ok(None);
+    }
+    let t = done / 2.0;
+    if !quiet {
+        eprintln!(
+            "note: {}: run.t_end = {} is after segregation completes (t = {done}), where every grid reaches the same state; measuring at t_end = {t} instead (give --t-end to choose)",
+            scene.label, scene.t_end
+        );
+    }
+    Ok(Some(t))
+}
+
 /// Runs the study and writes `converge.csv` and `converge.json` to the output directory.
 pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(Study, PathBuf)> {
+    let mut sets = sets.to_vec();
+    if let Some(t) = before_completion(spec, &sets, opts.quiet)? {
+        sets.push(format!("run.t_end={t}"));
+    }
+    let sets = &sets[..];
     let (base, _) = scene::load(spec, sets)?;
     crate::embedded::refuse(&base, "sieve converge")?;
     let mut levels = opts.levels.clone();
@@ -325,6 +366,13 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
             wall_seconds: *secs,
         };
         rows.push(row);
+    }
+    let errors: Vec<f64> = rows.iter().filter_map(|r| r.l1).collect();
+    if !opts.quiet && !errors.is_empty() && errors.iter().all(|&e| e < 1e-12) {
+        eprintln!(
+            "warning: {}: every L1 error is below 1e-12 at t_end = {}: the grids reach the same final state (fully segregated or steady), so these orders say nothing about accuracy; choose an earlier --t-end",
+            base.label, base.t_end
+        );
     }
     let loaded_cell_sizes: Vec<f64> = loaded.iter().map(|(s, _)| s.spacing()[s.dim - 1]).collect();
     let study = Study {

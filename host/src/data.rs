@@ -47,6 +47,19 @@ pub struct LoopStats {
     /// Why the loop stopped before its end time (a signal, a non-finite value); None if it
     /// ran to the end. Set only by the `*_until_stop` loops (host/src/interrupt.rs).
     pub stop: Option<crate::interrupt::Stop>,
+    /// Smallest, largest and last stable time step actually stepped with (the steps shortened
+    /// to land on an output time not counted); `None` before any step or when nothing moves.
+    pub dt_taken: Option<[f64; 3]>,
+}
+
+impl LoopStats {
+    /// Records a stable step `dt` taken.
+    pub fn took_dt(&mut self, dt: f64) {
+        self.dt_taken = Some(match self.dt_taken {
+            None => [dt, dt, dt],
+            Some([lo, hi, _]) => [lo.min(dt), hi.max(dt), dt],
+        });
+    }
 }
 
 impl LoopStats {

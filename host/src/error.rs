@@ -72,6 +72,11 @@ impl Error {
         }
     }
 
+    /// Bad input as one line, without file or key (exit code 2).
+    pub fn input(message: impl fmt::Display) -> Self {
+        Error::Input(one_line(&message.to_string()))
+    }
+
     /// A failure that is not the user's input (exit code 1).
     pub fn failure(message: impl fmt::Display) -> Self {
         Error::Failure(one_line(&message.to_string()))
@@ -105,7 +110,8 @@ impl fmt::Display for Error {
 
 impl std::error::Error for Error {}
 
-/// Scripts parse the message as one line: fold any line breaks a library put in.
+/// Scripts parse the message as one line: fold any line breaks a library put in; echo what
+/// the user typed short ([`crate::text::shorten`]: long numbers as `1e300`, long words clipped).
 fn one_line(s: &str) -> String {
-    s.split_whitespace().collect::<Vec<_>>().join(" ")
+    crate::text::shorten(&s.split_whitespace().collect::<Vec<_>>().join(" "))
 }

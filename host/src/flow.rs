@@ -355,7 +355,7 @@ pub fn coupled_loop<R: Real, const D: usize, const N: usize>(
     scene: &Scene,
     fields: &Fields,
     geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
-    progress: &indicatif::ProgressBar,
+    progress: &crate::progress::Progress,
     on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
 ) -> Result<CoupledStats> {
     let cs = coupled_loop_until_stop(flow, seg, scene, fields, geo, progress, on_output)?;
@@ -374,7 +374,7 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
     scene: &Scene,
     fields: &Fields,
     geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
-    progress: &indicatif::ProgressBar,
+    progress: &crate::progress::Progress,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
 ) -> Result<CoupledStats> {
     let fm = scene
@@ -403,9 +403,10 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
     };
     let times = output_times(scene.t_end, scene.output_interval);
     let mut stats = LoopStats {
-        dt: seg_dt(cpl.seg).to_f64(),
+        dt: cpl.flow.stable_dt().min(seg_dt(cpl.seg)).to_f64(),
         ..Default::default()
     };
+    let mut checked = false;
     let mut timer = SegregationTimer::new(scene.psi_threshold);
     let mut flow_seconds = 0.0;
     let mut discharge = crate::silo::has_outlets(scene).then(crate::silo::DischargeSeries::default);
@@ -413,11 +414,9 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
         let target = R::from_f64(t);
         let start = Instant::now();
         while cpl.seg.time() < target {
-            let dt = cpl
-                .flow
-                .stable_dt()
-                .min(seg_dt(cpl.seg))
-                .min(target - cpl.seg.time());
+            let stable = cpl.flow.stable_dt().min(seg_dt(cpl.seg));
+            let dt = stable.min(target - cpl.seg.time());
+            let t0 = Instant::now();
             let stepped = match crate::interrupt::bad_dt(dt.to_f64()) {
                 Some(r) => Err(r),
                 None => cpl.step_with(dt).map_err(|e| {
@@ -429,6 +428,7 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
             };
             if stepped.is_ok() {
                 stats.steps += 1;
+                stats.took_dt(stable.to_f64());
             }
             let reason = stepped.err().or_else(|| {
                 crate::interrupt::pending()
@@ -447,8 +447,23 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
                 flow_seconds += el.as_secs_f64();
                 break 'outputs;
             }
+            if !checked {
+                // Run guard (issue 10): refuse an absurd t_end / dt before it runs for days; the
+                // first coupled step of a bed at rest is among the largest, so this errs low.
+                checked = true;
+                crate::estimate::check_steps(scene, stable.to_f64(), t0.elapsed().as_secs_f64())?;
+            }
+            if timer.time().is_none() {
+                // Psi after every step until it crosses (cheap beside a flow step): the
+                // segregation time resolved to the step, not to the output samples.
+                let d = match geo {
+                    Some(g) => sieve_core::diagnose_embedded(cpl.seg, g),
+                    None => sieve_core::diagnose(cpl.seg),
+                };
+                timer.sample(cpl.seg.time().to_f64(), d.psi.to_f64());
+            }
             if stats.steps % 256 == 0 {
-                progress.set_position((cpl.seg.time().to_f64() / scene.t_end * 1000.0) as u64);
+                progress.update(cpl.seg.time().to_f64(), stats.steps);
             }
         }
         let el = start.elapsed();

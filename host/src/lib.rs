@@ -14,14 +14,17 @@ pub mod converge;
 pub mod data;
 pub mod embedded;
 pub mod error;
+pub mod estimate;
 pub mod fit;
 pub mod flow;
 pub mod interrupt;
 pub mod output;
+pub mod progress;
 pub mod run;
 pub mod scene;
 pub mod silo;
 pub mod soft_sensor;
 pub mod sweep;
+pub mod text;
 
 pub use error::{Error, Result};

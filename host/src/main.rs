@@ -1,9 +1,8 @@
 //! The `sieve` binary: parse the command line, run it, map errors to exit codes.
-use clap::Parser;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    let cli = sieve::cli::Cli::parse();
+    let cli = sieve::cli::parse_args();
     // SIGINT/SIGTERM stop the step loops, which keep what was written (host/src/interrupt.rs).
     if let Err(e) = sieve::interrupt::install() {
         eprintln!("warning: cannot handle SIGINT/SIGTERM ({e}); a signal ends sieve at once");

@@ -10,7 +10,6 @@ use crate::data::{output_times, LoopStats, SegregationTimer, SeriesRow, Snapshot
 use crate::error::{Error, Result};
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{solver_errors, Fields, Precision, Scene};
-use indicatif::ProgressBar;
 use sieve_core::flow::Flow;
 use sieve_core::geometry::CutCells;
 use sieve_core::segregation::SegregationConfig;
@@ -187,10 +186,14 @@ pub fn load<R: Real, const D: usize, const N: usize>(
 /// with a geometry) the embedded step, time step and diagnostics run instead of the box's.
 /// A signal or a non-finite value ends it with an error ([`crate::interrupt`]); `sieve run`
 /// uses [`time_loop_until_stop`] to keep the partial run.
+///
+/// Run guards (issue 10): the first step is taken alone and timed, and the run is refused
+/// ([`crate::estimate::check_steps`]) if `t_end / dt` is absurd. The segregation time is
+/// resolved to the step ([`resolve_crossing`]), not to the output samples.
 pub fn time_loop<R: Real, const D: usize, const N: usize>(
     s: &mut Segregation<R, D, N>,
     scene: &Scene,
-    progress: &ProgressBar,
+    progress: &crate::progress::Progress,
     geo: Option<&CutCells<R, D, N>>,
     on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
@@ -206,21 +209,31 @@ pub fn time_loop<R: Real, const D: usize, const N: usize>(
 pub fn time_loop_until_stop<R: Real, const D: usize, const N: usize>(
     s: &mut Segregation<R, D, N>,
     scene: &Scene,
-    progress: &ProgressBar,
+    progress: &crate::progress::Progress,
     geo: Option<&CutCells<R, D, N>>,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
     let times = output_times(scene.t_end, scene.output_interval);
+    let dt = geo
+        .map_or_else(|| s.stable_dt(), |g| s.stable_dt_embedded(g))
+        .to_f64();
     let mut stats = LoopStats {
-        dt: geo
-            .map_or_else(|| s.stable_dt(), |g| s.stable_dt_embedded(g))
-            .to_f64(),
+        dt,
         ..LoopStats::default()
     };
+    if dt < R::MAX.to_f64() {
+        // the segregation step is fixed by the prepared state (model.md 5)
+        stats.took_dt(dt);
+    }
     let mut timer = SegregationTimer::new(scene.psi_threshold);
-    // Bounded chunks keep the progress bar moving on large grids; the step sequence is the
+    // Bounded chunks keep the progress moving on large grids; the step sequence is the
     // same as one call (advance_to only shortens the step that lands on the target).
     let chunk = (4_000_000 / scene.len()).max(1) as u64;
+    let mut checked = false;
+    let advance = |s: &mut Segregation<R, D, N>, target: R, n: u64| match geo {
+        Some(g) => s.advance_to_embedded(target, n, g),
+        None => s.advance_to(target, n),
+    };
     // The prepared state first: a non-finite coefficient stops the run before any step.
     stats.stop = crate::interrupt::after_steps(s, stats.dt, 0);
     'outputs: for (k, &t) in times.iter().enumerate() {
@@ -228,14 +241,18 @@ pub fn time_loop_until_stop<R: Real, const D: usize, const N: usize>(
             break;
         }
         let target = R::from_f64(t);
+        // Until Psi has crossed, keep what is needed to replay this interval step by step.
+        let before = (timer.time().is_none() && k > 0).then(|| Checkpoint::of(s, timer));
         while s.time() < target {
             let start = Instant::now();
-            stats.steps += match geo {
-                Some(g) => s.advance_to_embedded(target, chunk, g),
-                None => s.advance_to(target, chunk),
-            };
-            stats.stepping += start.elapsed();
-            progress.set_position((s.time().to_f64() / scene.t_end * 1000.0) as u64);
+            stats.steps += advance(s, target, if checked { chunk } else { 1 });
+            let took = start.elapsed();
+            stats.stepping += took;
+            if !checked {
+                checked = true;
+                crate::estimate::check_steps(scene, dt, took.as_secs_f64())?;
+            }
+            progress.update(s.time().to_f64(), stats.steps);
             // The step the chunk took (the prepared state's: constant over the run).
             if let Some(stop) = crate::interrupt::after_steps(s, stats.dt, stats.steps) {
                 stats.stop = Some(stop);
@@ -254,6 +271,11 @@ pub fn time_loop_until_stop<R: Real, const D: usize, const N: usize>(
             undershoot_max: d.undershoot.to_f64(),
         };
         timer.sample(t, row.psi);
+        if let Some(cp) = before {
+            if timer.time().is_some() {
+                timer = resolve_crossing(s, cp, target, geo, advance);
+            }
+        }
         stats.series.push(row);
         on_output(k, t, s)?;
     }
@@ -262,20 +284,81 @@ pub fn time_loop_until_stop<R: Real, const D: usize, const N: usize>(
     Ok(stats)
 }
 
-/// A progress bar on stderr when it is a terminal and not quiet; otherwise a hidden one.
-pub fn progress_bar(quiet: bool, label: &str) -> ProgressBar {
-    use std::io::IsTerminal;
-    if quiet || !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
+/// Psi of the current state (the box's or the cut cells' diagnostics).
+fn psi_of<R: Real, const D: usize, const N: usize>(
+    s: &Segregation<R, D, N>,
+    geo: Option<&CutCells<R, D, N>>,
+) -> f64 {
+    match geo {
+        Some(g) => sieve_core::diagnose_embedded(s, g).psi.to_f64(),
+        None => diagnose(s).psi.to_f64(),
     }
-    let bar = ProgressBar::new(1000);
-    if let Ok(style) = indicatif::ProgressStyle::with_template(
-        "{prefix} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
-    ) {
-        bar.set_style(style.progress_chars("=> "));
+}
+
+/// The state at the start of an output interval, exact to the bit (tracked fraction and
+/// compensation carry per cell, the clock), and the segregation timer as it was then.
+struct Checkpoint<R> {
+    q: Vec<R>,
+    carry: Vec<R>,
+    time: R,
+    steps: u64,
+    /// The flushed-mass counter (docs/model.md 5.6): a replay must not count a flush twice.
+    flushed: R,
+    timer: SegregationTimer,
+}
+
+impl<R: Real> Checkpoint<R> {
+    fn of<const D: usize, const N: usize>(
+        s: &Segregation<R, D, N>,
+        timer: SegregationTimer,
+    ) -> Self {
+        Self {
+            q: (0..s.len()).map(|i| s.tracked_fraction(i)).collect(),
+            carry: (0..s.len()).map(|i| s.carry(i)).collect(),
+            time: s.time(),
+            steps: s.steps(),
+            flushed: s.flushed_tracked(),
+            timer,
+        }
     }
-    bar.set_prefix(label.to_string());
-    bar
+}
+
+/// Psi fell below the threshold somewhere in the interval that just ended: replays it from the
+/// checkpoint one step at a time, sampling Psi after every step, and returns the timer fed
+/// with those samples: the crossing interpolated between the two steps around it (model.md 6
+/// defines the segregation time by Psi, not by the output grid). Interpolating between
+/// output samples instead biased it by +0.0127 on column b (100 cells, output every 0.1).
+/// The replay takes the same steps from the same bits, so the state at the end is the one the
+/// interval produced; its steps and time are not counted twice.
+fn resolve_crossing<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    cp: Checkpoint<R>,
+    target: R,
+    geo: Option<&CutCells<R, D, N>>,
+    advance: impl Fn(&mut Segregation<R, D, N>, R, u64) -> u64,
+) -> SegregationTimer {
+    #[cfg(debug_assertions)]
+    let end_hash = sieve_core::state_hash(s);
+    for (i, (&q, &e)) in cp.q.iter().zip(&cp.carry).enumerate() {
+        s.set_tracked(i, q);
+        s.set_carry(i, e);
+    }
+    s.set_clock(cp.time, cp.steps);
+    s.set_flushed_tracked(cp.flushed);
+    let mut timer = cp.timer;
+    while s.time() < target {
+        advance(s, target, 1);
+        timer.sample(s.time().to_f64(), psi_of(s, geo));
+    }
+    #[cfg(debug_assertions)]
+    debug_assert_eq!(end_hash, sieve_core::state_hash(s));
+    timer
+}
+
+/// The progress display of a run: a bar on a terminal, lines otherwise
+/// ([`crate::progress::Progress`]).
+pub fn progress_bar(quiet: bool, label: &str, t_end: f64) -> crate::progress::Progress {
+    crate::progress::Progress::new(quiet, label, t_end)
 }
 
 /// Options of `sieve run` that are not scene keys.
@@ -297,6 +380,7 @@ struct RunOutcome {
     profiles: Option<crate::data::Profiles>,
     geometry: Option<crate::data::GeometrySummary>,
     discharge: Option<crate::silo::DischargeSeries>,
+    worst: Option<crate::estimate::Violation>,
 }
 
 struct RunJob<'a> {
@@ -305,6 +389,10 @@ struct RunJob<'a> {
     fields_dir: std::path::PathBuf,
     staging: std::path::PathBuf,
     quiet: bool,
+    /// The largest bound violation seen at an output time (for the warning line).
+    worst: std::cell::Cell<Option<crate::estimate::Violation>>,
+    /// Number of output times (the last always gets a snapshot).
+    outputs: usize,
 }
 
 impl RunJob<'_> {
@@ -316,6 +404,14 @@ impl RunJob<'_> {
         snap: &Snapshot,
         pvd: &mut Vec<(f64, String)>,
     ) -> Result<()> {
+        if let Some(v) = crate::estimate::worst_violation(&snap.phi, &snap.c, t) {
+            if self.worst.get().is_none_or(|w| v.amount > w.amount) {
+                self.worst.set(Some(v));
+            }
+        }
+        if !self.scene.output.writes(k, self.outputs) {
+            return Ok(()); // thinned ([output] vtk_every)
+        }
         let name = format!("state_{k:04}.vti");
         crate::output::vtk::write_vti(&self.fields_dir.join(&name), self.scene, snap)?;
         pvd.push((t, name));
@@ -364,7 +460,7 @@ impl SolverJob for RunJob<'_> {
             crate::embedded::prepare(s, scene, g)?;
         }
         let volume = geo.map(crate::embedded::volumes);
-        let bar = progress_bar(self.quiet, &scene.name);
+        let bar = progress_bar(self.quiet, &scene.name, scene.t_end);
         let mut pvd = Vec::new();
         let stats = time_loop_until_stop(s, scene, &bar, geo, |k, t, s| {
             let mut snap = Snapshot::of(s, scene);
@@ -384,6 +480,7 @@ impl SolverJob for RunJob<'_> {
             profiles: None,
             geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
             discharge: None,
+            worst: self.worst.get(),
         })
     }
 }
@@ -402,7 +499,7 @@ impl FlowJob for RunJob<'_> {
         let geo = crate::embedded::build(s, scene)?;
         let geo = geo.as_deref();
         let volume = geo.map(crate::embedded::volumes);
-        let bar = progress_bar(self.quiet, &scene.name);
+        let bar = progress_bar(self.quiet, &scene.name, scene.t_end);
         let mut pvd = Vec::new();
         let equations = scene.flow.as_ref().map(|m| m.equations);
         let mut discharge = None;
@@ -448,6 +545,7 @@ impl FlowJob for RunJob<'_> {
             profiles: Some(crate::flow::profiles(scene, &snap)),
             geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
             discharge,
+            worst: self.worst.get(),
         })
     }
 }
@@ -460,6 +558,8 @@ pub fn run_scene(
 ) -> Result<crate::output::summary::Summary> {
     use crate::output::{self, redraw, summary, Staging};
     let start = Instant::now();
+    // Run guard (issue 10): the output must fit the limit and the disk before anything runs.
+    crate::estimate::check_output(scene, &opts.out)?;
     let staging = Staging::new(&opts.out)?;
     let fields_dir = staging.subdir("fields")?;
     let plots_dir = staging.subdir("plots")?;
@@ -469,6 +569,8 @@ pub fn run_scene(
         fields_dir: fields_dir.clone(),
         staging: staging.path().to_path_buf(),
         quiet: opts.quiet,
+        worst: std::cell::Cell::new(None),
+        outputs: output_times(scene.t_end, scene.output_interval).len(),
     };
     let out = if scene.flow.is_some() {
         with_flow_solvers(scene.precision, scene.dim, job)?
@@ -513,6 +615,9 @@ pub fn run_scene(
         cell_count: cells,
         steps: stats.steps,
         dt: stats.dt,
+        dt_min: stats.dt_taken.map(|d| d[0]),
+        dt_max: stats.dt_taken.map(|d| d[1]),
+        dt_last: stats.dt_taken.map(|d| d[2]),
         courant: scene.courant,
         t_end: scene.t_end,
         output_interval: scene.output_interval,
@@ -553,6 +658,14 @@ pub fn run_scene(
         }),
     };
     summary.write(&staging.path().join("summary.json"))?;
+    if let Some(w) = crate::estimate::bounds_warning(
+        scene,
+        summary.overshoot_max,
+        summary.undershoot_max,
+        out.worst,
+    ) {
+        eprintln!("{w}");
+    }
     // The pictures come from the files just written, as `sieve plot DIR` draws them.
     let drawn = output::without_panic(|| redraw::redraw(staging.path(), &plots_dir));
     let Some(stop) = stop else {

@@ -255,10 +255,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             return 0;
         }
         let dt = self.stable_dt_embedded(geo);
+        let slack = super::snap_slack(t_end);
         let mut taken = 0;
         while self.time < t_end && taken < max_steps {
             let remaining = t_end - self.time;
-            if remaining <= dt {
+            if remaining <= dt || remaining - dt <= slack {
                 self.step_embedded(remaining, geo);
                 self.time = t_end;
             } else {

@@ -565,15 +565,21 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// Advances to time `t_end` with the stable step (the last one shortened to land exactly),
     /// at most `max_steps` steps; returns the number of steps taken.
+    ///
+    /// A step that would fall short of `t_end` by no more than the round-off of the summed
+    /// clock ([`snap_slack`]) is stretched to land on it: adding `dt` forty times leaves the
+    /// clock 10-20 ulps below an output time, and a separate step of that length (a zero-length
+    /// step in all but name) is pure overhead (610 steps instead of 600 on column a).
     pub fn advance_to(&mut self, t_end: R, max_steps: u64) -> u64 {
         if !t_end.is_finite() {
             return 0;
         }
         let dt = self.stable_dt();
+        let slack = snap_slack(t_end);
         let mut taken = 0;
         while self.time < t_end && taken < max_steps {
             let remaining = t_end - self.time;
-            if remaining <= dt {
+            if remaining <= dt || remaining - dt <= slack {
                 self.step(remaining);
                 self.time = t_end;
             } else {
@@ -711,4 +717,13 @@ fn dot<R: Real, const D: usize>(a: &[R; D], b: &[R; D]) -> R {
 
 fn norm<R: Real, const D: usize>(a: &[R; D]) -> R {
     dot(a, a).sqrt()
+}
+
+/// How far below a target time a step may end and still be stretched to land on it
+/// ([`Segregation::advance_to`]): 64 ulps of the target, more than the round-off of the
+/// clock summed over an output interval (10-20 ulps seen over 40-step intervals), far less
+/// than any step worth taking. A stretched step exceeds the stable step by at most this much
+/// (8.5e-12 of dt on column a in f64), far inside the margin of a Courant number below 1.
+pub fn snap_slack<R: Real>(t_end: R) -> R {
+    R::from_f64(64.0) * R::EPSILON * t_end.abs()
 }

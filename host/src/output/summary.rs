@@ -102,6 +102,16 @@ pub struct Summary {
     pub steps: u64,
     /// Stable time step (all steps but the ones landing on output times).
     pub dt: f64,
+    /// Smallest / largest / last stable time step stepped with [s] (coupled scenes: the flow's
+    /// and the segregation's common step varies; null when nothing moves).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dt_min: Option<f64>,
+    /// See `dt_min`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dt_max: Option<f64>,
+    /// See `dt_min`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dt_last: Option<f64>,
     /// Courant number.
     pub courant: f64,
     /// End time.

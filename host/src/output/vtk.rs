@@ -1,6 +1,12 @@
-//! VTK XML ImageData (`.vti`) snapshots with raw appended little-endian Float64 cell data, and
-//! the `.pvd` collection that gives ParaView their times. 1D columns become a line of cells
-//! along z, 2D scenes an image in the x-z plane, 3D scenes a volume.
+//! VTK XML ImageData (`.vti`) snapshots with appended little-endian Float64 cell data, raw or
+//! zlib-compressed, and the `.pvd` collection that gives ParaView their times. 1D columns
+//! become a line of cells along z, 2D scenes an image in the x-z plane, 3D scenes a volume.
+//!
+//! Compressed snapshots (`[output] compress = true`, `--compress`) use VTK's standard
+//! `compressor="vtkZLibDataCompressor"` with `header_type="UInt64"`: each array is one zlib
+//! block preceded by the header `[1, n, n, c]` (blocks, uncompressed block size, size of the
+//! last block, compressed size; UInt64 little-endian), as ParaView and VTK's
+//! vtkXMLImageDataReader read it (docs/outputs.md).
 
 use super::write_file;
 use crate::data::Snapshot;
@@ -10,9 +16,15 @@ use crate::scene::Scene;
 use std::fmt::Write;
 use std::path::Path;
 
-/// Writes one snapshot as `.vti`: cell arrays c, phi, phihat, T, the vector u, for scenes
-/// that solve a flow the pressure p, for scenes with a geometry the open volume fraction.
+/// Writes one snapshot as `.vti`: the cell arrays of `[output] fields` among phihat, phi, c,
+/// T, the vector u, for scenes that solve a flow the pressure p, for scenes with a geometry
+/// the open volume fraction; zlib-compressed if `[output] compress`.
 pub fn write_vti(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
+    write_file(path, &vti_bytes(scene, snap))
+}
+
+/// The bytes of [`write_vti`].
+pub fn vti_bytes(scene: &Scene, snap: &Snapshot) -> Vec<u8> {
     let mut cells = [0usize; 3];
     let mut origin = [0.0f64; 3];
     let mut spacing = [1.0f64; 3];
@@ -25,26 +37,54 @@ pub fn write_vti(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
     let extent = format!("0 {} 0 {} 0 {}", cells[0], cells[1], cells[2]);
     let phihat = snap.phihat();
     let u: Vec<f64> = snap.u.iter().flatten().copied().collect();
-    let mut arrays: Vec<(&str, usize, &[f64])> = vec![
-        ("phihat", 1, &phihat),
-        ("phi", 1, &snap.phi),
-        ("c", 1, &snap.c),
-        ("T", 1, &snap.temp),
-        ("u", 3, &u),
-    ];
-    if let Some(p) = &snap.p {
-        arrays.push(("p", 1, p));
+    let out = &scene.output;
+    let mut arrays: Vec<(&str, usize, &[f64])> = Vec::new();
+    for (name, comps, data) in [
+        ("phihat", 1, Some(&phihat[..])),
+        ("phi", 1, Some(&snap.phi[..])),
+        ("c", 1, Some(&snap.c[..])),
+        ("T", 1, Some(&snap.temp[..])),
+        ("u", 3, Some(&u[..])),
+        // scenes that solve a flow
+        ("p", 1, snap.p.as_deref()),
+        // Scenes with a geometry: the open volume fraction (0 = solid; threshold it at > 0 in
+        // ParaView to hide the container's walls).
+        ("volume", 1, snap.volume.as_deref()),
+    ] {
+        if let Some(d) = data {
+            if out.has(name) {
+                arrays.push((name, comps, d));
+            }
+        }
     }
-    // Scenes with a geometry: the open volume fraction (0 = solid; threshold it at > 0 in
-    // ParaView to hide the container's walls).
-    if let Some(v) = &snap.volume {
-        arrays.push(("volume", 1, v));
-    }
+    // The data blocks first: with compression the offsets depend on the compressed sizes.
+    let blocks: Vec<Vec<u8>> = arrays
+        .iter()
+        .map(|(_, _, data)| {
+            let mut raw = Vec::with_capacity(8 * data.len());
+            for x in data.iter() {
+                raw.extend_from_slice(&x.to_le_bytes());
+            }
+            if out.compress {
+                compressed_block(&raw)
+            } else {
+                let mut b = Vec::with_capacity(8 + raw.len());
+                b.extend_from_slice(&(raw.len() as u64).to_le_bytes());
+                b.extend_from_slice(&raw);
+                b
+            }
+        })
+        .collect();
+    let compressor = if out.compress {
+        " compressor=\"vtkZLibDataCompressor\""
+    } else {
+        ""
+    };
     let mut xml = String::new();
     let _ = writeln!(xml, "<?xml version=\"1.0\"?>");
     let _ = writeln!(
         xml,
-        "<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">"
+        "<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\"{compressor}>"
     );
     let _ = writeln!(
         xml,
@@ -57,27 +97,78 @@ pub fn write_vti(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
         snap.t
     );
     let _ = writeln!(xml, "    <Piece Extent=\"{extent}\">");
-    let _ = writeln!(xml, "      <CellData Scalars=\"phihat\" Vectors=\"u\">");
+    let vectors = if out.has("u") { " Vectors=\"u\"" } else { "" };
+    let _ = writeln!(xml, "      <CellData Scalars=\"phihat\"{vectors}>");
     let mut offset = 0usize;
-    for (name, comps, data) in &arrays {
+    for ((name, comps, _), block) in arrays.iter().zip(&blocks) {
         let _ = writeln!(
             xml,
             "        <DataArray type=\"Float64\" Name=\"{name}\" NumberOfComponents=\"{comps}\" format=\"appended\" offset=\"{offset}\"/>"
         );
-        offset += 8 + 8 * data.len();
+        offset += block.len();
     }
     let _ = writeln!(xml, "      </CellData>\n    </Piece>\n  </ImageData>");
     let _ = write!(xml, "  <AppendedData encoding=\"raw\">\n   _");
     let mut bytes = xml.into_bytes();
     bytes.reserve(offset + 64);
-    for (_, _, data) in &arrays {
-        bytes.extend_from_slice(&((8 * data.len()) as u64).to_le_bytes());
-        for x in data.iter() {
-            bytes.extend_from_slice(&x.to_le_bytes());
-        }
+    for b in &blocks {
+        bytes.extend_from_slice(b);
     }
     bytes.extend_from_slice(b"\n  </AppendedData>\n</VTKFile>\n");
-    write_file(path, &bytes)
+    bytes
+}
+
+/// One array as a single zlib block with its UInt64 header `[1, n, n, c]`.
+fn compressed_block(raw: &[u8]) -> Vec<u8> {
+    use flate2::write::ZlibEncoder;
+    use std::io::Write as _;
+    let mut enc = ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+    // Writing into a Vec cannot fail.
+    let _ = enc.write_all(raw);
+    let z = enc.finish().unwrap_or_default();
+    let mut b = Vec::with_capacity(32 + z.len());
+    for v in [1u64, raw.len() as u64, raw.len() as u64, z.len() as u64] {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    b.extend_from_slice(&z);
+    b
+}
+
+/// Decompresses the blocks of one array of a `vtkZLibDataCompressor` file starting at `data`
+/// (UInt64 header); `None` if it is corrupt or claims more than 1 GiB.
+fn zlib_array(data: &[u8]) -> Option<Vec<u8>> {
+    use std::io::Read as _;
+    let word = |i: usize| -> Option<u64> {
+        Some(u64::from_le_bytes(
+            data.get(8 * i..8 * i + 8)?.try_into().ok()?,
+        ))
+    };
+    let blocks = usize::try_from(word(0)?).ok()?;
+    let block_size = word(1)?;
+    let last = word(2)?;
+    // bound every size before allocating: at most 1 GiB per array
+    if blocks > 1 << 20 || block_size > 1 << 30 {
+        return None;
+    }
+    let mut at = 8 * (3 + blocks);
+    let mut out = Vec::new();
+    for b in 0..blocks {
+        let c = usize::try_from(word(3 + b)?).ok()?;
+        let z = data.get(at..at.checked_add(c)?)?;
+        let expect = if b + 1 == blocks && last != 0 {
+            last
+        } else {
+            block_size
+        };
+        let mut dec = flate2::read::ZlibDecoder::new(z).take(expect);
+        let before = out.len();
+        dec.read_to_end(&mut out).ok()?;
+        if (out.len() - before) as u64 != expect {
+            return None;
+        }
+        at += c;
+    }
+    Some(out)
 }
 
 /// Writes the `.pvd` collection of `(time, file name relative to the .pvd)` entries.
@@ -139,7 +230,8 @@ fn three(s: &str) -> Option<[f64; 3]> {
     (v.len() == 3).then(|| [v[0], v[1], v[2]])
 }
 
-/// Reads a `.vti` of [`write_vti`] (raw appended little-endian Float64, UInt64 headers).
+/// Reads a `.vti` of [`write_vti`] (appended little-endian Float64, raw or zlib, UInt64
+/// headers).
 pub fn read_vti(path: &Path) -> Result<Vti> {
     use crate::error::Error;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
@@ -191,6 +283,7 @@ pub fn read_vti(path: &Path) -> Result<Vti> {
             rest[s..e].trim().parse().ok()
         })
         .ok_or_else(|| bad("no TimeValue"))?;
+    let compressed = header.contains("compressor=\"vtkZLibDataCompressor\"");
     let mut arrays = Vec::new();
     for tag in header.split('<').filter(|t| t.starts_with("DataArray ")) {
         if attr(tag, "format") != Some("appended") {
@@ -203,19 +296,28 @@ pub fn read_vti(path: &Path) -> Result<Vti> {
         let offset: usize = attr(tag, "offset")
             .and_then(|c| c.parse().ok())
             .ok_or_else(|| bad("DataArray without offset"))?;
-        // Offsets and lengths come from the file: checked sums, sliced only within the file.
-        let start = offset
-            .checked_add(8)
-            .ok_or_else(|| bad("offset out of range"))?;
-        let len_bytes = data
-            .get(offset..start)
-            .ok_or_else(|| bad("truncated data"))?;
-        let len = u64::from_le_bytes(len_bytes.try_into().map_err(|_| bad("length"))?);
-        let raw = usize::try_from(len)
-            .ok()
-            .and_then(|l| start.checked_add(l))
-            .and_then(|end| data.get(start..end))
-            .ok_or_else(|| bad("truncated data"))?;
+        let unzipped;
+        let raw = if compressed {
+            unzipped = data
+                .get(offset..)
+                .and_then(zlib_array)
+                .ok_or_else(|| bad("corrupt zlib block"))?;
+            &unzipped[..]
+        } else {
+            // Offsets and lengths come from the file: checked sums, sliced only within the file.
+            let start = offset
+                .checked_add(8)
+                .ok_or_else(|| bad("offset out of range"))?;
+            let len_bytes = data
+                .get(offset..start)
+                .ok_or_else(|| bad("truncated data"))?;
+            let len = u64::from_le_bytes(len_bytes.try_into().map_err(|_| bad("length"))?);
+            usize::try_from(len)
+                .ok()
+                .and_then(|l| start.checked_add(l))
+                .and_then(|end| data.get(start..end))
+                .ok_or_else(|| bad("truncated data"))?
+        };
         let values = raw
             .chunks_exact(8)
             .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))

@@ -56,6 +56,22 @@ pub struct SceneFile {
     pub geometry: Option<GeometrySpec>,
     /// The frame of reference of a turning container.
     pub frame: Option<FrameSpec>,
+    /// Which fields the VTK snapshots hold, how often, compressed or not.
+    pub output: Option<OutputSpec>,
+}
+
+/// `[output]`: thinning and compression of the VTK snapshots (`fields/state_NNNN.vti`).
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// Arrays written: any of "phihat", "phi", "c", "T", "u", "p", "volume" [default: all the
+    /// scene has]; phihat and c are always written (the pictures are drawn from them).
+    pub fields: Option<Vec<String>>,
+    /// Write a snapshot at every `vtk_every`-th output time (the first and the last always).
+    pub vtk_every: Option<i64>,
+    /// zlib-compress the arrays (vtkZLibDataCompressor).
+    #[serde(default)]
+    pub compress: bool,
 }
 
 /// `[model]`.
@@ -478,19 +494,64 @@ pub fn locate(spec: &str) -> Result<Source> {
         });
     }
     let path = std::path::Path::new(spec);
-    if path.is_file() {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| Error::at(spec, "", format!("cannot read scene file: {e}")))?;
-        return Ok(Source {
-            label: spec.to_string(),
-            text,
-        });
+    let what = |m: &str| Err(Error::at(spec, "SCENE", m));
+    // Say what the path is rather than "unknown scene" (issue 10, "Messages"): a directory, a
+    // device or a missing file each need a different fix.
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_dir() => {
+            return what(
+                "is a directory, not a scene file: give a scene TOML file inside it or a built-in name (see `sieve scenes`)",
+            )
+        }
+        Ok(m) if !m.is_file() => {
+            return what(
+                "is not a regular file (a device, pipe or socket): give a scene TOML file or a built-in name (see `sieve scenes`)",
+            )
+        }
+        Ok(m) if m.len() > MAX_SCENE_BYTES => {
+            return Err(Error::range(
+                spec,
+                "SCENE",
+                format!("a file of {} bytes", m.len()),
+                &format!("scene files up to {MAX_SCENE_BYTES} bytes (is this a scene file?)"),
+            ))
+        }
+        Ok(_) => {
+            let bytes = std::fs::read(path)
+                .map_err(|e| Error::at(spec, "", format!("cannot read scene file: {e}")))?;
+            let text = String::from_utf8(bytes).map_err(|e| {
+                Error::at(
+                    spec,
+                    "SCENE",
+                    format!(
+                        "not a text file (invalid UTF-8 at byte {}): a scene file is TOML text",
+                        e.utf8_error().valid_up_to()
+                    ),
+                )
+            })?;
+            return Ok(Source {
+                label: spec.to_string(),
+                text,
+            });
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => {
+            return Err(Error::at(spec, "", format!("cannot read scene file: {e}")))
+        }
+        Err(_) => {}
     }
-    Err(Error::Input(format!(
-        "{spec}: unknown scene: not a built-in scene (allowed: {}) and no such file",
+    let looks_like_path = spec.contains(['/', '\\']) || spec.ends_with(".toml");
+    if looks_like_path {
+        return what("no such file: check the path, or give a built-in name (see `sieve scenes`)");
+    }
+    what(&format!(
+        "unknown scene: not a built-in scene (allowed: {}) and no such file in the current directory",
         builtin::names().join(", ")
-    )))
+    ))
 }
+
+/// Largest scene file read (bytes): the largest built-in is a few kB; anything above this is
+/// not a scene file, and reading it whole would only cost memory.
+pub const MAX_SCENE_BYTES: u64 = 1 << 20;
 
 /// Parses TOML text into a table; a syntax error names the line and column.
 pub fn parse_table(label: &str, text: &str) -> Result<toml::Table> {

@@ -15,7 +15,9 @@ pub mod frame;
 pub mod geometry;
 mod grid;
 mod initial;
+pub mod limits;
 mod material;
+pub mod output;
 mod physics;
 mod problems;
 mod run;
@@ -205,6 +207,10 @@ pub struct Scene {
     pub geometry: Option<geometry::Geometry>,
     /// The frame of reference, if `[frame]` is given.
     pub frame: Option<frame::FrameModel>,
+    /// Run guards (not scene keys: `--max-steps`, `--max-cell-steps`, `--max-output`).
+    pub limits: limits::Limits,
+    /// `[output]`: which VTK arrays, how often, compressed or not.
+    pub output: output::OutputModel,
 }
 
 /// The fields of a scene evaluated at the cell centres (f64, solver cell order).
@@ -312,6 +318,7 @@ impl Scene {
                 bounds.as_ref().map(|(b, _)| b.as_slice()),
             )
         });
+        let output = output::check(&mut p, l, f.output.as_ref());
         p.finish()?;
         // Every section that gave None recorded a problem, so all are Some here.
         let (
@@ -365,6 +372,8 @@ impl Scene {
             output_interval,
             psi_threshold,
             exact: f.run.exact,
+            limits: limits::Limits::default(),
+            output: output.unwrap_or_default(),
         };
         if scene.exact == Some(ExactKind::ColumnA) {
             scene.check_column_a()?;

@@ -38,7 +38,10 @@ pub(super) fn check(p: &mut Problems, l: &str, r: &RunSpec) -> Option<(f64, f64,
                 l,
                 "run.output_interval",
                 dt,
-                &format!("at most 100000 outputs: output_interval >= {}", t_end / 1e5),
+                &format!(
+                    "at most 100000 outputs: output_interval >= {}",
+                    crate::text::approx(t_end / 1e5)
+                ),
             ));
         }
     }
