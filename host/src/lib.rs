@@ -7,6 +7,7 @@
 //! line; [`flow`] solves the granular flow of a scene (frozen or coupled) and [`fit`] fits S0 to a
 //! segregation time; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 1 otherwise).
 
+pub mod checkpoint;
 pub mod cli;
 pub mod converge;
 pub mod data;

@@ -190,20 +190,55 @@ pub fn time_loop<R: Real, const D: usize, const N: usize>(
     scene: &Scene,
     progress: &ProgressBar,
     geo: Option<&CutCells<R, D, N>>,
+    on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
+) -> Result<LoopStats> {
+    time_loop_with(s, scene, progress, geo, None, on_output)
+}
+
+/// Checkpoints of a segregation loop: the session, and what else the checkpoint must hold
+/// (the frozen flow of a frozen-flow scene).
+pub type Checkpoints<'a> = (
+    &'a mut crate::checkpoint::Session,
+    &'a dyn Fn(&mut crate::checkpoint::Entries),
+);
+
+/// [`time_loop`] with checkpoints ([`crate::checkpoint`]): the solver has been restored by
+/// the caller; the loop continues from the checkpoint's next output with its statistics, and
+/// writes a checkpoint between chunks of steps whenever the session says it is due.
+pub fn time_loop_with<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    progress: &ProgressBar,
+    geo: Option<&CutCells<R, D, N>>,
+    mut ckpt: Option<Checkpoints<'_>>,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
     let times = output_times(scene.t_end, scene.output_interval);
-    let mut stats = LoopStats {
-        dt: geo
-            .map_or_else(|| s.stable_dt(), |g| s.stable_dt_embedded(g))
-            .to_f64(),
-        ..LoopStats::default()
+    let resumed = match &ckpt {
+        Some((ck, _)) => ck.progress(scene)?,
+        None => None,
+    };
+    let (mut stats, first) = match resumed {
+        Some(p) => (p.stats, p.next),
+        None => (
+            LoopStats {
+                dt: geo
+                    .map_or_else(|| s.stable_dt(), |g| s.stable_dt_embedded(g))
+                    .to_f64(),
+                ..LoopStats::default()
+            },
+            0,
+        ),
     };
     let mut timer = SegregationTimer::new(scene.psi_threshold);
+    for r in &stats.series {
+        timer.sample(r.t, r.psi);
+    }
     // Bounded chunks keep the progress bar moving on large grids; the step sequence is the
-    // same as one call (advance_to only shortens the step that lands on the target).
+    // same as one call (advance_to only shortens the step that lands on the target), so a
+    // checkpoint between chunks resumes onto the same steps.
     let chunk = (4_000_000 / scene.len()).max(1) as u64;
-    for (k, &t) in times.iter().enumerate() {
+    for (k, &t) in times.iter().enumerate().skip(first) {
         let target = R::from_f64(t);
         while s.time() < target {
             let start = Instant::now();
@@ -213,6 +248,17 @@ pub fn time_loop<R: Real, const D: usize, const N: usize>(
             };
             stats.stepping += start.elapsed();
             progress.set_position((s.time().to_f64() / scene.t_end * 1000.0) as u64);
+            if let Some((ck, extra)) = ckpt.as_mut().filter(|(c, _)| c.due()) {
+                let at = crate::checkpoint::Progress {
+                    next: k,
+                    stats: stats.clone(),
+                    ..Default::default()
+                };
+                ck.save(&at, |e| {
+                    crate::checkpoint::put_segregation(e, s);
+                    extra(e);
+                })?;
+            }
         }
         let d = match geo {
             Some(g) => sieve_core::diagnose_embedded(s, g),
@@ -259,6 +305,16 @@ pub struct RunOptions {
     pub quiet: bool,
 }
 
+/// Checkpoints of `sieve run` ([`crate::checkpoint`]).
+#[derive(Debug, Default)]
+pub struct ResumeOptions {
+    /// Where the scene came from (stored in every checkpoint); without it no checkpoints
+    /// are written.
+    pub source: Option<crate::checkpoint::SceneSource>,
+    /// The checkpoint to continue from (`--resume DIR`).
+    pub resume: Option<crate::checkpoint::Stored>,
+}
+
 /// What the solver thread of `sieve run` hands back.
 struct RunOutcome {
     stats: LoopStats,
@@ -269,6 +325,7 @@ struct RunOutcome {
     profiles: Option<crate::data::Profiles>,
     geometry: Option<crate::data::GeometrySummary>,
     discharge: Option<crate::silo::DischargeSeries>,
+    ckpt: Option<crate::checkpoint::Session>,
 }
 
 struct RunJob<'a> {
@@ -277,6 +334,25 @@ struct RunJob<'a> {
     fields_dir: std::path::PathBuf,
     staging: std::path::PathBuf,
     quiet: bool,
+    ckpt: Option<crate::checkpoint::Session>,
+}
+
+/// The VTK collection entries of the outputs a resumed run kept (written before the
+/// interruption): the same names and times the run gave them.
+fn kept_pvd(
+    scene: &Scene,
+    ckpt: Option<&crate::checkpoint::Session>,
+) -> Result<Vec<(f64, String)>> {
+    let next = match ckpt {
+        Some(ck) => ck.progress(scene)?.map_or(0, |p| p.next),
+        None => 0,
+    };
+    Ok(output_times(scene.t_end, scene.output_interval)
+        .into_iter()
+        .take(next)
+        .enumerate()
+        .map(|(k, t)| (t, crate::checkpoint::snapshot_name(k)))
+        .collect())
 }
 
 impl RunJob<'_> {
@@ -325,7 +401,7 @@ impl RunJob<'_> {
 impl SolverJob for RunJob<'_> {
     type Output = RunOutcome;
     fn run<R: Real, const D: usize, const N: usize>(
-        self,
+        mut self,
         s: &mut Segregation<R, D, N>,
     ) -> Result<RunOutcome> {
         let scene = self.scene;
@@ -335,14 +411,29 @@ impl SolverJob for RunJob<'_> {
         if let Some(g) = geo {
             crate::embedded::prepare(s, scene, g)?;
         }
+        let mut ckpt = self.ckpt.take();
+        // c, T and u are fixed here, so the restored ones equal the prepared ones.
+        if let Some(ck) = &ckpt {
+            if let Some(e) = ck.resumed() {
+                crate::checkpoint::restore_segregation(e, s).map_err(|w| ck.incompatible(w))?;
+            }
+        }
         let volume = geo.map(crate::embedded::volumes);
         let bar = progress_bar(self.quiet, &scene.name);
-        let mut pvd = Vec::new();
-        let stats = time_loop(s, scene, &bar, geo, |k, t, s| {
-            let mut snap = Snapshot::of(s, scene);
-            snap.volume = volume.clone();
-            self.output(k, t, &snap, &mut pvd)
-        })?;
+        let mut pvd = kept_pvd(scene, ckpt.as_ref())?;
+        let nothing = |_: &mut crate::checkpoint::Entries| {};
+        let stats = time_loop_with(
+            s,
+            scene,
+            &bar,
+            geo,
+            ckpt.as_mut().map(|c| (c, &nothing as &dyn Fn(&mut _))),
+            |k, t, s| {
+                let mut snap = Snapshot::of(s, scene);
+                snap.volume = volume.clone();
+                self.output(k, t, &snap, &mut pvd)
+            },
+        )?;
         bar.finish_and_clear();
         let mut snap = Snapshot::of(s, scene);
         snap.volume = volume.clone();
@@ -356,6 +447,7 @@ impl SolverJob for RunJob<'_> {
             profiles: None,
             geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
             discharge: None,
+            ckpt,
         })
     }
 }
@@ -363,10 +455,11 @@ impl SolverJob for RunJob<'_> {
 impl FlowJob for RunJob<'_> {
     type Output = RunOutcome;
     fn run<R: Real, const D: usize, const N: usize>(
-        self,
+        mut self,
         s: &mut Segregation<R, D, N>,
         f: &mut Flow<R, D, N>,
     ) -> Result<RunOutcome> {
+        use crate::checkpoint as cp;
         use crate::scene::Equations;
         let scene = self.scene;
         load(s, scene, self.fields)?;
@@ -375,28 +468,56 @@ impl FlowJob for RunJob<'_> {
         let geo = geo.as_deref();
         let volume = geo.map(crate::embedded::volumes);
         let bar = progress_bar(self.quiet, &scene.name);
-        let mut pvd = Vec::new();
+        let mut ckpt = self.ckpt.take();
+        let mut pvd = kept_pvd(scene, ckpt.as_ref())?;
         let equations = scene.flow.as_ref().map(|m| m.equations);
         let mut discharge = None;
         let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
-            let cs =
-                crate::flow::coupled_loop(f, s, scene, self.fields, geo, &bar, |k, t, s, f| {
+            let cs = crate::flow::coupled_loop_with(
+                f,
+                s,
+                scene,
+                self.fields,
+                geo,
+                &bar,
+                ckpt.as_mut(),
+                |k, t, s, f| {
                     let mut snap = Snapshot::of(s, scene);
                     snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
                     snap.volume = volume.clone();
                     self.output(k, t, &snap, &mut pvd)
-                })?;
+                },
+            )?;
             let p: Vec<f64> = (0..f.len()).map(|i| f.pressure(i).to_f64()).collect();
             discharge = cs.discharge;
             (cs.stats, cs.summary, p)
         } else {
-            let frozen = crate::flow::spin_up(f, scene, self.fields)?;
+            // A resumed frozen-flow run hands over the checkpoint's frozen flow (no spin-up).
+            let resumed = ckpt.as_ref().and_then(|c| c.resumed());
+            let frozen = match resumed {
+                Some(e) => cp::frozen(e, scene.len(), scene.dim)
+                    .map_err(|w| ckpt.as_ref().map_or(w.clone(), |c| c.incompatible(w)))?,
+                None => crate::flow::spin_up(f, scene, self.fields)?,
+            };
             crate::flow::hand_over_frozen(s, scene, self.fields, &frozen)?;
-            let stats = time_loop(s, scene, &bar, None, |k, t, s| {
-                let mut snap = Snapshot::of(s, scene);
-                snap.p = Some(frozen.p.clone());
-                self.output(k, t, &snap, &mut pvd)
-            })?;
+            if let Some(ck) = &ckpt {
+                if let Some(e) = ck.resumed() {
+                    cp::restore_segregation(e, s).map_err(|w| ck.incompatible(w))?;
+                }
+            }
+            let keep = |e: &mut cp::Entries| cp::put_frozen(e, &frozen);
+            let stats = time_loop_with(
+                s,
+                scene,
+                &bar,
+                None,
+                ckpt.as_mut().map(|c| (c, &keep as &dyn Fn(&mut _))),
+                |k, t, s| {
+                    let mut snap = Snapshot::of(s, scene);
+                    snap.p = Some(frozen.p.clone());
+                    self.output(k, t, &snap, &mut pvd)
+                },
+            )?;
             (stats, frozen.summary, frozen.p)
         };
         bar.finish_and_clear();
@@ -413,6 +534,7 @@ impl FlowJob for RunJob<'_> {
             profiles: Some(crate::flow::profiles(scene, &snap)),
             geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
             discharge,
+            ckpt,
         })
     }
 }
@@ -423,17 +545,40 @@ pub fn run_scene(
     fields: &Fields,
     opts: &RunOptions,
 ) -> Result<crate::output::summary::Summary> {
+    run_scene_with(scene, fields, opts, ResumeOptions::default())
+}
+
+/// [`run_scene`] with checkpoints: written every `scene.checkpoint_interval` seconds if
+/// `resume.source` is given, and continued from `resume.resume` (`sieve run --resume`).
+pub fn run_scene_with(
+    scene: &Scene,
+    fields: &Fields,
+    opts: &RunOptions,
+    resume: ResumeOptions,
+) -> Result<crate::output::summary::Summary> {
     use crate::output::{self, redraw, summary, Staging};
     let start = Instant::now();
     let staging = Staging::new(&opts.out)?;
     let fields_dir = staging.subdir("fields")?;
     let plots_dir = staging.subdir("plots")?;
+    let ckpt = match resume.source {
+        Some(source) => Some(crate::checkpoint::Session::new(
+            &opts.out,
+            scene,
+            fields,
+            source,
+            fields_dir.clone(),
+            resume.resume,
+        )?),
+        None => None,
+    };
     let job = RunJob {
         scene,
         fields,
         fields_dir: fields_dir.clone(),
         staging: staging.path().to_path_buf(),
         quiet: opts.quiet,
+        ckpt,
     };
     let out = if scene.flow.is_some() {
         with_flow_solvers(scene.precision, scene.dim, job)?
@@ -517,5 +662,8 @@ pub fn run_scene(
     // The pictures come from the files just written, as `sieve plot DIR` draws them.
     redraw::redraw(staging.path(), &plots_dir)?;
     staging.commit()?;
+    if let Some(ck) = out.ckpt {
+        ck.finish()?;
+    }
     Ok(summary)
 }

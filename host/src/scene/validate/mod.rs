@@ -197,6 +197,9 @@ pub struct Scene {
     pub output_interval: f64,
     /// Psi threshold of the segregation time.
     pub psi_threshold: f64,
+    /// Wall-clock seconds between checkpoints (`run.checkpoint_interval`; none: no
+    /// checkpoints; crate::checkpoint).
+    pub checkpoint_interval: Option<f64>,
     /// Closed-form solution, if any.
     pub exact: Option<ExactKind>,
     /// The flow model, if the scene solves one.
@@ -312,6 +315,7 @@ impl Scene {
                 bounds.as_ref().map(|(b, _)| b.as_slice()),
             )
         });
+        let checkpoint_interval = run::check_checkpoint(&mut p, l, &f.run);
         p.finish()?;
         // Every section that gave None recorded a problem, so all are Some here.
         let (
@@ -364,6 +368,7 @@ impl Scene {
             t_end,
             output_interval,
             psi_threshold,
+            checkpoint_interval,
             exact: f.run.exact,
         };
         if scene.exact == Some(ExactKind::ColumnA) {
