@@ -333,6 +333,17 @@ fn run_setup(a: &RunArgs) -> Result<(scene::Scene, scene::Fields, PathBuf, run::
         src
     };
     let (scene, fields) = src.load()?;
+    if !a.quiet {
+        let e = &stored.entries;
+        eprintln!(
+            "sieve: resuming {} ({}) from its checkpoint at t = {} after {} steps",
+            dir.display(),
+            scene.name,
+            e.f64("seg.time").map_or("?".into(), |t| format!("{t:.6e}")),
+            e.u64("progress.steps")
+                .map_or("?".into(), |n| n.to_string()),
+        );
+    }
     let resume = run::ResumeOptions {
         source: Some(src),
         resume: Some(stored),

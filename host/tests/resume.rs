@@ -131,13 +131,13 @@ fn kill_and_resume(args: &[&str]) -> serde_json::Value {
 
 #[test]
 fn prescribed_scene_killed_and_resumed_ends_with_the_same_bits() {
-    // 2D modified flux, T from shear: 64 x 64 for 3 s.
-    let s = kill_and_resume(&["shear-cell-inverse", "--grid", "64x64", "--t-end", "3"]);
+    // 2D modified flux, T from shear: 48 x 48 for 3 s.
+    let s = kill_and_resume(&["shear-cell-inverse", "--grid", "48x48", "--t-end", "3"]);
     assert!(s["steps"].as_u64().unwrap() > 100, "{s}");
 }
 
 #[test]
-fn prescribed_large_phase_f32_compensated_free_killed_and_resumed() {
+fn prescribed_large_phase_f32_godunov_killed_and_resumed() {
     // The tracked large phase in f32 with a naive flux (bounds broken by design: the resume
     // must not re-validate phi), 1D, many steps.
     kill_and_resume(&[
@@ -157,7 +157,7 @@ fn prescribed_large_phase_f32_compensated_free_killed_and_resumed() {
 
 #[test]
 fn frozen_flow_scene_killed_and_resumed_ends_with_the_same_bits() {
-    let s = kill_and_resume(&["shear-cell", "--grid", "24x24", "--t-end", "60"]);
+    let s = kill_and_resume(&["shear-cell", "--grid", "20x20", "--t-end", "40"]);
     assert_eq!(s["flow"]["equations"], "frozen-flow");
 }
 
@@ -169,7 +169,7 @@ fn coupled_collapse_killed_and_resumed_ends_with_the_same_bits() {
 
 #[test]
 fn cut_cell_tumbler_in_its_rotating_frame_killed_and_resumed() {
-    let s = kill_and_resume(&["tumbler", "--grid", "20x20", "--t-end", "0.3"]);
+    let s = kill_and_resume(&["tumbler", "--grid", "20x20", "--t-end", "0.2"]);
     assert_eq!(s["frame"]["kind"], "rotating");
 }
 
@@ -180,7 +180,7 @@ fn silo_with_outlet_killed_and_resumed_keeps_discharge_csv() {
         "--grid",
         "15x50",
         "--t-end",
-        "0.15",
+        "0.12",
         "--set",
         "run.output_interval=0.03",
     ]);
