@@ -48,8 +48,6 @@ pub const MAX_FILE: u64 = 1 << 34;
 pub const MAX_ENTRIES: u32 = 100_000;
 /// File name of the state inside the checkpoint directory.
 pub const STATE_FILE: &str = "checkpoint.bin";
-/// Longest allowed interval [s] (about 30 years).
-pub const MAX_INTERVAL: f64 = 1e9;
 
 const CRC: crc::Crc<u64> = crc::Crc::<u64>::new(&crc::CRC_64_XZ);
 
@@ -925,9 +923,24 @@ pub fn totals<R: Real, const D: usize>(e: &Entries) -> Result<CoupledTotals<R, D
     })
 }
 
-/// Stores a frozen flow (frozen-flow scenes) under `frozen.*`: the resumed run skips the
-/// spin-up and hands the same fields over.
-pub fn put_frozen(e: &mut Entries, fr: &crate::flow::Frozen) {
+/// A frozen flow as a checkpoint keeps it (the fields of `flow::Frozen`; frozen-flow
+/// scenes): the resumed run skips the spin-up and hands the same fields over.
+#[derive(Debug, Clone)]
+pub struct FrozenFields {
+    /// c per cell.
+    pub c: Vec<f64>,
+    /// T per cell.
+    pub t: Vec<f64>,
+    /// p per cell.
+    pub p: Vec<f64>,
+    /// Velocity per solver axis, per cell.
+    pub u: Vec<Vec<f64>>,
+    /// The flow block of summary.json.
+    pub summary: FlowSummary,
+}
+
+/// Stores a frozen flow under `frozen.*`.
+pub fn put_frozen(e: &mut Entries, fr: &FrozenFields) {
     e.put("frozen.c", Value::F64s(fr.c.clone()));
     e.put("frozen.T", Value::F64s(fr.t.clone()));
     e.put("frozen.p", Value::F64s(fr.p.clone()));
@@ -965,7 +978,7 @@ pub fn put_frozen(e: &mut Entries, fr: &crate::flow::Frozen) {
 }
 
 /// The frozen flow [`put_frozen`] stored, for a scene of `n` cells in `dim` dimensions.
-pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<crate::flow::Frozen> {
+pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<FrozenFields> {
     let v = |name: &str| e.f64s(name, n).map(<[f64]>::to_vec);
     let x = e.f64s("frozen.numbers", 10)?;
     let steady = match e.0.get("frozen.flow_steps_to_steady") {
@@ -986,7 +999,7 @@ pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<crate::flow::Frozen> 
             ))
         }
     };
-    Ok(crate::flow::Frozen {
+    Ok(FrozenFields {
         c: v("frozen.c")?,
         t: v("frozen.T")?,
         p: v("frozen.p")?,

@@ -495,9 +495,25 @@ impl FlowJob for RunJob<'_> {
             // A resumed frozen-flow run hands over the checkpoint's frozen flow (no spin-up).
             let resumed = ckpt.as_ref().and_then(|c| c.resumed());
             let frozen = match resumed {
-                Some(e) => cp::frozen(e, scene.len(), scene.dim)
-                    .map_err(|w| ckpt.as_ref().map_or(w.clone(), |c| c.incompatible(w)))?,
+                Some(e) => {
+                    let fr = cp::frozen(e, scene.len(), scene.dim)
+                        .map_err(|w| ckpt.as_ref().map_or(w.clone(), |c| c.incompatible(w)))?;
+                    crate::flow::Frozen {
+                        c: fr.c,
+                        t: fr.t,
+                        p: fr.p,
+                        u: fr.u,
+                        summary: fr.summary,
+                    }
+                }
                 None => crate::flow::spin_up(f, scene, self.fields)?,
+            };
+            let kept = cp::FrozenFields {
+                c: frozen.c.clone(),
+                t: frozen.t.clone(),
+                p: frozen.p.clone(),
+                u: frozen.u.clone(),
+                summary: frozen.summary.clone(),
             };
             crate::flow::hand_over_frozen(s, scene, self.fields, &frozen)?;
             if let Some(ck) = &ckpt {
@@ -505,7 +521,7 @@ impl FlowJob for RunJob<'_> {
                     cp::restore_segregation(e, s).map_err(|w| ck.incompatible(w))?;
                 }
             }
-            let keep = |e: &mut cp::Entries| cp::put_frozen(e, &frozen);
+            let keep = |e: &mut cp::Entries| cp::put_frozen(e, &kept);
             let stats = time_loop_with(
                 s,
                 scene,

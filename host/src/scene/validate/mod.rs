@@ -198,7 +198,7 @@ pub struct Scene {
     /// Psi threshold of the segregation time.
     pub psi_threshold: f64,
     /// Wall-clock seconds between checkpoints (`run.checkpoint_interval`; none: no
-    /// checkpoints; crate::checkpoint).
+    /// checkpoints; docs/resume.md).
     pub checkpoint_interval: Option<f64>,
     /// Closed-form solution, if any.
     pub exact: Option<ExactKind>,
