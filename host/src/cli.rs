@@ -227,6 +227,14 @@ pub struct RunArgs {
     /// Refuse a run estimated to write more than this (bytes; suffixes k, M, G, T: 500M, 8G).
     #[arg(long = "max-output", value_name = "BYTES", value_parser = estimate::parse_bytes, default_value = "4G")]
     pub max_output: f64,
+    /// Write a checkpoint every SECONDS of wall-clock time into .DIR.checkpoint beside the
+    /// output directory (overrides run.checkpoint_interval; docs/resume.md).
+    #[arg(long = "checkpoint-interval", value_name = "SECONDS")]
+    pub checkpoint_interval: Option<String>,
+    /// Continue the unfinished run into DIR from its last checkpoint; the scene and its
+    /// overrides come from the checkpoint (SCENE and --set, if given, must be the same).
+    #[arg(long, value_name = "DIR", conflicts_with = "out")]
+    pub resume: Option<PathBuf>,
 }
 
 /// Arguments of `sieve converge`.
@@ -315,7 +323,7 @@ pub fn parse_args() -> Cli {
 pub fn clap_line(e: &clap::Error) -> String {
     use clap::error::ErrorKind;
     if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
-        return "no command given: use one of scenes, run, converge, plot, fit, record, replay (see `sieve --help`)".into();
+        return "no command given: use one of scenes, run, converge, plot, fit, record, replay, sweep (see `sieve --help`)".into();
     }
     let text = e.render().to_string();
     let mut parts: Vec<String> = Vec::new();
@@ -387,6 +395,9 @@ fn run_overrides(a: &RunArgs, spec: &str) -> Result<Vec<String>> {
     if a.compress {
         sets.push("output.compress=true".into());
     }
+    if let Some(x) = &a.checkpoint_interval {
+        sets.push(format!("run.checkpoint_interval={x}"));
+    }
     Ok(sets)
 }
 
@@ -407,6 +418,72 @@ fn scene_dim(spec: &str, sets: &[String]) -> Result<usize> {
     }
 }
 
+/// The scene, its fields, the output directory and the checkpoint options of `sieve run`
+/// (with `--resume DIR`: the checkpoint's scene, or the given one if it is the same).
+fn run_setup(a: &RunArgs) -> Result<(scene::Scene, scene::Fields, PathBuf, run::ResumeOptions)> {
+    use crate::checkpoint::{SceneSource, Stored};
+    let source = |spec: &str| -> Result<SceneSource> {
+        let src = scene::locate(spec)?;
+        Ok(SceneSource {
+            label: src.label,
+            text: src.text,
+            sets: run_overrides(a, spec)?,
+        })
+    };
+    let Some(dir) = &a.resume else {
+        let spec = a
+            .scene
+            .clone()
+            .unwrap_or_else(|| builtin::DEFAULT_SCENE.into());
+        let src = source(&spec)?;
+        let (scene, fields) = src.load()?;
+        let out = a
+            .out
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("runs").join(&scene.name));
+        let resume = run::ResumeOptions {
+            source: Some(src),
+            resume: None,
+        };
+        return Ok((scene, fields, out, resume));
+    };
+    let stored = Stored::open(dir)?;
+    let given = a.scene.is_some()
+        || !a.set.is_empty()
+        || a.scheme.is_some()
+        || a.cells.is_some()
+        || a.grid.is_some()
+        || a.t_end.is_some()
+        || a.cfl.is_some();
+    let src = if given {
+        // checked against the checkpoint's scene when the run starts
+        source(a.scene.as_deref().unwrap_or(builtin::DEFAULT_SCENE))?
+    } else {
+        let mut src = stored.source()?;
+        if let Some(x) = &a.checkpoint_interval {
+            src.sets.push(format!("run.checkpoint_interval={x}"));
+        }
+        src
+    };
+    let (scene, fields) = src.load()?;
+    if !a.quiet {
+        let e = &stored.entries;
+        eprintln!(
+            "sieve: resuming {} ({}) from its checkpoint at t = {} after {} steps",
+            dir.display(),
+            scene.name,
+            e.f64("seg.time").map_or("?".into(), |t| format!("{t:.6e}")),
+            e.u64("progress.steps")
+                .map_or("?".into(), |n| n.to_string()),
+        );
+    }
+    let resume = run::ResumeOptions {
+        source: Some(src),
+        resume: Some(stored),
+    };
+    Ok((scene, fields, dir.clone(), resume))
+}
+
 /// Runs the parsed command line.
 pub fn execute(cli: Cli) -> Result<()> {
     match cli.command {
@@ -420,28 +497,20 @@ pub fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Run(a) => {
-            let spec = a
-                .scene
-                .clone()
-                .unwrap_or_else(|| builtin::DEFAULT_SCENE.into());
-            let sets = run_overrides(&a, &spec)?;
-            let (mut scene, fields) = scene::load(&spec, &sets)?;
+            let (mut scene, fields, out, resume) = run_setup(&a)?;
             scene.limits = estimate::Limits {
                 max_steps: a.max_steps,
                 max_cell_steps: a.max_cell_steps,
                 max_output: a.max_output,
             };
-            let out = a
-                .out
-                .clone()
-                .unwrap_or_else(|| PathBuf::from("runs").join(&scene.name));
-            let summary = run::run_scene(
+            let summary = run::run_scene_with(
                 &scene,
                 &fields,
                 &RunOptions {
                     out: out.clone(),
                     quiet: a.quiet,
                 },
+                resume,
             )?;
             if !a.quiet {
                 println!(

@@ -95,6 +95,8 @@ impl LoopStats {
 pub struct SegregationTimer {
     armed: bool,
     clock: SegregationClock<f64>,
+    /// A crossing already found (a resumed run: [`Self::crossed`]).
+    fixed: Option<f64>,
 }
 
 impl SegregationTimer {
@@ -103,10 +105,21 @@ impl SegregationTimer {
         Self {
             armed: false,
             clock: SegregationClock::new(threshold),
+            fixed: None,
+        }
+    }
+    /// A timer whose crossing is already known (a checkpoint kept it, resolved to the step).
+    pub fn crossed(threshold: f64, t: f64) -> Self {
+        Self {
+            fixed: Some(t),
+            ..Self::new(threshold)
         }
     }
     /// Feeds a sample in time order.
     pub fn sample(&mut self, t: f64, psi: f64) {
+        if self.fixed.is_some() {
+            return;
+        }
         if !self.armed && psi >= self.clock.threshold() {
             self.armed = true;
         }
@@ -116,7 +129,7 @@ impl SegregationTimer {
     }
     /// The segregation time, if reached.
     pub fn time(&self) -> Option<f64> {
-        self.clock.time()
+        self.fixed.or(self.clock.time())
     }
 }
 

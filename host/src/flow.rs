@@ -375,6 +375,23 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
     fields: &Fields,
     geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
     progress: &crate::progress::Progress,
+    on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
+) -> Result<CoupledStats> {
+    coupled_loop_with(flow, seg, scene, fields, geo, progress, None, on_output)
+}
+
+/// [`coupled_loop_until_stop`] with checkpoints (`sieve run`; [`crate::checkpoint`]): resumes
+/// from the session's checkpoint if it has one, and writes one whenever the session says it
+/// is due (between steps; the step sequence does not depend on where a run was interrupted).
+#[allow(clippy::too_many_arguments)]
+pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
+    flow: &mut Flow<R, D, N>,
+    seg: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    fields: &Fields,
+    geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
+    progress: &crate::progress::Progress,
+    mut ckpt: Option<&mut crate::checkpoint::Session>,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
 ) -> Result<CoupledStats> {
     let fm = scene
@@ -406,11 +423,34 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
         dt: cpl.flow.stable_dt().min(seg_dt(cpl.seg)).to_f64(),
         ..Default::default()
     };
-    let mut checked = false;
-    let mut timer = SegregationTimer::new(scene.psi_threshold);
     let mut flow_seconds = 0.0;
     let mut discharge = crate::silo::has_outlets(scene).then(crate::silo::DischargeSeries::default);
-    'outputs: for (k, &t) in times.iter().enumerate() {
+    let mut first = 0;
+    if let Some(ck) = ckpt.as_deref() {
+        if let (Some(e), Some(p)) = (ck.resumed(), ck.progress(scene)?) {
+            use crate::checkpoint as cp;
+            let restore = |cpl: &mut Coupled<'_, R, D, N>| -> Result<()> {
+                cp::restore_flow(e, cpl.flow)?;
+                cp::restore_segregation(e, cpl.seg)?;
+                cpl.resume(cp::totals(e)?).map_err(fail)
+            };
+            restore(&mut cpl).map_err(|w| ck.incompatible(w))?;
+            (stats, first, flow_seconds) = (p.stats, p.next, p.flow_seconds);
+            if let (Some(d), Some(rows)) = (discharge.as_mut(), p.discharge) {
+                *d = crate::silo::DischargeSeries::from_rows(rows);
+            }
+        }
+    }
+    let mut timer = SegregationTimer::new(scene.psi_threshold);
+    for r in &stats.series {
+        timer.sample(r.t, r.psi);
+    }
+    if let Some(t) = stats.segregation_time {
+        // resumed after the crossing: the step-resolved time the checkpoint kept
+        timer = SegregationTimer::crossed(scene.psi_threshold, t);
+    }
+    let mut checked = false;
+    'outputs: for (k, &t) in times.iter().enumerate().skip(first) {
         let target = R::from_f64(t);
         let start = Instant::now();
         while cpl.seg.time() < target {
@@ -461,6 +501,21 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
                     None => sieve_core::diagnose(cpl.seg),
                 };
                 timer.sample(cpl.seg.time().to_f64(), d.psi.to_f64());
+            }
+            if let Some(ck) = ckpt.as_deref_mut().filter(|c| c.due()) {
+                let mut at = crate::checkpoint::Progress {
+                    next: k,
+                    stats: stats.clone(),
+                    flow_seconds: flow_seconds + start.elapsed().as_secs_f64(),
+                    discharge: discharge.as_ref().map(|d| d.rows.clone()),
+                };
+                at.stats.segregation_time = timer.time();
+                at.stats.stepping += start.elapsed();
+                ck.save(&at, |e| {
+                    crate::checkpoint::put_segregation(e, cpl.seg);
+                    crate::checkpoint::put_flow(e, cpl.flow);
+                    crate::checkpoint::put_totals(e, &cpl.totals());
+                })?;
             }
             if stats.steps % 256 == 0 {
                 progress.update(cpl.seg.time().to_f64(), stats.steps);

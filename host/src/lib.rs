@@ -9,6 +9,7 @@
 //! numerical failure, 130/143 for SIGINT/SIGTERM, 1 otherwise); [`interrupt`] stops a run early
 //! and keeps what it wrote.
 
+pub mod checkpoint;
 pub mod cli;
 pub mod converge;
 pub mod data;

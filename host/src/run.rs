@@ -211,23 +211,62 @@ pub fn time_loop_until_stop<R: Real, const D: usize, const N: usize>(
     scene: &Scene,
     progress: &crate::progress::Progress,
     geo: Option<&CutCells<R, D, N>>,
+    on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
+) -> Result<LoopStats> {
+    time_loop_with(s, scene, progress, geo, None, on_output)
+}
+
+/// Checkpoints of a segregation loop: the session, and what else the checkpoint must hold
+/// (the frozen flow of a frozen-flow scene).
+pub type Checkpoints<'a> = (
+    &'a mut crate::checkpoint::Session,
+    &'a dyn Fn(&mut crate::checkpoint::Entries),
+);
+
+/// [`time_loop`] with checkpoints ([`crate::checkpoint`]): the solver has been restored by
+/// the caller; the loop continues from the checkpoint's next output with its statistics, and
+/// writes a checkpoint between chunks of steps whenever the session says it is due.
+pub fn time_loop_with<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    progress: &crate::progress::Progress,
+    geo: Option<&CutCells<R, D, N>>,
+    mut ckpt: Option<Checkpoints<'_>>,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
     let times = output_times(scene.t_end, scene.output_interval);
     let dt = geo
         .map_or_else(|| s.stable_dt(), |g| s.stable_dt_embedded(g))
         .to_f64();
-    let mut stats = LoopStats {
-        dt,
-        ..LoopStats::default()
+    let resumed = match &ckpt {
+        Some((ck, _)) => ck.progress(scene)?,
+        None => None,
+    };
+    let (mut stats, first) = match resumed {
+        Some(p) => (p.stats, p.next),
+        None => (
+            LoopStats {
+                dt,
+                ..LoopStats::default()
+            },
+            0,
+        ),
     };
     if dt < R::MAX.to_f64() {
         // the segregation step is fixed by the prepared state (model.md 5)
         stats.took_dt(dt);
     }
     let mut timer = SegregationTimer::new(scene.psi_threshold);
+    for r in &stats.series {
+        timer.sample(r.t, r.psi);
+    }
+    if let Some(t) = stats.segregation_time {
+        // resumed after the crossing: the step-resolved time the checkpoint kept
+        timer = SegregationTimer::crossed(scene.psi_threshold, t);
+    }
     // Bounded chunks keep the progress moving on large grids; the step sequence is the
-    // same as one call (advance_to only shortens the step that lands on the target).
+    // same as one call (advance_to only shortens the step that lands on the target), so a
+    // checkpoint between chunks resumes onto the same steps.
     let chunk = (4_000_000 / scene.len()).max(1) as u64;
     let mut checked = false;
     let advance = |s: &mut Segregation<R, D, N>, target: R, n: u64| match geo {
@@ -236,7 +275,7 @@ pub fn time_loop_until_stop<R: Real, const D: usize, const N: usize>(
     };
     // The prepared state first: a non-finite coefficient stops the run before any step.
     stats.stop = crate::interrupt::after_steps(s, stats.dt, 0);
-    'outputs: for (k, &t) in times.iter().enumerate() {
+    'outputs: for (k, &t) in times.iter().enumerate().skip(first) {
         if stats.stop.is_some() {
             break;
         }
@@ -257,6 +296,18 @@ pub fn time_loop_until_stop<R: Real, const D: usize, const N: usize>(
             if let Some(stop) = crate::interrupt::after_steps(s, stats.dt, stats.steps) {
                 stats.stop = Some(stop);
                 break 'outputs;
+            }
+            if let Some((ck, extra)) = ckpt.as_mut().filter(|(c, _)| c.due()) {
+                let mut at = crate::checkpoint::Progress {
+                    next: k,
+                    stats: stats.clone(),
+                    ..Default::default()
+                };
+                at.stats.segregation_time = timer.time();
+                ck.save(&at, |e| {
+                    crate::checkpoint::put_segregation(e, s);
+                    extra(e);
+                })?;
             }
         }
         let d = match geo {
@@ -370,6 +421,16 @@ pub struct RunOptions {
     pub quiet: bool,
 }
 
+/// Checkpoints of `sieve run` ([`crate::checkpoint`]).
+#[derive(Debug, Default)]
+pub struct ResumeOptions {
+    /// Where the scene came from (stored in every checkpoint); without it no checkpoints
+    /// are written.
+    pub source: Option<crate::checkpoint::SceneSource>,
+    /// The checkpoint to continue from (`--resume DIR`).
+    pub resume: Option<crate::checkpoint::Stored>,
+}
+
 /// What the solver thread of `sieve run` hands back.
 struct RunOutcome {
     stats: LoopStats,
@@ -381,6 +442,7 @@ struct RunOutcome {
     geometry: Option<crate::data::GeometrySummary>,
     discharge: Option<crate::silo::DischargeSeries>,
     worst: Option<crate::estimate::Violation>,
+    ckpt: Option<crate::checkpoint::Session>,
 }
 
 struct RunJob<'a> {
@@ -393,6 +455,27 @@ struct RunJob<'a> {
     worst: std::cell::Cell<Option<crate::estimate::Violation>>,
     /// Number of output times (the last always gets a snapshot).
     outputs: usize,
+    ckpt: Option<crate::checkpoint::Session>,
+}
+
+/// The VTK collection entries of the outputs a resumed run kept (written before the
+/// interruption): the same names and times the run gave them.
+fn kept_pvd(
+    scene: &Scene,
+    ckpt: Option<&crate::checkpoint::Session>,
+    outputs: usize,
+) -> Result<Vec<(f64, String)>> {
+    let next = match ckpt {
+        Some(ck) => ck.progress(scene)?.map_or(0, |p| p.next),
+        None => 0,
+    };
+    Ok(output_times(scene.t_end, scene.output_interval)
+        .into_iter()
+        .take(next)
+        .enumerate()
+        .filter(|&(k, _)| scene.output.writes(k, outputs))
+        .map(|(k, t)| (t, crate::checkpoint::snapshot_name(k)))
+        .collect())
 }
 
 impl RunJob<'_> {
@@ -449,7 +532,7 @@ impl RunJob<'_> {
 impl SolverJob for RunJob<'_> {
     type Output = RunOutcome;
     fn run<R: Real, const D: usize, const N: usize>(
-        self,
+        mut self,
         s: &mut Segregation<R, D, N>,
     ) -> Result<RunOutcome> {
         let scene = self.scene;
@@ -459,14 +542,29 @@ impl SolverJob for RunJob<'_> {
         if let Some(g) = geo {
             crate::embedded::prepare(s, scene, g)?;
         }
+        let mut ckpt = self.ckpt.take();
+        // c, T and u are fixed here, so the restored ones equal the prepared ones.
+        if let Some(ck) = &ckpt {
+            if let Some(e) = ck.resumed() {
+                crate::checkpoint::restore_segregation(e, s).map_err(|w| ck.incompatible(w))?;
+            }
+        }
         let volume = geo.map(crate::embedded::volumes);
         let bar = progress_bar(self.quiet, &scene.name, scene.t_end);
-        let mut pvd = Vec::new();
-        let stats = time_loop_until_stop(s, scene, &bar, geo, |k, t, s| {
-            let mut snap = Snapshot::of(s, scene);
-            snap.volume = volume.clone();
-            self.output(k, t, &snap, &mut pvd)
-        })?;
+        let mut pvd = kept_pvd(scene, ckpt.as_ref(), self.outputs)?;
+        let nothing = |_: &mut crate::checkpoint::Entries| {};
+        let stats = time_loop_with(
+            s,
+            scene,
+            &bar,
+            geo,
+            ckpt.as_mut().map(|c| (c, &nothing as &dyn Fn(&mut _))),
+            |k, t, s| {
+                let mut snap = Snapshot::of(s, scene);
+                snap.volume = volume.clone();
+                self.output(k, t, &snap, &mut pvd)
+            },
+        )?;
         bar.finish_and_clear();
         let mut snap = Snapshot::of(s, scene);
         snap.volume = volume.clone();
@@ -481,6 +579,7 @@ impl SolverJob for RunJob<'_> {
             geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
             discharge: None,
             worst: self.worst.get(),
+            ckpt,
         })
     }
 }
@@ -488,10 +587,11 @@ impl SolverJob for RunJob<'_> {
 impl FlowJob for RunJob<'_> {
     type Output = RunOutcome;
     fn run<R: Real, const D: usize, const N: usize>(
-        self,
+        mut self,
         s: &mut Segregation<R, D, N>,
         f: &mut Flow<R, D, N>,
     ) -> Result<RunOutcome> {
+        use crate::checkpoint as cp;
         use crate::scene::Equations;
         let scene = self.scene;
         load(s, scene, self.fields)?;
@@ -500,17 +600,19 @@ impl FlowJob for RunJob<'_> {
         let geo = geo.as_deref();
         let volume = geo.map(crate::embedded::volumes);
         let bar = progress_bar(self.quiet, &scene.name, scene.t_end);
-        let mut pvd = Vec::new();
+        let mut ckpt = self.ckpt.take();
+        let mut pvd = kept_pvd(scene, ckpt.as_ref(), self.outputs)?;
         let equations = scene.flow.as_ref().map(|m| m.equations);
         let mut discharge = None;
         let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
-            let cs = crate::flow::coupled_loop_until_stop(
+            let cs = crate::flow::coupled_loop_with(
                 f,
                 s,
                 scene,
                 self.fields,
                 geo,
                 &bar,
+                ckpt.as_mut(),
                 |k, t, s, f| {
                     let mut snap = Snapshot::of(s, scene);
                     snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
@@ -522,13 +624,48 @@ impl FlowJob for RunJob<'_> {
             discharge = cs.discharge;
             (cs.stats, cs.summary, p)
         } else {
-            let frozen = crate::flow::spin_up(f, scene, self.fields)?;
+            // A resumed frozen-flow run hands over the checkpoint's frozen flow (no spin-up).
+            let resumed = ckpt.as_ref().and_then(|c| c.resumed());
+            let frozen = match resumed {
+                Some(e) => {
+                    let fr = cp::frozen(e, scene.len(), scene.dim)
+                        .map_err(|w| ckpt.as_ref().map_or(w.clone(), |c| c.incompatible(w)))?;
+                    crate::flow::Frozen {
+                        c: fr.c,
+                        t: fr.t,
+                        p: fr.p,
+                        u: fr.u,
+                        summary: fr.summary,
+                    }
+                }
+                None => crate::flow::spin_up(f, scene, self.fields)?,
+            };
+            let kept = cp::FrozenFields {
+                c: frozen.c.clone(),
+                t: frozen.t.clone(),
+                p: frozen.p.clone(),
+                u: frozen.u.clone(),
+                summary: frozen.summary.clone(),
+            };
             crate::flow::hand_over_frozen(s, scene, self.fields, &frozen)?;
-            let stats = time_loop_until_stop(s, scene, &bar, None, |k, t, s| {
-                let mut snap = Snapshot::of(s, scene);
-                snap.p = Some(frozen.p.clone());
-                self.output(k, t, &snap, &mut pvd)
-            })?;
+            if let Some(ck) = &ckpt {
+                if let Some(e) = ck.resumed() {
+                    cp::restore_segregation(e, s).map_err(|w| ck.incompatible(w))?;
+                }
+            }
+            let keep = |e: &mut cp::Entries| cp::put_frozen(e, &kept);
+            let stats = time_loop_with(
+                s,
+                scene,
+                &bar,
+                None,
+                ckpt.as_mut().map(|c| (c, &keep as &dyn Fn(&mut _))),
+                |k, t, s| {
+                    let mut snap = Snapshot::of(s, scene);
+                    snap.p = Some(frozen.p.clone());
+                    self.output(k, t, &snap, &mut pvd)
+                },
+            )?;
             (stats, frozen.summary, frozen.p)
         };
         bar.finish_and_clear();
@@ -546,6 +683,7 @@ impl FlowJob for RunJob<'_> {
             geometry: geo.and_then(|g| crate::embedded::summary(scene, g)),
             discharge,
             worst: self.worst.get(),
+            ckpt,
         })
     }
 }
@@ -556,6 +694,17 @@ pub fn run_scene(
     fields: &Fields,
     opts: &RunOptions,
 ) -> Result<crate::output::summary::Summary> {
+    run_scene_with(scene, fields, opts, ResumeOptions::default())
+}
+
+/// [`run_scene`] with checkpoints: written every `scene.checkpoint_interval` seconds if
+/// `resume.source` is given, and continued from `resume.resume` (`sieve run --resume`).
+pub fn run_scene_with(
+    scene: &Scene,
+    fields: &Fields,
+    opts: &RunOptions,
+    resume: ResumeOptions,
+) -> Result<crate::output::summary::Summary> {
     use crate::output::{self, redraw, summary, Staging};
     let start = Instant::now();
     // Run guard (issue 10): the output must fit the limit and the disk before anything runs.
@@ -563,6 +712,17 @@ pub fn run_scene(
     let staging = Staging::new(&opts.out)?;
     let fields_dir = staging.subdir("fields")?;
     let plots_dir = staging.subdir("plots")?;
+    let ckpt = match resume.source {
+        Some(source) => Some(crate::checkpoint::Session::new(
+            &opts.out,
+            scene,
+            fields,
+            source,
+            fields_dir.clone(),
+            resume.resume,
+        )?),
+        None => None,
+    };
     let job = RunJob {
         scene,
         fields,
@@ -571,6 +731,7 @@ pub fn run_scene(
         quiet: opts.quiet,
         worst: std::cell::Cell::new(None),
         outputs: output_times(scene.t_end, scene.output_interval).len(),
+        ckpt,
     };
     let out = if scene.flow.is_some() {
         with_flow_solvers(scene.precision, scene.dim, job)?
@@ -672,16 +833,22 @@ pub fn run_scene(
         if let Err(e) = drawn {
             // The run is complete: keep it, and say the pictures failed (exit 1).
             let dir = staging.commit()?;
+            if let Some(ck) = out.ckpt {
+                ck.finish()?;
+            }
             return Err(Error::failure(format!(
                 "{}: the run is complete but its plots could not be drawn ({e}); its files are kept",
                 dir.display()
             )));
         }
         staging.commit()?;
+        if let Some(ck) = out.ckpt {
+            ck.finish()?;
+        }
         return Ok(summary);
     };
     // A stopped run keeps its files even if its (partial, perhaps non-finite) data cannot
-    // be drawn.
+    // be drawn, and its checkpoint, so that `--resume DIR` continues it.
     if let Err(e) = drawn {
         eprintln!("warning: {}: plots not drawn: {e}", opts.out.display());
     }

@@ -115,13 +115,6 @@ impl DischargeSeries {
         let sum = |s: [[R; 2]; D]| s.iter().flatten().map(|v| v.to_f64()).sum::<f64>();
         let out = sum(cpl.flow.discharged());
         let out_small = sum(cpl.discharged_small());
-        if self.rows.is_empty() {
-            self.initial = [mass + out, mass_small + out_small];
-        }
-        let [m0, s0] = self.initial;
-        self.errors[0] = self.errors[0].max((mass + out - m0).abs() / m0.max(f64::MIN_POSITIVE));
-        self.errors[1] =
-            self.errors[1].max((mass_small + out_small - s0).abs() / s0.max(f64::MIN_POSITIVE));
         let (rate, rate_small, fines_fraction) = match self.rows.last() {
             Some(p) if t > p.t => {
                 let (dq, ds) = (out - p.out, out_small - p.out_small);
@@ -130,7 +123,7 @@ impl DischargeSeries {
             }
             _ => (0.0, 0.0, f64::NAN),
         };
-        self.rows.push(DischargeRow {
+        self.push(DischargeRow {
             t,
             rate,
             rate_small,
@@ -141,8 +134,32 @@ impl DischargeSeries {
             out_small,
             surface: surface_height(cpl),
         });
-        self.peak = self.peak.max(rate);
-        if mass < 1e-3 * m0 || (out > 0.5 * m0 && rate < 1e-3 * self.peak) {
+    }
+
+    /// The series of these rows, as if each had been sampled in turn (a resumed run,
+    /// [`crate::checkpoint`]: every running value is a function of the rows).
+    pub fn from_rows(rows: Vec<DischargeRow>) -> Self {
+        let mut s = Self::default();
+        for r in rows {
+            s.push(r);
+        }
+        s
+    }
+
+    /// Appends a row and updates the initial amounts, the mass errors, the peak rate and the
+    /// emptied flag.
+    fn push(&mut self, r: DischargeRow) {
+        if self.rows.is_empty() {
+            self.initial = [r.mass + r.out, r.mass_small + r.out_small];
+        }
+        let [m0, s0] = self.initial;
+        self.errors[0] =
+            self.errors[0].max((r.mass + r.out - m0).abs() / m0.max(f64::MIN_POSITIVE));
+        self.errors[1] =
+            self.errors[1].max((r.mass_small + r.out_small - s0).abs() / s0.max(f64::MIN_POSITIVE));
+        self.rows.push(r);
+        self.peak = self.peak.max(r.rate);
+        if r.mass < 1e-3 * m0 || (r.out > 0.5 * m0 && r.rate < 1e-3 * self.peak) {
             self.emptied = true;
         }
     }

@@ -95,6 +95,17 @@ pub enum CouplingError {
 /// A residual as f64 (keeps [`CouplingError`] non-generic).
 pub type R64 = f64;
 
+/// The running totals of a [`Coupled`] driver ([`Coupled::totals`], [`Coupled::resume`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CoupledTotals<R, const D: usize> {
+    /// Small-grain volume out through each side.
+    pub out_small: [[R; 2]; D],
+    /// Grain volume out through each side, as carried.
+    pub out_total: [[R; 2]; D],
+    /// Tracked-phase volume added by the round-off guard.
+    pub guarded: R,
+}
+
 /// The driver; borrows both (large) solvers.
 pub struct Coupled<'a, R: Real, const D: usize, const N: usize> {
     /// The flow.
@@ -425,5 +436,29 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     /// The configuration.
     pub fn config(&self) -> &CouplingConfig<R> {
         &self.cfg
+    }
+
+    /// What the driver has summed since it was built (checkpoints).
+    pub fn totals(&self) -> CoupledTotals<R, D> {
+        CoupledTotals {
+            out_small: self.out_small,
+            out_total: self.out_total,
+            guarded: self.guarded,
+        }
+    }
+
+    /// Continues a coupled run from a checkpoint: the caller has built this driver as for a
+    /// fresh run and then restored both solvers' arrays and clocks (coupled mode). Restores
+    /// the totals and redoes what the end of [`Self::step_with`] does after the hand-over:
+    /// the frame's gravity for the segregation and its `prepare` (face coefficients and rate
+    /// are functions of the restored `c`, `T`, `u` and gravity, so they come out bit for bit).
+    pub fn resume(&mut self, totals: CoupledTotals<R, D>) -> Result<(), CouplingError> {
+        self.out_small = totals.out_small;
+        self.out_total = totals.out_total;
+        self.guarded = totals.guarded;
+        self.last = None;
+        self.sync_gravity();
+        self.prepare_segregation()
+            .map_err(CouplingError::Segregation)
     }
 }

@@ -290,6 +290,29 @@ pub struct FlowDiagnostics<R> {
     pub residual: R,
 }
 
+/// Names of the momentum arrays in the state visitors.
+const MOMENTUM_NAMES: [&str; 4] = ["m0", "m1", "m2", "m3+"];
+
+/// The scalars of a [`Flow`] that a checkpoint keeps besides its arrays
+/// ([`Flow::for_each_state_array`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FlowCounters<R, const D: usize> {
+    /// Simulated time.
+    pub time: R,
+    /// Steps taken.
+    pub steps: u64,
+    /// Steady-state residual of the last step.
+    pub residual: R,
+    /// Conjugate-gradient iterations so far.
+    pub cg_iterations: u64,
+    /// Iterations of the last step's solves.
+    pub last_cg: [u32; 4],
+    /// Grain volume out through each side since setup.
+    pub discharged: [[R; 2]; D],
+    /// Grain volume out through each side in the last step.
+    pub discharge_step: [[R; 2]; D],
+}
+
 /// The flow solver for up to `N` cells of a `D`-dimensional grid. Large: keep it in a
 /// `static` or on the heap.
 #[derive(Clone, Debug)]
@@ -843,6 +866,74 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Iterations of the last step's solves (velocity components..., temperature last).
     pub fn last_cg_iterations(&self) -> [u32; 4] {
         self.last_cg
+    }
+
+    /// Visits the per-cell arrays that carry information from one step to the next, over the
+    /// active cells, by name, in a fixed order: `c`, `e` (= c T), `T`, `p`, the packing
+    /// limits `c_rcp`, `c_rlp` (back-coupled), the lagged coefficients `eta`, `lambda`, `eps`,
+    /// then momentum `m0..` and velocity `u0..` per axis. The warm starts of the implicit
+    /// solves are `u` and `T` themselves; everything else (face fluxes, `u_prev`, CG and
+    /// multigrid work space) is rebuilt within a step. With [`Self::counters`] this is the
+    /// state a checkpoint keeps (the geometry and configuration come from the scene).
+    pub fn for_each_state_array(&self, mut f: impl FnMut(&'static str, &[R])) {
+        let n = self.grid.len();
+        f("c", &self.c[..n]);
+        f("e", &self.e[..n]);
+        f("T", &self.t[..n]);
+        f("p", &self.p[..n]);
+        f("c_rcp", &self.c_rcp[..n]);
+        f("c_rlp", &self.c_rlp[..n]);
+        f("eta", &self.eta[..n]);
+        f("lambda", &self.lam[..n]);
+        f("eps", &self.eps[..n]);
+        for a in 0..D {
+            f(MOMENTUM_NAMES[a.min(3)], &self.m[a][..n]);
+            f(crate::segregation::axis_name(a), &self.u[a][..n]);
+        }
+    }
+
+    /// The arrays of [`Self::for_each_state_array`] for writing (restoring a checkpoint bit for
+    /// bit, after `setup` and `prepare` of the same scene).
+    pub fn for_each_state_array_mut(&mut self, mut f: impl FnMut(&'static str, &mut [R])) {
+        let n = self.grid.len();
+        f("c", &mut self.c[..n]);
+        f("e", &mut self.e[..n]);
+        f("T", &mut self.t[..n]);
+        f("p", &mut self.p[..n]);
+        f("c_rcp", &mut self.c_rcp[..n]);
+        f("c_rlp", &mut self.c_rlp[..n]);
+        f("eta", &mut self.eta[..n]);
+        f("lambda", &mut self.lam[..n]);
+        f("eps", &mut self.eps[..n]);
+        for a in 0..D {
+            f(MOMENTUM_NAMES[a.min(3)], &mut self.m[a][..n]);
+            f(crate::segregation::axis_name(a), &mut self.u[a][..n]);
+        }
+    }
+
+    /// Clock, counters and discharge totals (checkpoints; see [`FlowCounters`]).
+    pub fn counters(&self) -> FlowCounters<R, D> {
+        FlowCounters {
+            time: self.time,
+            steps: self.steps,
+            residual: self.residual,
+            cg_iterations: self.cg_iterations,
+            last_cg: self.last_cg,
+            discharged: self.discharged,
+            discharge_step: self.discharge_step,
+        }
+    }
+
+    /// Restores [`Self::counters`]; the frame's gravity follows the restored clock.
+    pub fn restore_counters(&mut self, k: FlowCounters<R, D>) {
+        self.time = k.time;
+        self.steps = k.steps;
+        self.residual = k.residual;
+        self.cg_iterations = k.cg_iterations;
+        self.last_cg = k.last_cg;
+        self.discharged = k.discharged;
+        self.discharge_step = k.discharge_step;
+        self.g_now = self.cfg.frame.gravity(self.cfg.gravity, self.time);
     }
     /// Number of active cells.
     pub fn len(&self) -> usize {

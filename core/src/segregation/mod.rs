@@ -397,6 +397,50 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.steps = steps;
     }
 
+    /// Visits the per-cell arrays that carry information from one step to the next, over the
+    /// active cells, by name, in a fixed order: the tracked fraction `q`, its carried rounding
+    /// error `carry`, `c`, `T`, the inflow values `inflow` and the velocity `u0`, `u1`, `u2`.
+    /// With [`Self::time`], [`Self::steps`], [`Self::tracked_excess`] and the gravity of the
+    /// configuration this is the whole state a checkpoint must keep (the face coefficients
+    /// and the rate are derived from it by `prepare`, the rest is scratch of one step).
+    pub fn for_each_state_array(&self, mut f: impl FnMut(&'static str, &[R])) {
+        let n = self.grid.len();
+        f("q", &self.q[..n]);
+        f("carry", &self.carry[..n]);
+        f("c", &self.c[..n]);
+        f("T", &self.temp[..n]);
+        f("inflow", &self.ghost[..n]);
+        for a in 0..D {
+            f(axis_name(a), &self.u[a][..n]);
+        }
+    }
+
+    /// The arrays of [`Self::for_each_state_array`] for writing (restoring a checkpoint bit
+    /// for bit). Does not re-derive the coefficients: after changing `c`, `T` or `u` call
+    /// `prepare` (a run whose `c`, `T` and `u` are fixed may restore `q` and `carry` alone).
+    pub fn for_each_state_array_mut(&mut self, mut f: impl FnMut(&'static str, &mut [R])) {
+        let n = self.grid.len();
+        f("q", &mut self.q[..n]);
+        f("carry", &mut self.carry[..n]);
+        f("c", &mut self.c[..n]);
+        f("T", &mut self.temp[..n]);
+        f("inflow", &mut self.ghost[..n]);
+        for a in 0..D {
+            f(axis_name(a), &mut self.u[a][..n]);
+        }
+    }
+
+    /// The running maxima of `q - c` and `-q` of the tracked phase since setup, as stored
+    /// (see [`Self::bound_violations`] for them in terms of phi).
+    pub fn tracked_excess(&self) -> [R; 2] {
+        self.excess
+    }
+
+    /// Restores the running maxima of [`Self::tracked_excess`] (checkpoints).
+    pub fn set_tracked_excess(&mut self, excess: [R; 2]) {
+        self.excess = excess;
+    }
+
     #[inline]
     fn tracked(&self, phi: R, c: R) -> R {
         match self.cfg.phase {
@@ -704,6 +748,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             *sa = self.k[a][i] * self.c[i] * sign;
         }
         s
+    }
+}
+
+/// Name of the velocity array of axis `a` in the state visitors (`u0`, `u1`, `u2`).
+pub(crate) fn axis_name(a: usize) -> &'static str {
+    match a {
+        0 => "u0",
+        1 => "u1",
+        2 => "u2",
+        _ => "u3+",
     }
 }
 

@@ -462,6 +462,8 @@ pub struct RunSpec {
     pub psi_threshold: f64,
     /// A closed-form solution of this scene.
     pub exact: Option<ExactKind>,
+    /// Wall-clock seconds between checkpoints of `sieve run` (none: no checkpoints).
+    pub checkpoint_interval: Option<f64>,
 }
 
 fn default_psi_threshold() -> f64 {

@@ -199,6 +199,9 @@ pub struct Scene {
     pub output_interval: f64,
     /// Psi threshold of the segregation time.
     pub psi_threshold: f64,
+    /// Wall-clock seconds between checkpoints (`run.checkpoint_interval`; none: no
+    /// checkpoints; docs/resume.md).
+    pub checkpoint_interval: Option<f64>,
     /// Closed-form solution, if any.
     pub exact: Option<ExactKind>,
     /// The flow model, if the scene solves one.
@@ -319,6 +322,7 @@ impl Scene {
             )
         });
         let output = output::check(&mut p, l, f.output.as_ref());
+        let checkpoint_interval = run::check_checkpoint(&mut p, l, &f.run);
         p.finish()?;
         // Every section that gave None recorded a problem, so all are Some here.
         let (
@@ -371,6 +375,7 @@ impl Scene {
             t_end,
             output_interval,
             psi_threshold,
+            checkpoint_interval,
             exact: f.run.exact,
             limits: limits::Limits::default(),
             output: output.unwrap_or_default(),

@@ -63,6 +63,27 @@ pub(super) fn check(p: &mut Problems, l: &str, r: &RunSpec) -> Option<(f64, f64,
     Some((t_end?, interval?, psi_threshold?))
 }
 
+/// Longest allowed `run.checkpoint_interval` [s] (about 30 years).
+pub const MAX_CHECKPOINT_INTERVAL: f64 = 1e9;
+
+/// Validated `run.checkpoint_interval` (wall-clock seconds, `0 < x <= 1e9`); None if absent
+/// (or wrong: the problem is recorded).
+pub(super) fn check_checkpoint(p: &mut Problems, l: &str, r: &RunSpec) -> Option<f64> {
+    let x = r.checkpoint_interval?;
+    let max = MAX_CHECKPOINT_INTERVAL;
+    if x.is_finite() && x > 0.0 && x <= max {
+        Some(x)
+    } else {
+        p.push(Error::range(
+            l,
+            "run.checkpoint_interval",
+            x,
+            &format!("wall-clock seconds between checkpoints, 0 < checkpoint_interval <= {max:e} (omit it for no checkpoints)"),
+        ));
+        None
+    }
+}
+
 impl Scene {
     /// The exact column-a solution needs a 1D wall-bounded column with constant c, T and
     /// phihat, no velocity and gravity pointing down.

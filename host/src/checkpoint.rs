@@ -1,0 +1,1056 @@
+//! Checkpoints and `sieve run --resume DIR` (issue 10, docs/resume.md).
+//!
+//! A long run (a tumbler for many revolutions, a silo until empty) writes, every
+//! `run.checkpoint_interval` seconds of wall-clock time, everything its next step depends on:
+//! the solvers' persistent arrays and clocks (`for_each_state_array`, `counters`, the coupled
+//! totals, the frozen flow), the loop's progress (next output index, steps, the series rows,
+//! the discharge rows, the stable step) and the identity of the run (the scene text and its
+//! overrides, a fingerprint of the validated scene and its initial fields, the sieve build).
+//! Derived data is not stored but re-derived exactly as the run derives it (face
+//! coefficients by `prepare`, the segregation timer by replaying the series, the VTK
+//! collection from the output times). A resumed run therefore ends with the same bits as an
+//! uninterrupted one; `host/tests/resume.rs` kills runs with SIGKILL and compares.
+//!
+//! **Where.** Next to the target DIR, in `.DIR.checkpoint/` (never a `.DIR.tmp-*` name, so the
+//! clean-up of staging debris after a SIGKILL leaves it alone): `checkpoint.bin` plus
+//! `fields/state_KKKK.vti`, hard links (copies across file systems) of the snapshots written so
+//! far, so that outputs written before a kill survive the loss of the staging directory. A
+//! finished run removes it after DIR is committed; a fresh run into DIR refuses (exit 2) while
+//! it holds a checkpoint.
+//!
+//! **Format** (little endian): `SIEVECKP`, format version (u32), number of entries (u32),
+//! entries in ascending name order `name_len (u8), name, tag (u8), count (u64), payload`, and
+//! a CRC-64/XZ of all
+//! preceding bytes. Tags: 1 u64, 2 f64 (raw bits), 3 f64 array, 4 u64 array, 5 UTF-8 text.
+//! Floats are stored as their bits (f32 solvers widen exactly). Written atomically: a
+//! temporary file in the same directory, `fsync`, rename, `fsync` of the directory; the kept
+//! VTK files are `fsync`ed before. The reader checks the size of the file, the checksum, and
+//! every count against the bytes left before it allocates; any damage is one line, exit 2.
+
+use crate::data::{output_times, FlowSummary, LoopStats, SeriesRow};
+use crate::error::{Error, Result};
+use crate::scene::{Fields, Scene};
+use sieve_core::flow::coupled::CoupledTotals;
+use sieve_core::flow::{Flow, FlowCounters};
+use sieve_core::{Real, Segregation};
+use std::collections::BTreeMap;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// First bytes of a checkpoint file.
+pub const MAGIC: &[u8; 8] = b"SIEVECKP";
+/// Version of the layout.
+pub const FORMAT: u32 = 1;
+/// Largest checkpoint file read (16 GiB: a 3D flow at the compiled capacity is ~0.5 GB).
+pub const MAX_FILE: u64 = 1 << 34;
+/// Most entries in a file.
+pub const MAX_ENTRIES: u32 = 100_000;
+/// File name of the state inside the checkpoint directory.
+pub const STATE_FILE: &str = "checkpoint.bin";
+
+const CRC: crc::Crc<u64> = crc::Crc::<u64>::new(&crc::CRC_64_XZ);
+
+/// One stored value.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Value {
+    /// An unsigned integer.
+    U64(u64),
+    /// A float (stored as its bits).
+    F64(f64),
+    /// Floats (stored as bits).
+    F64s(Vec<f64>),
+    /// Unsigned integers.
+    U64s(Vec<u64>),
+    /// UTF-8 text.
+    Text(String),
+}
+
+/// The named values of a checkpoint, in name order.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Entries(pub BTreeMap<String, Value>);
+
+impl Entries {
+    /// Stores `v` under `name`.
+    pub fn put(&mut self, name: impl Into<String>, v: Value) {
+        self.0.insert(name.into(), v);
+    }
+
+    fn missing(name: &str, what: &str) -> Error {
+        Error::Input(format!("entry `{name}` is missing or is not {what}"))
+    }
+
+    /// An integer entry.
+    pub fn u64(&self, name: &str) -> Result<u64> {
+        match self.0.get(name) {
+            Some(Value::U64(x)) => Ok(*x),
+            _ => Err(Self::missing(name, "an integer")),
+        }
+    }
+
+    /// A float entry.
+    pub fn f64(&self, name: &str) -> Result<f64> {
+        match self.0.get(name) {
+            Some(Value::F64(x)) => Ok(*x),
+            _ => Err(Self::missing(name, "a number")),
+        }
+    }
+
+    /// A float array of exactly `len` values.
+    pub fn f64s(&self, name: &str, len: usize) -> Result<&[f64]> {
+        match self.0.get(name) {
+            Some(Value::F64s(v)) if v.len() == len => Ok(v),
+            _ => Err(Self::missing(name, &format!("{len} numbers"))),
+        }
+    }
+
+    /// A float array of any length.
+    pub fn f64s_any(&self, name: &str) -> Result<&[f64]> {
+        match self.0.get(name) {
+            Some(Value::F64s(v)) => Ok(v),
+            _ => Err(Self::missing(name, "a list of numbers")),
+        }
+    }
+
+    /// An integer array of exactly `len` values.
+    pub fn u64s(&self, name: &str, len: usize) -> Result<&[u64]> {
+        match self.0.get(name) {
+            Some(Value::U64s(v)) if v.len() == len => Ok(v),
+            _ => Err(Self::missing(name, &format!("{len} integers"))),
+        }
+    }
+
+    /// A text entry.
+    pub fn text(&self, name: &str) -> Result<&str> {
+        match self.0.get(name) {
+            Some(Value::Text(t)) => Ok(t),
+            _ => Err(Self::missing(name, "text")),
+        }
+    }
+}
+
+/// Encodes entries (module docs).
+pub fn encode(e: &Entries) -> Vec<u8> {
+    let mut out = Vec::new();
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&FORMAT.to_le_bytes());
+    out.extend_from_slice(&(e.0.len() as u32).to_le_bytes());
+    for (name, v) in &e.0 {
+        let name = &name.as_bytes()[..name.len().min(255)];
+        out.push(name.len() as u8);
+        out.extend_from_slice(name);
+        let (tag, count) = match v {
+            Value::U64(_) => (1u8, 1usize),
+            Value::F64(_) => (2, 1),
+            Value::F64s(x) => (3, x.len()),
+            Value::U64s(x) => (4, x.len()),
+            Value::Text(t) => (5, t.len()),
+        };
+        out.push(tag);
+        out.extend_from_slice(&(count as u64).to_le_bytes());
+        match v {
+            Value::U64(x) => out.extend_from_slice(&x.to_le_bytes()),
+            Value::F64(x) => out.extend_from_slice(&x.to_bits().to_le_bytes()),
+            Value::F64s(x) => x
+                .iter()
+                .for_each(|x| out.extend_from_slice(&x.to_bits().to_le_bytes())),
+            Value::U64s(x) => x
+                .iter()
+                .for_each(|x| out.extend_from_slice(&x.to_le_bytes())),
+            Value::Text(t) => out.extend_from_slice(t.as_bytes()),
+        }
+    }
+    let crc = CRC.checksum(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out
+}
+
+/// A cursor over the bytes of a checkpoint that never reads past the end.
+struct Cursor<'a> {
+    b: &'a [u8],
+}
+
+impl<'a> Cursor<'a> {
+    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], String> {
+        if n > self.b.len() {
+            return Err(format!(
+                "truncated at {what} ({n} bytes needed, {} left)",
+                self.b.len()
+            ));
+        }
+        let (head, tail) = self.b.split_at(n);
+        self.b = tail;
+        Ok(head)
+    }
+    fn u8(&mut self, what: &str) -> Result<u8, String> {
+        Ok(self.take(1, what)?[0])
+    }
+    fn u32(&mut self, what: &str) -> Result<u32, String> {
+        let b = self.take(4, what)?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
+    fn u64(&mut self, what: &str) -> Result<u64, String> {
+        let b = self.take(8, what)?;
+        let mut a = [0u8; 8];
+        a.copy_from_slice(b);
+        Ok(u64::from_le_bytes(a))
+    }
+    /// `count` items of `size` bytes, checked against what is left before anything is
+    /// allocated.
+    fn items(&mut self, count: u64, size: usize, what: &str) -> Result<&'a [u8], String> {
+        let n = usize::try_from(count)
+            .ok()
+            .and_then(|c| c.checked_mul(size))
+            .filter(|&n| n <= self.b.len())
+            .ok_or_else(|| {
+                format!(
+                    "{what}: {count} items do not fit in the {} bytes left",
+                    self.b.len()
+                )
+            })?;
+        self.take(n, what)
+    }
+}
+
+/// Decodes a checkpoint; the error says what is wrong in a few words.
+pub fn decode(bytes: &[u8]) -> Result<Entries, String> {
+    if bytes.len() < MAGIC.len() + 16 {
+        return Err(format!("too short ({} bytes)", bytes.len()));
+    }
+    if &bytes[..MAGIC.len()] != MAGIC {
+        return Err("not a sieve checkpoint (wrong magic bytes)".into());
+    }
+    let (body, tail) = bytes.split_at(bytes.len() - 8);
+    let mut crc = [0u8; 8];
+    crc.copy_from_slice(tail);
+    if CRC.checksum(body) != u64::from_le_bytes(crc) {
+        return Err("checksum mismatch (the file is damaged)".into());
+    }
+    let mut c = Cursor {
+        b: &body[MAGIC.len()..],
+    };
+    let format = c.u32("format")?;
+    if format != FORMAT {
+        return Err(format!(
+            "format version {format}, this sieve reads {FORMAT}"
+        ));
+    }
+    let count = c.u32("entry count")?;
+    if count > MAX_ENTRIES {
+        return Err(format!("{count} entries (at most {MAX_ENTRIES})"));
+    }
+    let mut e = Entries::default();
+    for _ in 0..count {
+        let len = c.u8("name length")? as usize;
+        let name = std::str::from_utf8(c.take(len, "name")?)
+            .map_err(|_| "an entry name is not UTF-8".to_string())?
+            .to_string();
+        let tag = c.u8("type")?;
+        let n = c.u64("count")?;
+        let scalar = |n: u64| {
+            if n == 1 {
+                Ok(())
+            } else {
+                Err(format!("entry `{name}`: a scalar with count {n}"))
+            }
+        };
+        let words = |b: &[u8]| -> Vec<u64> {
+            b.chunks_exact(8)
+                .map(|w| {
+                    let mut a = [0u8; 8];
+                    a.copy_from_slice(w);
+                    u64::from_le_bytes(a)
+                })
+                .collect()
+        };
+        let v = match tag {
+            1 => {
+                scalar(n)?;
+                Value::U64(c.u64(&name)?)
+            }
+            2 => {
+                scalar(n)?;
+                Value::F64(f64::from_bits(c.u64(&name)?))
+            }
+            3 => Value::F64s(
+                words(c.items(n, 8, &name)?)
+                    .into_iter()
+                    .map(f64::from_bits)
+                    .collect(),
+            ),
+            4 => Value::U64s(words(c.items(n, 8, &name)?)),
+            5 => Value::Text(
+                std::str::from_utf8(c.items(n, 1, &name)?)
+                    .map_err(|_| format!("entry `{name}` is not UTF-8"))?
+                    .to_string(),
+            ),
+            t => return Err(format!("entry `{name}` has unknown type {t}")),
+        };
+        // Names strictly ascending (as written): one canonical encoding, no duplicates.
+        if e.0.last_key_value().is_some_and(|(last, _)| *last >= name) {
+            return Err(format!("entry `{name}` is out of order or repeated"));
+        }
+        e.0.insert(name, v);
+    }
+    if !c.b.is_empty() {
+        return Err(format!("{} stray bytes after the last entry", c.b.len()));
+    }
+    Ok(e)
+}
+
+/// The checkpoint directory of target `dir`: `.NAME.checkpoint` beside it.
+pub fn dir_of(target: &Path) -> PathBuf {
+    let name = target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "run".into());
+    let parent = match target.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    parent.join(format!(".{name}.checkpoint"))
+}
+
+/// Name of the VTK snapshot of output `k` (as `sieve run` writes it).
+pub fn snapshot_name(k: usize) -> String {
+    format!("state_{k:04}.vti")
+}
+
+/// The sieve build: the package version and a CRC-64 of the running executable, so that a
+/// checkpoint is never continued by a build whose numerics may differ.
+pub fn build_id() -> String {
+    let exe = std::env::current_exe()
+        .ok()
+        .and_then(|p| std::fs::read(p).ok())
+        .map_or(0, |b| CRC.checksum(&b));
+    format!("sieve {} build {exe:016x}", env!("CARGO_PKG_VERSION"))
+}
+
+/// Fingerprint of a validated scene and its initial fields (the checkpoint interval, which
+/// does not change the result, left out).
+pub fn fingerprint(scene: &Scene, fields: &Fields) -> u64 {
+    let mut s = scene.clone();
+    s.checkpoint_interval = None;
+    let mut d = CRC.digest();
+    d.update(format!("{s:?}").as_bytes());
+    for v in [&fields.c, &fields.t, &fields.phi, &fields.inflow]
+        .into_iter()
+        .chain(fields.u.iter())
+    {
+        d.update(&(v.len() as u64).to_le_bytes());
+        for x in v {
+            d.update(&x.to_bits().to_le_bytes());
+        }
+    }
+    d.finalize()
+}
+
+/// Where a run's scene came from: what `--resume` needs to rebuild it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneSource {
+    /// Label of the scene in messages (file path or `scenes/<name>.toml`).
+    pub label: String,
+    /// The TOML text as the run read it.
+    pub text: String,
+    /// The `--set` overrides, in order (options such as `--grid` as their `key=value`).
+    pub sets: Vec<String>,
+}
+
+impl SceneSource {
+    /// Resolves the scene as `scene::load` does, from the stored text.
+    pub fn load(&self) -> Result<(Scene, Fields)> {
+        let mut table = crate::scene::parse_table(&self.label, &self.text)?;
+        for s in &self.sets {
+            crate::scene::apply_set(&self.label, &mut table, s)?;
+        }
+        let file = crate::scene::deserialize(&self.label, table)?;
+        let scene = Scene::validate(&self.label, file)?;
+        let fields = scene.evaluate_fields()?;
+        Ok((scene, fields))
+    }
+}
+
+/// The (length, CRC) of an output whose snapshot was thinned away (`[output] vtk_every`).
+const NOT_WRITTEN: (u64, u64) = (u64::MAX, u64::MAX);
+
+/// A checkpoint read back from disk, verified against its kept files.
+#[derive(Debug, Clone)]
+pub struct Stored {
+    /// The checkpoint directory.
+    pub dir: PathBuf,
+    /// Its entries.
+    pub entries: Entries,
+}
+
+/// One line about a checkpoint that cannot be used (exit 2).
+fn refuse(dir: &Path, why: impl std::fmt::Display) -> Error {
+    Error::Input(format!(
+        "{}: cannot resume: {why}",
+        dir.join(STATE_FILE).display()
+    ))
+}
+
+impl Stored {
+    /// Reads and checks the checkpoint of target `target` (exit 2 with one line if there is
+    /// none or it is damaged).
+    pub fn open(target: &Path) -> Result<Self> {
+        let dir = dir_of(target);
+        let path = dir.join(STATE_FILE);
+        let file = std::fs::File::open(&path).map_err(|e| {
+            Error::Input(format!(
+                "{}: --resume: no checkpoint at {} ({e}): resume needs a run started with --checkpoint-interval (or run.checkpoint_interval) that has written one; start it afresh with --out",
+                target.display(),
+                path.display()
+            ))
+        })?;
+        let len = file.metadata().map_err(|e| Error::io(&path, e))?.len();
+        if len > MAX_FILE {
+            return Err(refuse(&dir, format!("{len} bytes, at most {MAX_FILE}")));
+        }
+        let mut bytes = Vec::with_capacity(len as usize);
+        file.take(MAX_FILE + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| Error::io(&path, e))?;
+        let entries = decode(&bytes).map_err(|why| refuse(&dir, why))?;
+        Ok(Self { dir, entries })
+    }
+
+    /// The scene the checkpointed run was started with.
+    pub fn source(&self) -> Result<SceneSource> {
+        let e = &self.entries;
+        let n = e.u64("scene.sets").map_err(|w| refuse(&self.dir, w))?;
+        let sets = (0..n.min(u64::from(MAX_ENTRIES)))
+            .map(|i| e.text(&format!("scene.set.{i}")).map(str::to_string))
+            .collect::<Result<Vec<_>>>()
+            .map_err(|w| refuse(&self.dir, w))?;
+        Ok(SceneSource {
+            label: e
+                .text("scene.label")
+                .map_err(|w| refuse(&self.dir, w))?
+                .into(),
+            text: e
+                .text("scene.text")
+                .map_err(|w| refuse(&self.dir, w))?
+                .into(),
+            sets,
+        })
+    }
+
+    /// Refuses (exit 2) a checkpoint of another build or of another scene.
+    pub fn check_identity(&self, scene: &Scene, fields: &Fields) -> Result<()> {
+        let e = &self.entries;
+        let build = e.text("build").map_err(|w| refuse(&self.dir, w))?;
+        let ours = build_id();
+        if build != ours {
+            return Err(refuse(
+                &self.dir,
+                format!("it was written by {build}, this is {ours}: finish it with that build, or start afresh with --out"),
+            ));
+        }
+        let fp = e
+            .u64("scene.fingerprint")
+            .map_err(|w| refuse(&self.dir, w))?;
+        if fp != fingerprint(scene, fields) {
+            return Err(refuse(
+                &self.dir,
+                format!("the scene differs from the one the run was started with ({}{}): give --resume alone, or start afresh with --out", self.source()?.label, self.source()?.sets.iter().map(|s| format!(" --set {s}")).collect::<String>()),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Writes `bytes` to `path` atomically and durably: temporary file, fsync, rename, fsync of
+/// the directory.
+fn write_durably(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".checkpoint.")
+        .suffix(".part")
+        .tempfile_in(dir)
+        .map_err(|e| Error::io(dir, e))?;
+    tmp.write_all(bytes).map_err(|e| Error::io(tmp.path(), e))?;
+    tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
+    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
+    sync_dir(dir);
+    Ok(())
+}
+
+/// fsync of a directory (its entries); best effort (not every file system supports it).
+fn sync_dir(dir: &Path) {
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// Links (or, across file systems, copies) `src` to `dst`, replacing `dst`.
+fn link_or_copy(src: &Path, dst: &Path) -> Result<()> {
+    let _ = std::fs::remove_file(dst);
+    if std::fs::hard_link(src, dst).is_err() {
+        std::fs::copy(src, dst).map_err(|e| Error::io(dst, e))?;
+    }
+    Ok(())
+}
+
+/// CRC-64 and length of a file.
+fn file_sum(path: &Path) -> Result<(u64, u64)> {
+    let b = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    Ok((b.len() as u64, CRC.checksum(&b)))
+}
+
+/// A column of discharge.csv: its name and how to read it from a row.
+type DischargeColumn = (&'static str, fn(&crate::silo::DischargeRow) -> f64);
+
+/// The loop's progress at a checkpoint (everything but the solvers).
+#[derive(Debug, Clone, Default)]
+pub struct Progress {
+    /// Index of the next output to write (the outputs before it are done and kept).
+    pub next: usize,
+    /// The loop's statistics so far (series rows, steps, stepping time, the stable step).
+    pub stats: LoopStats,
+    /// Wall time of the flow so far (coupled).
+    pub flow_seconds: f64,
+    /// Discharge rows so far (scenes with outlets).
+    pub discharge: Option<Vec<crate::silo::DischargeRow>>,
+}
+
+/// The checkpoints of one `sieve run`: when to write, where, and the checkpoint it resumes.
+#[derive(Debug)]
+pub struct Session {
+    dir: PathBuf,
+    interval: Option<Duration>,
+    last: Instant,
+    build: String,
+    source: SceneSource,
+    fingerprint: u64,
+    fields_src: PathBuf,
+    /// (length, CRC-64) of the snapshots already kept in `dir/fields`.
+    kept: Vec<(u64, u64)>,
+    resumed: Option<Entries>,
+    written: u64,
+}
+
+impl Session {
+    /// A session for a run into `target` whose snapshots are written to `fields_src`.
+    /// Without an interval it never writes. A fresh run (`resume = None`) refuses a target
+    /// whose checkpoint directory holds a checkpoint, and removes one that holds none (a run
+    /// killed before its first checkpoint).
+    pub fn new(
+        target: &Path,
+        scene: &Scene,
+        fields: &Fields,
+        source: SceneSource,
+        fields_src: PathBuf,
+        resume: Option<Stored>,
+    ) -> Result<Self> {
+        let dir = dir_of(target);
+        let interval = scene.checkpoint_interval.map(Duration::from_secs_f64);
+        let mut s = Self {
+            interval,
+            last: Instant::now(),
+            build: if interval.is_some() || resume.is_some() {
+                build_id()
+            } else {
+                String::new()
+            },
+            source,
+            fingerprint: fingerprint(scene, fields),
+            fields_src,
+            kept: Vec::new(),
+            resumed: None,
+            written: 0,
+            dir,
+        };
+        match resume {
+            Some(stored) => {
+                stored.check_identity(scene, fields)?;
+                s.adopt(stored.entries)?;
+            }
+            None => {
+                if s.dir.join(STATE_FILE).exists() {
+                    return Err(Error::Input(format!(
+                        "{}: holds a checkpoint of an unfinished run into {}: continue it with `sieve run --resume {}`, or delete that directory to start afresh",
+                        s.dir.display(),
+                        target.display(),
+                        target.display()
+                    )));
+                }
+                if s.dir.exists() {
+                    std::fs::remove_dir_all(&s.dir).map_err(|e| Error::io(&s.dir, e))?;
+                }
+            }
+        }
+        Ok(s)
+    }
+
+    /// Checks the kept snapshots of a resumed checkpoint and puts them into the new staging
+    /// directory (the outputs written before the interruption, byte for byte).
+    fn adopt(&mut self, e: Entries) -> Result<()> {
+        let bad = |w: Error| refuse(&self.dir, w);
+        let n = e.u64("progress.next").map_err(bad)? as usize;
+        let lens = e.u64s("kept.len", n).map_err(bad)?;
+        let sums = e.u64s("kept.crc", n).map_err(bad)?;
+        std::fs::create_dir_all(&self.fields_src).map_err(|e| Error::io(&self.fields_src, e))?;
+        for k in 0..n {
+            if (lens[k], sums[k]) == NOT_WRITTEN {
+                self.kept.push(NOT_WRITTEN);
+                continue;
+            }
+            let src = self.dir.join("fields").join(snapshot_name(k));
+            let got = file_sum(&src).map_err(|_| {
+                refuse(
+                    &self.dir,
+                    format!("the kept snapshot {} is missing", src.display()),
+                )
+            })?;
+            if got != (lens[k], sums[k]) {
+                return Err(refuse(
+                    &self.dir,
+                    format!("the kept snapshot {} is damaged", src.display()),
+                ));
+            }
+            link_or_copy(&src, &self.fields_src.join(snapshot_name(k)))?;
+            self.kept.push(got);
+        }
+        self.resumed = Some(e);
+        Ok(())
+    }
+
+    /// The checkpoint being resumed, if any.
+    pub fn resumed(&self) -> Option<&Entries> {
+        self.resumed.as_ref()
+    }
+
+    /// A resumed checkpoint whose contents do not fit the scene (exit 2, one line).
+    pub fn incompatible(&self, why: Error) -> Error {
+        refuse(&self.dir, why)
+    }
+
+    /// Checkpoints written by this session.
+    pub fn written(&self) -> u64 {
+        self.written
+    }
+
+    /// True when a checkpoint is due (the interval has passed since the last one or since the
+    /// start).
+    pub fn due(&self) -> bool {
+        self.interval.is_some_and(|i| self.last.elapsed() >= i)
+    }
+
+    /// The progress of the resumed loop (None for a fresh run), with the output times checked
+    /// against the scene.
+    pub fn progress(&self, scene: &Scene) -> Result<Option<Progress>> {
+        let Some(e) = &self.resumed else {
+            return Ok(None);
+        };
+        let bad = |w: Error| refuse(&self.dir, w);
+        let next = e.u64("progress.next").map_err(bad)? as usize;
+        let times = output_times(scene.t_end, scene.output_interval);
+        if next > times.len() {
+            return Err(refuse(
+                &self.dir,
+                format!("progress.next = {next} is past the last output"),
+            ));
+        }
+        let col = |c: &str| e.f64s(&format!("series.{c}"), next).map_err(bad);
+        let (t, psi, mass, over, under) = (
+            col("t")?,
+            col("psi")?,
+            col("mass")?,
+            col("overshoot_max")?,
+            col("undershoot_max")?,
+        );
+        let series = (0..next)
+            .map(|k| SeriesRow {
+                t: t[k],
+                psi: psi[k],
+                mass: mass[k],
+                overshoot_max: over[k],
+                undershoot_max: under[k],
+            })
+            .collect();
+        let stepping = e.f64("progress.stepping_seconds").map_err(bad)?;
+        // Optional entries: a crossing already found, the time steps taken so far.
+        let segregation_time = e.f64("progress.segregation_time").ok();
+        let dt_taken = e
+            .f64s("progress.dt_taken", 3)
+            .ok()
+            .map(|d| [d[0], d[1], d[2]]);
+        let stats = LoopStats {
+            steps: e.u64("progress.steps").map_err(bad)?,
+            stepping: Duration::try_from_secs_f64(stepping).unwrap_or_default(),
+            series,
+            segregation_time,
+            dt: e.f64("progress.dt").map_err(bad)?,
+            dt_taken,
+            ..LoopStats::default()
+        };
+        let discharge = match e.u64("discharge.rows") {
+            Ok(rows) => {
+                let rows = rows as usize;
+                let c = |n: &str| e.f64s(&format!("discharge.{n}"), rows).map_err(bad);
+                let cols = [
+                    c("t")?,
+                    c("rate")?,
+                    c("rate_small")?,
+                    c("fines_fraction")?,
+                    c("mass")?,
+                    c("mass_small")?,
+                    c("out")?,
+                    c("out_small")?,
+                    c("surface")?,
+                ];
+                Some(
+                    (0..rows)
+                        .map(|k| crate::silo::DischargeRow {
+                            t: cols[0][k],
+                            rate: cols[1][k],
+                            rate_small: cols[2][k],
+                            fines_fraction: cols[3][k],
+                            mass: cols[4][k],
+                            mass_small: cols[5][k],
+                            out: cols[6][k],
+                            out_small: cols[7][k],
+                            surface: cols[8][k],
+                        })
+                        .collect(),
+                )
+            }
+            Err(_) => None,
+        };
+        Ok(Some(Progress {
+            next,
+            stats,
+            flow_seconds: e.f64("progress.flow_seconds").map_err(bad)?,
+            discharge,
+        }))
+    }
+
+    /// Writes a checkpoint: the kept snapshots first (linked and fsynced), then the state
+    /// file atomically. `solvers` adds the solver state ([`put_segregation`], [`put_flow`],
+    /// ...).
+    pub fn save(&mut self, progress: &Progress, solvers: impl FnOnce(&mut Entries)) -> Result<()> {
+        let fields = self.dir.join("fields");
+        std::fs::create_dir_all(&fields).map_err(|e| Error::io(&fields, e))?;
+        for k in self.kept.len()..progress.next {
+            let src = self.fields_src.join(snapshot_name(k));
+            if !src.exists() {
+                // thinned away ([output] vtk_every): nothing to keep
+                self.kept.push(NOT_WRITTEN);
+                continue;
+            }
+            let dst = fields.join(snapshot_name(k));
+            link_or_copy(&src, &dst)?;
+            if let Ok(f) = std::fs::File::open(&dst) {
+                let _ = f.sync_all();
+            }
+            self.kept.push(file_sum(&dst)?);
+        }
+        sync_dir(&fields);
+        let mut e = Entries::default();
+        e.put("build", Value::Text(self.build.clone()));
+        e.put("scene.label", Value::Text(self.source.label.clone()));
+        e.put("scene.text", Value::Text(self.source.text.clone()));
+        e.put("scene.sets", Value::U64(self.source.sets.len() as u64));
+        for (i, s) in self.source.sets.iter().enumerate() {
+            e.put(format!("scene.set.{i}"), Value::Text(s.clone()));
+        }
+        e.put("scene.fingerprint", Value::U64(self.fingerprint));
+        let next = progress.next;
+        e.put("progress.next", Value::U64(next as u64));
+        e.put(
+            "kept.len",
+            Value::U64s(self.kept[..next].iter().map(|k| k.0).collect()),
+        );
+        e.put(
+            "kept.crc",
+            Value::U64s(self.kept[..next].iter().map(|k| k.1).collect()),
+        );
+        let st = &progress.stats;
+        e.put("progress.steps", Value::U64(st.steps));
+        e.put(
+            "progress.stepping_seconds",
+            Value::F64(st.stepping.as_secs_f64()),
+        );
+        e.put("progress.dt", Value::F64(st.dt));
+        if let Some(t) = st.segregation_time {
+            e.put("progress.segregation_time", Value::F64(t));
+        }
+        if let Some(d) = st.dt_taken {
+            e.put("progress.dt_taken", Value::F64s(d.to_vec()));
+        }
+        e.put("progress.flow_seconds", Value::F64(progress.flow_seconds));
+        let col = |f: fn(&SeriesRow) -> f64| Value::F64s(st.series.iter().map(f).collect());
+        e.put("series.t", col(|r| r.t));
+        e.put("series.psi", col(|r| r.psi));
+        e.put("series.mass", col(|r| r.mass));
+        e.put("series.overshoot_max", col(|r| r.overshoot_max));
+        e.put("series.undershoot_max", col(|r| r.undershoot_max));
+        if let Some(rows) = &progress.discharge {
+            e.put("discharge.rows", Value::U64(rows.len() as u64));
+            let cols: [DischargeColumn; 9] = [
+                ("t", |r| r.t),
+                ("rate", |r| r.rate),
+                ("rate_small", |r| r.rate_small),
+                ("fines_fraction", |r| r.fines_fraction),
+                ("mass", |r| r.mass),
+                ("mass_small", |r| r.mass_small),
+                ("out", |r| r.out),
+                ("out_small", |r| r.out_small),
+                ("surface", |r| r.surface),
+            ];
+            for (name, f) in cols {
+                e.put(
+                    format!("discharge.{name}"),
+                    Value::F64s(rows.iter().map(f).collect()),
+                );
+            }
+        }
+        solvers(&mut e);
+        write_durably(&self.dir.join(STATE_FILE), &encode(&e))?;
+        self.written += 1;
+        self.last = Instant::now();
+        Ok(())
+    }
+
+    /// After DIR has been committed: the checkpoint is no longer needed.
+    pub fn finish(self) -> Result<()> {
+        if self.dir.exists() {
+            std::fs::remove_dir_all(&self.dir).map_err(|e| Error::io(&self.dir, e))?;
+        }
+        Ok(())
+    }
+}
+
+/// Stores the segregation solver's state under `seg.*`.
+pub fn put_segregation<R: Real, const D: usize, const N: usize>(
+    e: &mut Entries,
+    s: &Segregation<R, D, N>,
+) {
+    s.for_each_state_array(|name, v| {
+        e.put(
+            format!("seg.{name}"),
+            Value::F64s(v.iter().map(|x| x.to_f64()).collect()),
+        )
+    });
+    e.put("seg.time", Value::F64(s.time().to_f64()));
+    e.put("seg.steps", Value::U64(s.steps()));
+    e.put("seg.flushed", Value::F64(s.flushed_tracked().to_f64()));
+    e.put(
+        "seg.excess",
+        Value::F64s(s.tracked_excess().iter().map(|x| x.to_f64()).collect()),
+    );
+    e.put(
+        "seg.gravity",
+        Value::F64s(s.config().gravity.iter().map(|x| x.to_f64()).collect()),
+    );
+}
+
+/// Restores what [`put_segregation`] stored into a solver set up from the same scene. The
+/// gravity is set only if it differs (a rotating frame turns it), which clears `prepared`:
+/// the caller prepares after (the coupled driver's `resume` does).
+pub fn restore_segregation<R: Real, const D: usize, const N: usize>(
+    e: &Entries,
+    s: &mut Segregation<R, D, N>,
+) -> Result<()> {
+    let n = s.len();
+    let mut failed = None;
+    s.for_each_state_array_mut(|name, v| match e.f64s(&format!("seg.{name}"), n) {
+        Ok(x) => v.iter_mut().zip(x).for_each(|(v, &x)| *v = R::from_f64(x)),
+        Err(err) => failed = failed.take().or(Some(err)),
+    });
+    if let Some(err) = failed {
+        return Err(err);
+    }
+    let ex = e.f64s("seg.excess", 2)?;
+    s.set_tracked_excess([R::from_f64(ex[0]), R::from_f64(ex[1])]);
+    s.set_clock(R::from_f64(e.f64("seg.time")?), e.u64("seg.steps")?);
+    s.set_flushed_tracked(R::from_f64(e.f64("seg.flushed")?));
+    let g = e.f64s("seg.gravity", D)?;
+    let g: [R; D] = core::array::from_fn(|a| R::from_f64(g[a]));
+    if g != s.config().gravity {
+        s.set_gravity(g);
+    }
+    Ok(())
+}
+
+fn sides<R: Real, const D: usize>(x: &[[R; 2]; D]) -> Value {
+    Value::F64s(x.iter().flatten().map(|v| v.to_f64()).collect())
+}
+
+fn get_sides<R: Real, const D: usize>(e: &Entries, name: &str) -> Result<[[R; 2]; D]> {
+    let v = e.f64s(name, 2 * D)?;
+    Ok(core::array::from_fn(|a| {
+        [R::from_f64(v[2 * a]), R::from_f64(v[2 * a + 1])]
+    }))
+}
+
+/// Stores the flow solver's state under `flow.*`.
+pub fn put_flow<R: Real, const D: usize, const N: usize>(e: &mut Entries, f: &Flow<R, D, N>) {
+    f.for_each_state_array(|name, v| {
+        e.put(
+            format!("flow.{name}"),
+            Value::F64s(v.iter().map(|x| x.to_f64()).collect()),
+        )
+    });
+    let k = f.counters();
+    e.put("flow.time", Value::F64(k.time.to_f64()));
+    e.put("flow.steps", Value::U64(k.steps));
+    e.put("flow.residual", Value::F64(k.residual.to_f64()));
+    e.put("flow.cg_iterations", Value::U64(k.cg_iterations));
+    e.put(
+        "flow.last_cg",
+        Value::U64s(k.last_cg.iter().map(|&x| u64::from(x)).collect()),
+    );
+    e.put("flow.discharged", sides(&k.discharged));
+    e.put("flow.discharge_step", sides(&k.discharge_step));
+}
+
+/// Restores what [`put_flow`] stored into a flow set up and prepared from the same scene.
+pub fn restore_flow<R: Real, const D: usize, const N: usize>(
+    e: &Entries,
+    f: &mut Flow<R, D, N>,
+) -> Result<()> {
+    let n = f.len();
+    let mut failed = None;
+    f.for_each_state_array_mut(|name, v| match e.f64s(&format!("flow.{name}"), n) {
+        Ok(x) => v.iter_mut().zip(x).for_each(|(v, &x)| *v = R::from_f64(x)),
+        Err(err) => failed = failed.take().or(Some(err)),
+    });
+    if let Some(err) = failed {
+        return Err(err);
+    }
+    let cg = e.u64s("flow.last_cg", 4)?;
+    let last_cg: [u32; 4] = core::array::from_fn(|i| u32::try_from(cg[i]).unwrap_or(u32::MAX));
+    f.restore_counters(FlowCounters {
+        time: R::from_f64(e.f64("flow.time")?),
+        steps: e.u64("flow.steps")?,
+        residual: R::from_f64(e.f64("flow.residual")?),
+        cg_iterations: e.u64("flow.cg_iterations")?,
+        last_cg,
+        discharged: get_sides::<R, D>(e, "flow.discharged")?,
+        discharge_step: get_sides::<R, D>(e, "flow.discharge_step")?,
+    });
+    Ok(())
+}
+
+/// Stores the coupled driver's totals under `coupled.*`.
+pub fn put_totals<R: Real, const D: usize>(e: &mut Entries, t: &CoupledTotals<R, D>) {
+    e.put("coupled.out_small", sides(&t.out_small));
+    e.put("coupled.out_total", sides(&t.out_total));
+    e.put("coupled.guarded", Value::F64(t.guarded.to_f64()));
+}
+
+/// The totals [`put_totals`] stored.
+pub fn totals<R: Real, const D: usize>(e: &Entries) -> Result<CoupledTotals<R, D>> {
+    Ok(CoupledTotals {
+        out_small: get_sides::<R, D>(e, "coupled.out_small")?,
+        out_total: get_sides::<R, D>(e, "coupled.out_total")?,
+        guarded: R::from_f64(e.f64("coupled.guarded")?),
+    })
+}
+
+/// A frozen flow as a checkpoint keeps it (the fields of `flow::Frozen`; frozen-flow
+/// scenes): the resumed run skips the spin-up and hands the same fields over.
+#[derive(Debug, Clone)]
+pub struct FrozenFields {
+    /// c per cell.
+    pub c: Vec<f64>,
+    /// T per cell.
+    pub t: Vec<f64>,
+    /// p per cell.
+    pub p: Vec<f64>,
+    /// Velocity per solver axis, per cell.
+    pub u: Vec<Vec<f64>>,
+    /// The flow block of summary.json.
+    pub summary: FlowSummary,
+}
+
+/// Stores a frozen flow under `frozen.*`.
+pub fn put_frozen(e: &mut Entries, fr: &FrozenFields) {
+    e.put("frozen.c", Value::F64s(fr.c.clone()));
+    e.put("frozen.T", Value::F64s(fr.t.clone()));
+    e.put("frozen.p", Value::F64s(fr.p.clone()));
+    for (a, u) in fr.u.iter().enumerate() {
+        e.put(format!("frozen.u{a}"), Value::F64s(u.clone()));
+    }
+    let s = &fr.summary;
+    e.put("frozen.equations", Value::Text(s.equations.clone()));
+    e.put("frozen.back_coupling", Value::Text(s.back_coupling.clone()));
+    e.put(
+        "frozen.flow_steps_to_steady",
+        Value::U64s(s.flow_steps_to_steady.into_iter().collect()),
+    );
+    e.put("frozen.flow_steps", Value::U64(s.flow_steps));
+    e.put("frozen.cg_iterations", Value::U64(s.cg_iterations));
+    e.put(
+        "frozen.flow_cells",
+        Value::U64s(s.flow_cells.iter().map(|&c| c as u64).collect()),
+    );
+    e.put(
+        "frozen.numbers",
+        Value::F64s(vec![
+            s.flow_time,
+            s.flow_seconds,
+            s.max_packing,
+            s.t_min,
+            s.t_max,
+            s.max_speed,
+            s.kinetic_energy,
+            s.residual,
+            s.steady_tolerance,
+            s.clipped_mass,
+        ]),
+    );
+}
+
+/// The frozen flow [`put_frozen`] stored, for a scene of `n` cells in `dim` dimensions.
+pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<FrozenFields> {
+    let v = |name: &str| e.f64s(name, n).map(<[f64]>::to_vec);
+    let x = e.f64s("frozen.numbers", 10)?;
+    let steady = match e.0.get("frozen.flow_steps_to_steady") {
+        Some(Value::U64s(s)) if s.len() <= 1 => s.first().copied(),
+        _ => {
+            return Err(Entries::missing(
+                "frozen.flow_steps_to_steady",
+                "0 or 1 integer",
+            ))
+        }
+    };
+    let cells = match e.0.get("frozen.flow_cells") {
+        Some(Value::U64s(c)) if c.len() == dim => c.iter().map(|&c| c as usize).collect(),
+        _ => {
+            return Err(Entries::missing(
+                "frozen.flow_cells",
+                "one integer per axis",
+            ))
+        }
+    };
+    Ok(FrozenFields {
+        c: v("frozen.c")?,
+        t: v("frozen.T")?,
+        p: v("frozen.p")?,
+        u: (0..dim)
+            .map(|a| v(&format!("frozen.u{a}")))
+            .collect::<Result<_>>()?,
+        summary: FlowSummary {
+            equations: e.text("frozen.equations")?.into(),
+            back_coupling: e.text("frozen.back_coupling")?.into(),
+            flow_steps_to_steady: steady,
+            flow_steps: e.u64("frozen.flow_steps")?,
+            cg_iterations: e.u64("frozen.cg_iterations")?,
+            flow_time: x[0],
+            flow_seconds: x[1],
+            flow_cells: cells,
+            max_packing: x[2],
+            t_min: x[3],
+            t_max: x[4],
+            max_speed: x[5],
+            kinetic_energy: x[6],
+            residual: x[7],
+            steady_tolerance: x[8],
+            clipped_mass: x[9],
+            outlet: None,
+        },
+    })
+}

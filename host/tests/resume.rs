@@ -1,0 +1,393 @@
+//! Checkpoints and `sieve run --resume DIR` (issue 10, docs/resume.md).
+//!
+//! The main test of each kind of scene spawns the binary with checkpoints every 40 ms of wall
+//! time, kills it with SIGKILL once a checkpoint exists (so the kill lands wherever the run
+//! happens to be: mid-interval, between outputs, in any chunk), resumes it, and compares the
+//! outputs byte for byte with an uninterrupted run: final.csv, series.csv, every VTK snapshot
+//! and the collection, discharge.csv and profiles.csv where the scene writes them, and every
+//! value of summary.json except the wall-clock timings (state hash included). Then the
+//! refusals: another scene, another build's or a damaged checkpoint, none at all, a fresh run
+//! over a checkpoint, a bad interval (exit 2, one line each). Last, the reader is fuzzed.
+
+use assert_cmd::Command;
+use proptest::prelude::*;
+use sieve::checkpoint::{decode, encode, Entries, Value};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+fn sieve() -> Command {
+    Command::cargo_bin("sieve").unwrap()
+}
+
+fn run_in(dir: &Path, args: &[&str]) -> (i32, String, String) {
+    let out = sieve().current_dir(dir).args(args).output().unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// summary.json without the wall-clock timings (the only values that may differ).
+fn summary_without_timings(dir: &Path) -> serde_json::Value {
+    let mut v = json(&dir.join("summary.json"));
+    let o = v.as_object_mut().unwrap();
+    for k in [
+        "wall_seconds",
+        "stepping_seconds",
+        "cell_updates_per_second",
+    ] {
+        assert!(o.remove(k).is_some(), "summary.json has no {k}");
+    }
+    if let Some(f) = o.get_mut("flow").and_then(|f| f.as_object_mut()) {
+        f.remove("flow_seconds");
+    }
+    v
+}
+
+/// Every file of a run directory but the pictures and summary.json, by relative path.
+fn data_files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for top in ["", "fields"] {
+        for e in std::fs::read_dir(dir.join(top)).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_file() && p.file_name().unwrap() != "summary.json" {
+                out.push(p.strip_prefix(dir).unwrap().to_path_buf());
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Runs `args` into `ref` uninterrupted, and into `run` with checkpoints, killed (SIGKILL)
+/// after the first checkpoint, then resumed; asserts the same outputs. Returns the number of
+/// kept snapshots the killed run's checkpoint held and the reference summary.
+fn kill_and_resume(args: &[&str]) -> serde_json::Value {
+    let d = tempfile::tempdir().unwrap();
+    let mut reference = vec!["run"];
+    reference.extend_from_slice(args);
+    reference.extend_from_slice(&["--out", "ref", "-q"]);
+    let start = Instant::now();
+    let (code, _, err) = run_in(d.path(), &reference);
+    assert_eq!(code, 0, "{err}");
+    let ref_seconds = start.elapsed().as_secs_f64();
+
+    let mut killed = vec!["run"];
+    killed.extend_from_slice(args);
+    killed.extend_from_slice(&["--out", "run", "-q", "--checkpoint-interval", "0.04"]);
+    let mut child = std::process::Command::new(assert_cmd::cargo::cargo_bin("sieve"))
+        .current_dir(d.path())
+        .args(&killed)
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let state = d.path().join(".run.checkpoint").join("checkpoint.bin");
+    let t0 = Instant::now();
+    while !state.exists() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "{args:?}: the run ended ({ref_seconds:.2} s uninterrupted) before its first checkpoint: lengthen it"
+        );
+        assert!(t0.elapsed() < Duration::from_secs(60), "no checkpoint");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // A little later: past the first checkpoint, somewhere in the run.
+    std::thread::sleep(Duration::from_millis(30));
+    child.kill().unwrap(); // SIGKILL
+    let status = child.wait().unwrap();
+    assert!(
+        !status.success(),
+        "{args:?}: the run finished before the kill ({ref_seconds:.2} s): lengthen it"
+    );
+    assert!(!d.path().join("run").exists(), "a killed run committed DIR");
+    let (code, _, err) = run_in(d.path(), &["run", "--resume", "run", "-q"]);
+    assert_eq!(code, 0, "{args:?}: resume failed: {err}");
+    assert!(
+        !d.path().join(".run.checkpoint").exists(),
+        "a finished run keeps its checkpoint"
+    );
+
+    let (a, b) = (d.path().join("ref"), d.path().join("run"));
+    let files = data_files(&a);
+    assert_eq!(files, data_files(&b), "{args:?}: different files");
+    assert!(files.iter().any(|f| f.ends_with("final.csv")));
+    assert!(files.iter().any(|f| f.ends_with("state_0001.vti")));
+    for f in &files {
+        assert!(
+            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
+            "{args:?}: {} differs after resume",
+            f.display()
+        );
+    }
+    let (sa, sb) = (summary_without_timings(&a), summary_without_timings(&b));
+    assert_eq!(sa, sb, "{args:?}: summary.json differs after resume");
+    sa
+}
+
+#[test]
+fn prescribed_scene_killed_and_resumed_ends_with_the_same_bits() {
+    // 2D modified flux, T from shear: 48 x 48 for 3 s.
+    let s = kill_and_resume(&["shear-cell-inverse", "--grid", "48x48", "--t-end", "3"]);
+    assert!(s["steps"].as_u64().unwrap() > 100, "{s}");
+}
+
+#[test]
+fn prescribed_large_phase_f32_godunov_killed_and_resumed() {
+    // The tracked large phase in f32 with a naive flux (bounds broken by design: the resume
+    // must not re-validate phi), 1D, many steps.
+    kill_and_resume(&[
+        "column-d",
+        "--cells",
+        "4000",
+        "--scheme",
+        "godunov",
+        "--set",
+        "numerics.phase=\"large\"",
+        "--set",
+        "model.precision=\"f32\"",
+        "--t-end",
+        "1",
+    ]);
+}
+
+#[test]
+fn frozen_flow_scene_killed_and_resumed_ends_with_the_same_bits() {
+    let s = kill_and_resume(&["shear-cell", "--grid", "20x20", "--t-end", "40"]);
+    assert_eq!(s["flow"]["equations"], "frozen-flow");
+}
+
+#[test]
+fn coupled_collapse_killed_and_resumed_ends_with_the_same_bits() {
+    let s = kill_and_resume(&["column-collapse", "--grid", "40x8", "--t-end", "0.25"]);
+    assert_eq!(s["flow"]["equations"], "coupled");
+}
+
+#[test]
+fn cut_cell_tumbler_in_its_rotating_frame_killed_and_resumed() {
+    let s = kill_and_resume(&["tumbler", "--grid", "20x20", "--t-end", "0.2"]);
+    assert_eq!(s["frame"]["kind"], "rotating");
+}
+
+#[test]
+fn silo_with_outlet_killed_and_resumed_keeps_discharge_csv() {
+    kill_and_resume(&[
+        "silo",
+        "--grid",
+        "15x50",
+        "--t-end",
+        "0.12",
+        "--set",
+        "run.output_interval=0.03",
+    ]);
+}
+
+/// Starts a checkpointed run of column-b into `dir/run`, kills it after its first
+/// checkpoint, and returns the path of the checkpoint file.
+fn killed_run(dir: &Path) -> PathBuf {
+    let mut child = std::process::Command::new(assert_cmd::cargo::cargo_bin("sieve"))
+        .current_dir(dir)
+        .args([
+            "run",
+            "column-b",
+            "--cells",
+            "3000",
+            "--t-end",
+            "2",
+            "--out",
+            "run",
+            "-q",
+            "--checkpoint-interval",
+            "0.02",
+        ])
+        .spawn()
+        .unwrap();
+    let state = dir.join(".run.checkpoint").join("checkpoint.bin");
+    let t0 = Instant::now();
+    while !state.exists() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "ended before a checkpoint"
+        );
+        assert!(t0.elapsed() < Duration::from_secs(60));
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(10));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    state
+}
+
+fn one_line_refusal(dir: &Path, args: &[&str], needles: &[&str]) {
+    let (code, _, err) = run_in(dir, args);
+    assert_eq!(code, 2, "{args:?}: {err}");
+    assert_eq!(
+        err.lines().count(),
+        1,
+        "{args:?}: one line expected:\n{err}"
+    );
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: no '{n}' in: {err}");
+    }
+}
+
+#[test]
+fn refusals_name_the_checkpoint_and_what_to_do() {
+    let d = tempfile::tempdir().unwrap();
+    let state = killed_run(d.path());
+    // a fresh run over an unfinished one
+    one_line_refusal(
+        d.path(),
+        &["run", "column-b", "--out", "run", "-q"],
+        &[".run.checkpoint", "--resume run"],
+    );
+    // another scene (also: the same scene with another S0)
+    one_line_refusal(
+        d.path(),
+        &["run", "column-a", "--resume", "run", "-q"],
+        &["checkpoint.bin", "differs", "--resume alone"],
+    );
+    one_line_refusal(
+        d.path(),
+        &[
+            "run",
+            "column-b",
+            "--cells",
+            "3000",
+            "--t-end",
+            "2",
+            "--set",
+            "material.s0=2",
+            "--resume",
+            "run",
+            "-q",
+        ],
+        &["differs"],
+    );
+    // no checkpoint at all
+    one_line_refusal(
+        d.path(),
+        &["run", "--resume", "elsewhere", "-q"],
+        &["no checkpoint", "--checkpoint-interval"],
+    );
+    // a bad interval
+    one_line_refusal(
+        d.path(),
+        &[
+            "run",
+            "column-a",
+            "--out",
+            "x",
+            "--checkpoint-interval",
+            "0",
+            "-q",
+        ],
+        &["run.checkpoint_interval", "0 < checkpoint_interval"],
+    );
+    // another build: rewrite the build entry (with a valid checksum)
+    let good = std::fs::read(&state).unwrap();
+    let mut e = decode(&good).unwrap();
+    e.put("build", Value::Text("sieve 0.0.0 build 0".into()));
+    std::fs::write(&state, encode(&e)).unwrap();
+    one_line_refusal(
+        d.path(),
+        &["run", "--resume", "run", "-q"],
+        &["written by sieve 0.0.0", "start afresh"],
+    );
+    // a damaged file: one flipped bit
+    let mut bad = good.clone();
+    let mid = bad.len() / 2;
+    bad[mid] ^= 0x10;
+    std::fs::write(&state, &bad).unwrap();
+    one_line_refusal(d.path(), &["run", "--resume", "run", "-q"], &["checksum"]);
+    // a damaged kept snapshot
+    std::fs::write(&state, &good).unwrap();
+    let snap = d
+        .path()
+        .join(".run.checkpoint")
+        .join("fields")
+        .join("state_0000.vti");
+    let mut v = std::fs::read(&snap).unwrap();
+    v.push(b' ');
+    // break the hard link first: the staging copy is not ours to change
+    std::fs::remove_file(&snap).unwrap();
+    std::fs::write(&snap, &v).unwrap();
+    one_line_refusal(
+        d.path(),
+        &["run", "--resume", "run", "-q"],
+        &["state_0000.vti", "damaged"],
+    );
+    v.pop();
+    std::fs::remove_file(&snap).unwrap();
+    std::fs::write(&snap, &v).unwrap();
+    // intact again: it resumes and cleans up
+    let (code, _, err) = run_in(d.path(), &["run", "--resume", "run", "-q"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(d.path().join("run").join("summary.json").exists());
+    assert!(!d.path().join(".run.checkpoint").exists());
+}
+
+fn sample_entries() -> Vec<u8> {
+    let mut e = Entries::default();
+    e.put("build", Value::Text("sieve x".into()));
+    e.put("progress.next", Value::U64(3));
+    e.put("seg.time", Value::F64(0.125));
+    e.put("seg.q", Value::F64s(vec![0.1, -0.0, 1e-300, f64::MAX]));
+    e.put("kept.len", Value::U64s(vec![1, 2, 3]));
+    encode(&e)
+}
+
+#[test]
+fn encoding_round_trips_every_bit() {
+    let bytes = sample_entries();
+    let e = decode(&bytes).unwrap();
+    match e.0.get("seg.q") {
+        Some(Value::F64s(v)) => {
+            assert_eq!(v[1].to_bits(), (-0.0f64).to_bits());
+            assert_eq!(v[2], 1e-300);
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(encode(&e), bytes);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 3000, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Arbitrary bytes, with and without the magic bytes: an error, never a panic.
+    #[test]
+    fn arbitrary_bytes_are_rejected_without_panic(mut b in proptest::collection::vec(any::<u8>(), 0..400), magic in any::<bool>()) {
+        if magic && b.len() >= 8 {
+            b[..8].copy_from_slice(b"SIEVECKP");
+        }
+        prop_assert!(decode(&b).is_err());
+    }
+
+    /// A valid checkpoint mutated (bytes changed, inserted, cut) with its checksum fixed up,
+    /// so that the structure checks behind the checksum are reached: no panic, and any file
+    /// that decodes re-encodes to itself.
+    #[test]
+    fn mutated_checkpoints_with_valid_checksum_never_panic(
+        edits in proptest::collection::vec((any::<u16>(), any::<u8>(), 0u8..3), 1..6),
+    ) {
+        let mut b = sample_entries();
+        b.truncate(b.len() - 8);
+        for (at, byte, kind) in edits {
+            let at = usize::from(at) % (b.len() + 1);
+            match kind {
+                0 if at < b.len() => b[at] = byte,
+                1 => b.insert(at, byte),
+                _ => b.truncate(at.max(8)),
+            }
+        }
+        let crc = crc::Crc::<u64>::new(&crc::CRC_64_XZ).checksum(&b);
+        b.extend_from_slice(&crc.to_le_bytes());
+        if let Ok(e) = decode(&b) {
+            prop_assert_eq!(encode(&e), b);
+        }
+    }
+}
