@@ -273,6 +273,11 @@ pub fn time_loop_with<R: Real, const D: usize, const N: usize>(
         Some(g) => s.advance_to_embedded(target, n, g),
         None => s.advance_to(target, n),
     };
+    if dt == 0.0 {
+        // Nothing would ever move the clock: refused before the start (exit 2), not a
+        // numerical failure.
+        crate::estimate::check_steps(scene, dt, 0.0)?;
+    }
     // The prepared state first: a non-finite coefficient stops the run before any step.
     stats.stop = crate::interrupt::after_steps(s, stats.dt, 0);
     'outputs: for (k, &t) in times.iter().enumerate().skip(first) {

@@ -649,7 +649,7 @@ mod tests {
         }
         let twice = parse_sets(&["a=1,2".into(), "a=3,4".into()]).unwrap_err();
         assert!(twice.to_string().contains("swept twice"));
-        let many: Vec<String> = (0..5).map(|k| format!("k{k}=1,2,3,4,5,6")).collect();
+        let many: Vec<String> = (0..6).map(|k| format!("k{k}=1,2,3,4,5")).collect();
         assert!(parse_sets(&many)
             .unwrap_err()
             .to_string()
