@@ -97,6 +97,11 @@ fn scenes_lists_every_builtin_and_every_file() {
 
 #[test]
 fn bad_input_exits_2_with_one_line_naming_file_key_and_range() {
+    // |g|^2 overflowed the direction's normalisation: the run "completed" without segregating.
+    assert_bad_input(
+        &["run", "column-a", "--set", "physics.gravity=[-1e155]"],
+        &["physics.gravity[0]", "-1e155", "-1e6..=1e6"],
+    );
     assert_bad_input(
         &["run", "no-such-scene"],
         &["no-such-scene", "unknown scene", "column-a"],

@@ -13,6 +13,9 @@ pub(super) struct Physics {
     pub temperature: Temperature,
 }
 
+/// Largest gravity component the validation accepts.
+const MAX_GRAVITY: f64 = 1e6;
+
 /// Checks `[physics]` (and the material keys `temperature = "shear"` needs).
 pub(super) fn check(
     p: &mut Problems,
@@ -21,7 +24,26 @@ pub(super) fn check(
     dim: usize,
     has_flow: bool,
 ) -> Option<Physics> {
-    let gravity = p.ok(vector(l, "physics.gravity", &f.physics.gravity, dim));
+    // |g| up to 1e6 (a centrifuge at 1e5 g in SI units): beyond it |g|^2 overflows the
+    // direction's normalisation in f64 and S silently becomes 0 (gravity = [-1e155] once ran
+    // to "complete" without segregating).
+    let gravity = p
+        .ok(vector(l, "physics.gravity", &f.physics.gravity, dim))
+        .and_then(|g| {
+            let bad = g.iter().position(|x| x.abs() > MAX_GRAVITY);
+            match bad {
+                Some(i) => {
+                    p.push(Error::range(
+                        l,
+                        &format!("physics.gravity[{i}]"),
+                        g[i],
+                        "-1e6..=1e6 (in the scene's units: 9.81 m/s^2 on earth, 1 in the dimensionless scenes)",
+                    ));
+                    None
+                }
+                None => Some(g),
+            }
+        });
     let direction = match &f.physics.direction {
         DirectionSpec::Name(n) if n == "gravity" => Some(Direction::Gravity),
         DirectionSpec::Name(n) if n == "flow" => Some(Direction::Flow),
