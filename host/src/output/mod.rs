@@ -131,7 +131,10 @@ pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
 /// always the shortest form that reads back to the same f64.
 pub fn num(x: f64) -> String {
     let a = x.abs();
-    if x == 0.0 || (1e-4..1e15).contains(&a) || !x.is_finite() {
+    if x == 0.0 {
+        // -0 (e.g. max(0, -phi) of phi = 0) reads as a sign where there is none
+        "0".into()
+    } else if (1e-4..1e15).contains(&a) || !x.is_finite() {
         format!("{x}")
     } else {
         format!("{x:e}")
