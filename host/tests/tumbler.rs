@@ -517,3 +517,34 @@ fn tumbler_runs_coupled_on_cut_cells_with_both_phases_to_round_off() {
     let s2 = json(&d.path().join("t2/summary.json"));
     assert_eq!(s["state_hash"], s2["state_hash"]);
 }
+
+#[test]
+fn tumbler_75_fills_three_quarters_of_the_drum_and_conserves_both_phases() {
+    // The 75 % fill of model.md 7.5: the level z = 0.0702 m (0.404 R above the axis) holds
+    // 3/4 of the drum's open area; phi = c/2 = 0.3 there, so the small-grain mass is
+    // 0.3 * 0.75 * open area. The row the level crosses is filled in proportion, so on the
+    // default 34 x 34 grid the fill is 0.7499 (a staircase level gave 0.733).
+    let d = tempfile::tempdir().unwrap();
+    let args = [
+        "run",
+        "tumbler-75",
+        "--quiet",
+        "--t-end",
+        "0.05",
+        "--set",
+        "frame.rev_per_s=1.5",
+        "--out",
+        "t",
+    ];
+    let (code, _, err) = run_in(d.path(), &args);
+    assert_eq!(code, 0, "{err}");
+    let s = json(&d.path().join("t/summary.json"));
+    let open = s["geometry"]["open_volume"].as_f64().unwrap();
+    let fill = s["mass_initial"].as_f64().unwrap() / (0.3 * open);
+    assert!((fill - 0.75).abs() < 1e-3, "fill {fill}");
+    let drift = s["mass_rel_drift"].as_f64().unwrap();
+    assert!(drift.abs() < 1e-12, "small-grain drift {drift}");
+    assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
+    assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
+    assert_eq!(s["flow"]["clipped_mass"].as_f64().unwrap(), 0.0);
+}

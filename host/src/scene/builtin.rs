@@ -35,6 +35,7 @@ builtins!(
     "silo",
     "drum-settling",
     "tumbler",
+    "tumbler-75",
 );
 
 /// The scene `sieve run` runs without a SCENE argument: 2D, segregates visibly (mixes, then
