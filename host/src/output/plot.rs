@@ -27,6 +27,9 @@ const GIF_WIDTH: u32 = 640;
 /// Cells with c at or below this are empty (the solvers' vacuum threshold, 1e-6): drawn in
 /// [`EMPTY`], not as phihat = 0.
 pub const VACUUM: f64 = 1e-6;
+/// The value that marks a cell inside a container's wall (open volume 0): drawn white, so the
+/// container's outline shows against the grey of empty cells.
+pub const SOLID_CELL: f64 = f64::NEG_INFINITY;
 /// The colour of empty cells: a neutral grey outside the colour map.
 pub const EMPTY: RGBColor = RGBColor(190, 190, 190);
 /// Distinct colours for curves that must be told apart (Okabe-Ito, colour-blind safe).
@@ -366,17 +369,21 @@ pub fn draw_colour_map<DB: DrawingBackend>(
     for jz in (0..nz).step_by(bz) {
         for jx in (0..nx).step_by(bx) {
             let (ex, ez) = ((jx + bx).min(nx), (jz + bz).min(nz));
-            let (mut sum, mut count) = (0.0, 0usize);
+            let (mut sum, mut count, mut solid) = (0.0, 0usize, 0usize);
             for iz in jz..ez {
                 for ix in jx..ex {
                     let v = values[ix + nx * iz];
                     if v.is_finite() {
                         sum += v;
                         count += 1;
+                    } else if v == SOLID_CELL {
+                        solid += 1;
                     }
                 }
             }
-            let colour = if count == 0 {
+            let colour = if count == 0 && solid > 0 {
+                WHITE
+            } else if count == 0 {
                 EMPTY
             } else {
                 viridis(sum / count as f64)
@@ -393,7 +400,7 @@ pub fn draw_colour_map<DB: DrawingBackend>(
     chart.draw_series(rects).map_err(text)?;
     // Colour bar with its label, and the swatch of empty cells below it.
     let (_, bar_h) = bar.dim_in_pixel();
-    let (bar_top, swatch) = bar.split_vertically(bar_h.saturating_sub(70));
+    let (bar_top, swatch) = bar.split_vertically(bar_h.saturating_sub(72));
     let mut cb = ChartBuilder::on(&bar_top)
         .margin_top(40)
         .margin_bottom(10)
@@ -446,6 +453,14 @@ pub fn draw_colour_map<DB: DrawingBackend>(
             (FONT_NAME, 12),
         ))
         .map_err(text)?;
+    if values.contains(&SOLID_CELL) {
+        swatch
+            .draw(&Rectangle::new([(40, 50), (70, 66)], BLACK.stroke_width(1)))
+            .map_err(text)?;
+        swatch
+            .draw(&Text::new("wall (solid)", (76, 51), (FONT_NAME, 13)))
+            .map_err(text)?;
+    }
     Ok(())
 }
 

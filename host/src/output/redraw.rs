@@ -148,12 +148,17 @@ fn masked_plane(v: &Vti) -> Result<Vec<f64>> {
             c.len()
         )));
     }
+    // Cut cells: the solid (open volume 0) is drawn white and told apart from empty cells
+    // (grey), so the container's outline shows in every map (issue 8).
+    let volume = v.array("volume").filter(|a| Some(a.len()) == n);
     let iy = ny / 2;
     let mut out = Vec::with_capacity(nx * nz);
     for iz in 0..nz {
         for ix in 0..nx {
             let i = ix + nx * (iy + ny * iz);
-            out.push(if c[i] > plot::VACUUM {
+            out.push(if volume.is_some_and(|vol| vol[i] <= 0.0) {
+                plot::SOLID_CELL
+            } else if c[i] > plot::VACUUM {
                 phihat[i]
             } else {
                 f64::NAN
@@ -285,4 +290,41 @@ pub fn replot(dir: &Path) -> Result<(PathBuf, Vec<String>)> {
     let written = redraw(dir, staging.path())?;
     let target = staging.commit()?;
     Ok((target, written))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 3 x 1 x 1 snapshot: a solid cell, an empty one, a filled one.
+    fn snapshot(volume: Option<Vec<f64>>) -> Vti {
+        let mut arrays = vec![
+            ("phihat".to_string(), 1, vec![0.0, 0.0, 0.25]),
+            ("c".to_string(), 1, vec![0.0, 0.0, 0.6]),
+        ];
+        if let Some(v) = volume {
+            arrays.push(("volume".to_string(), 1, v));
+        }
+        Vti {
+            cells: [3, 1, 1],
+            origin: [0.0; 3],
+            spacing: [1.0; 3],
+            t: 0.0,
+            arrays,
+        }
+    }
+
+    #[test]
+    fn the_solid_of_a_container_is_told_apart_from_empty_cells() {
+        let v = masked_plane(&snapshot(Some(vec![0.0, 1.0, 0.4]))).unwrap();
+        assert_eq!(v[0], plot::SOLID_CELL);
+        assert!(v[1].is_nan(), "empty cell: {}", v[1]);
+        assert_eq!(v[2], 0.25);
+        // Without cut cells there is no solid: empty stays empty.
+        let v = masked_plane(&snapshot(None)).unwrap();
+        assert!(v[0].is_nan() && v[1].is_nan());
+        // A volume array that does not match the grid is ignored, not indexed.
+        let v = masked_plane(&snapshot(Some(vec![0.0]))).unwrap();
+        assert!(v[0].is_nan());
+    }
 }
