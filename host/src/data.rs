@@ -261,6 +261,38 @@ pub struct FrameSummary {
     pub period: Option<f64>,
     /// A point on the rotation axis (solver axis order) [m].
     pub center: Vec<f64>,
+    /// Psi at every whole revolution `t = k period` reached by the run (k = 0, 1, ...),
+    /// interpolated linearly between output samples: exact where the output interval divides
+    /// the period (the built-in tumblers), an interpolation otherwise. Empty at rest.
+    pub psi_per_revolution: Vec<f64>,
+}
+
+/// Psi at `t = k period` for k = 0, 1, ... up to the last sample, linear between samples.
+pub fn psi_per_revolution(series: &[SeriesRow], period: f64) -> Vec<f64> {
+    let mut out = Vec::new();
+    let (Some(first), Some(last)) = (series.first(), series.last()) else {
+        return out;
+    };
+    if !(period.is_finite() && period > 0.0) {
+        return out;
+    }
+    // at most one value per sample: a period shorter than the output interval says nothing more
+    let revolutions = ((last.t - first.t) / period)
+        .floor()
+        .min(series.len() as f64);
+    for k in 0..=(revolutions as usize) {
+        let t = first.t + k as f64 * period;
+        let j = series.partition_point(|r| r.t < t);
+        let psi = match (j.checked_sub(1).and_then(|i| series.get(i)), series.get(j)) {
+            (_, Some(b)) if b.t == t => b.psi,
+            (Some(a), Some(b)) => a.psi + (b.psi - a.psi) * (t - a.t) / (b.t - a.t),
+            (Some(a), None) => a.psi,
+            (None, Some(b)) => b.psi,
+            (None, None) => break,
+        };
+        out.push(psi);
+    }
+    out
 }
 
 /// The `flow` block of summary.json.

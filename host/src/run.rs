@@ -821,6 +821,11 @@ pub fn run_scene_with(
             omega: std::f64::consts::TAU * f.rev_per_s,
             period: (f.rev_per_s != 0.0).then(|| 1.0 / f.rev_per_s.abs()),
             center: f.center.clone(),
+            psi_per_revolution: if f.rev_per_s != 0.0 {
+                crate::data::psi_per_revolution(&stats.series, 1.0 / f.rev_per_s.abs())
+            } else {
+                Vec::new()
+            },
         }),
     };
     summary.write(&staging.path().join("summary.json"))?;

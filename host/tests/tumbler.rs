@@ -548,3 +548,51 @@ fn tumbler_75_fills_three_quarters_of_the_drum_and_conserves_both_phases() {
     assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
     assert_eq!(s["flow"]["clipped_mass"].as_f64().unwrap(), 0.0);
 }
+
+#[test]
+fn psi_is_sampled_once_per_revolution() {
+    // 1.5 rev/s: a period of 2/3 s, four outputs per revolution (interval 1/6 s), 1.4 s run:
+    // revolutions 0, 1, 2 fall on output samples, so the summary's values are series.csv's.
+    let d = tempfile::tempdir().unwrap();
+    let args = [
+        "run",
+        "tumbler",
+        "--quiet",
+        "--grid",
+        "18x18",
+        "--t-end",
+        "1.4",
+        "--set",
+        "frame.rev_per_s=1.5",
+        "--set",
+        "run.output_interval=0.16666666666666666",
+        "--out",
+        "t",
+    ];
+    let (code, _, err) = run_in(d.path(), &args);
+    assert_eq!(code, 0, "{err}");
+    let s = json(&d.path().join("t/summary.json"));
+    let per_rev: Vec<f64> = s["frame"]["psi_per_revolution"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let series = columns(&d.path().join("t/series.csv"));
+    let (t, psi) = (&series["t"], &series["psi"]);
+    assert_eq!(per_rev.len(), 3, "{per_rev:?}");
+    for (k, &p) in per_rev.iter().enumerate() {
+        let at = k as f64 * 2.0 / 3.0;
+        let j = t
+            .iter()
+            .position(|&x| (x - at).abs() < 1e-9)
+            .expect("a sample");
+        assert!(
+            (p - psi[j]).abs() < 1e-12,
+            "revolution {k}: {p} vs {}",
+            psi[j]
+        );
+    }
+    // mixed start: Psi = 1 (to the 1e-9 of the empty cells' c)
+    assert!((per_rev[0] - 1.0).abs() < 1e-8, "{}", per_rev[0]);
+}
