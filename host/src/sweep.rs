@@ -61,29 +61,29 @@ pub fn parse_sets(sets: &[String]) -> Result<(Vec<Axis>, Vec<String>)> {
     let mut fixed = Vec::new();
     for s in sets {
         let Some((key, rhs)) = s.split_once('=') else {
-            return Err(Error::Input(format!(
+            return Err(Error::input(format!(
                 "--set {}: expected KEY=VALUE[,VALUE...], e.g. material.s0=0.5,1,2",
-                clip(s)
+                s
             )));
         };
         let key = key.trim();
         if key.is_empty() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(format!(
                 "--set {}: the key before '=' is empty",
-                clip(s)
+                s
             )));
         }
         let values = split_top_level(rhs)?;
         if values.iter().any(|v| v.trim().is_empty()) {
-            return Err(Error::Input(format!(
+            return Err(Error::input(format!(
                 "--set {}: an empty value in the list; write KEY=V1,V2,...",
-                clip(s)
+                s
             )));
         }
         if values.len() == 1 {
             fixed.push(format!("{key}={}", values[0]));
         } else if axes.iter().any(|a| a.key == key) {
-            return Err(Error::Input(format!(
+            return Err(Error::input(format!(
                 "--set {key}: swept twice; give all its values in one --set"
             )));
         } else {
@@ -95,7 +95,7 @@ pub fn parse_sets(sets: &[String]) -> Result<(Vec<Axis>, Vec<String>)> {
     }
     let n = combinations(&axes);
     if n > MAX_COMBINATIONS {
-        return Err(Error::Input(format!(
+        return Err(Error::input(format!(
             "--set: {n} combinations; at most {MAX_COMBINATIONS} per sweep (split it into several sweeps)"
         )));
     }
@@ -132,22 +132,13 @@ fn split_top_level(s: &str) -> Result<Vec<String>> {
         }
     }
     if depth != 0 || quote.is_some() {
-        return Err(Error::Input(format!(
+        return Err(Error::input(format!(
             "--set ...={}: unbalanced brackets or quotes in the value list",
-            clip(s)
+            s
         )));
     }
     out.push(cur);
     Ok(out.into_iter().map(|v| v.trim().to_string()).collect())
-}
-
-/// At most 60 characters of user text, so a huge argument is not echoed back whole.
-fn clip(s: &str) -> String {
-    if s.chars().count() <= 60 {
-        s.to_string()
-    } else {
-        format!("{}...", s.chars().take(57).collect::<String>())
-    }
 }
 
 /// Number of combinations (1 for no axes).
@@ -191,7 +182,7 @@ pub fn list(axes: &[Axis]) -> String {
 fn prepare_dir(out: &Path) -> Result<()> {
     if out.exists() {
         if !out.is_dir() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(format!(
                 "{}: --out exists and is not a directory; choose another --out",
                 out.display()
             )));
@@ -201,7 +192,7 @@ fn prepare_dir(out: &Path) -> Result<()> {
             .next()
             .is_none();
         if !empty && !out.join(MARKER).is_file() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(format!(
                 "{}: exists and was not written by sieve sweep; choose another --out or move its contents",
                 out.display()
             )));
@@ -266,7 +257,7 @@ pub fn sweep(opts: &SweepOptions) -> Result<usize> {
     let n = combinations(&opts.axes);
     if let Some(t) = opts.task {
         if t >= n {
-            return Err(Error::Input(format!(
+            return Err(Error::input(format!(
                 "--task {t} (or SLURM_ARRAY_TASK_ID) is out of range: allowed 0..={} for {n} combinations (see --list)",
                 n - 1
             )));
@@ -312,30 +303,22 @@ pub fn sweep(opts: &SweepOptions) -> Result<usize> {
 fn report_line(opts: &SweepOptions, index: usize, (k, n): (usize, usize), r: &Result<Outcome>) {
     let kv: Vec<String> = combination(&opts.axes, index)
         .iter()
-        .map(|(k, v)| format!("{k}={}", clip(v)))
+        .map(|(k, v)| format!("{k}={v}"))
         .collect();
-    match r {
-        Ok(o) if o.code == 0 => eprintln!(
-            "sweep: [{k}/{n}] run-{index:04} ({}) done in {:.1} s",
-            kv.join(" "),
+    let kv = kv.join(" ");
+    let line = match r {
+        Ok(o) if o.code == 0 => format!(
+            "sweep: [{k}/{n}] run-{index:04} ({kv}) done in {:.1} s",
             o.seconds
         ),
-        Ok(o) => eprintln!(
-            "sweep: [{k}/{n}] run-{index:04} ({}) failed (exit {}): {}",
-            kv.join(" "),
-            o.code,
-            clip_line(&o.first_error)
+        Ok(o) => format!(
+            "sweep: [{k}/{n}] run-{index:04} ({kv}) failed (exit {}): {}",
+            o.code, o.first_error
         ),
-        Err(e) => eprintln!("sweep: run-{index:04}: {e}"),
-    }
-}
-
-fn clip_line(s: &str) -> String {
-    if s.chars().count() <= 200 {
-        s.to_string()
-    } else {
-        format!("{}...", s.chars().take(197).collect::<String>())
-    }
+        Err(e) => format!("sweep: run-{index:04}: {e}"),
+    };
+    // what the user typed, echoed short (a huge value is clipped like in every message)
+    eprintln!("{}", crate::text::shorten(&line));
 }
 
 /// Flattens a summary to `dotted.key -> value` for numbers, strings, booleans and null;
