@@ -302,6 +302,9 @@ fn segregation_time_is_resolved_to_the_step() {
         (sampled - tf).abs() > 0.01,
         "sampled {sampled} vs step-resolved {tf}"
     );
+    // The README's figures (issue 10 section): 0.92330 step-resolved, 0.93598 sampled.
+    assert!((tf - 0.92330).abs() < 5e-6, "step-resolved {tf}");
+    assert!((sampled - 0.93598).abs() < 5e-6, "sampled {sampled}");
 }
 
 /// column-collapse reported dt = 1.8e308 (the segregation limit of a bed at rest): the steps
