@@ -213,6 +213,9 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     /// weighted by the open volume fraction of their cell (1 on a box grid).
     flushed: R,
     prepared: bool,
+    /// Per axis: c, T, k and u are the same in every cell (bit for bit) since the last
+    /// prepare, so the step reads only q on that axis ([`Self::detect_uniform`]).
+    uniform: [bool; D],
     time: R,
     steps: u64,
 }
@@ -246,6 +249,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             excess: [R::ZERO; 2],
             flushed: R::ZERO,
             prepared: false,
+            uniform: [false; D],
             time: R::ZERO,
             steps: 0,
         }
@@ -323,6 +327,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.excess = [R::ZERO; 2];
         self.flushed = R::ZERO;
         self.prepared = false;
+        self.uniform = [false; D];
         self.time = R::ZERO;
         self.steps = 0;
         Ok(())
@@ -489,6 +494,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
         }
         self.derive_coefficients();
+        self.detect_uniform();
         self.prepared = true;
         Ok(())
     }
@@ -508,8 +514,27 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
         }
         self.derive_coefficients();
+        self.detect_uniform();
         self.prepared = true;
         Ok(())
+    }
+
+    /// Model only what the scene needs: on an axis where c, T, k and u hold the same bits in
+    /// every cell (the segregation columns of model.md 7.1: no transport, uniform packing and
+    /// temperature), the face loop takes them as constants and streams q alone. The face
+    /// arithmetic is the general one with the same operands, so the bits do not change; only
+    /// the loads do (one array instead of five per side). Runs once per prepare, and stops at
+    /// the first cell that differs.
+    fn detect_uniform(&mut self) {
+        let n = self.grid.len();
+        let same = |x: &[R]| {
+            let b = x[0].to_bits_u64();
+            x[1..n].iter().all(|v| v.to_bits_u64() == b)
+        };
+        let shared = n > 0 && same(&self.c[..n]) && same(&self.temp[..n]);
+        for a in 0..D {
+            self.uniform[a] = shared && same(&self.k[a][..n]) && same(&self.u[a][..n]);
+        }
     }
 
     fn derive_coefficients(&mut self) {
@@ -667,6 +692,12 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// fraction): the raw counter behind [`Self::flushed_small_mass`].
     pub fn flushed_tracked(&self) -> R {
         self.flushed
+    }
+
+    /// Per axis, whether the last prepare found c, T, k and u uniform, so that the step streams
+    /// q alone on that axis (the same bits as the general loop; see `detect_uniform`).
+    pub fn uniform_axes(&self) -> [bool; D] {
+        self.uniform
     }
 
     /// Number of steps taken so far.

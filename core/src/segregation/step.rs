@@ -222,29 +222,39 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         for b in 0..fb.blocks {
             let l0 = b * fb.block_stride;
             let len = fb.block_len;
-            interior_block::<R, K, DIFFUSE, FIRST>(
-                &mut self.flux[l0..l0 + len],
-                &mut self.rhs[l0..l0 + len],
-                Slices::new(
-                    &self.q,
-                    &self.c,
-                    &self.k[axis],
-                    &self.temp,
-                    &self.u[axis],
-                    l0,
-                    len,
-                ),
-                Slices::new(
-                    &self.q,
-                    &self.c,
-                    &self.k[axis],
-                    &self.temp,
-                    &self.u[axis],
-                    l0 + s,
-                    len,
-                ),
-                ax,
-            );
+            let (out, rhs) = (&mut self.flux[l0..l0 + len], &mut self.rhs[l0..l0 + len]);
+            if self.uniform[axis] {
+                // Everything but q is one constant on this axis (`detect_uniform`).
+                let side = Side {
+                    q: R::ZERO,
+                    c: self.c[0],
+                    k: self.k[axis][0],
+                    t: self.temp[0],
+                    u: self.u[axis][0],
+                };
+                let left = Uniform {
+                    q: &self.q[l0..l0 + len],
+                    side,
+                };
+                let right = Uniform {
+                    q: &self.q[l0 + s..l0 + s + len],
+                    side,
+                };
+                interior_block::<R, K, DIFFUSE, FIRST, _>(out, rhs, left, right, ax);
+            } else {
+                let slices = |at| {
+                    Slices::new(
+                        &self.q,
+                        &self.c,
+                        &self.k[axis],
+                        &self.temp,
+                        &self.u[axis],
+                        at,
+                        len,
+                    )
+                };
+                interior_block::<R, K, DIFFUSE, FIRST, _>(out, rhs, slices(l0), slices(l0 + s), ax);
+            }
         }
         // High boundary faces, stored at the last cell of each line (periodic low faces reuse them).
         let high = self.bc[axis][1];
@@ -441,15 +451,57 @@ impl<'a, R: Real> Slices<'a, R> {
     }
 }
 
+/// Where the face loop reads the two sides of its faces: five arrays ([`Slices`]) or, on an
+/// axis with uniform coefficients, q alone ([`Uniform`]).
+pub(super) trait Cells<R>: Copy {
+    fn truncated(self, len: usize) -> Self;
+    fn get(&self, j: usize) -> Side<R>;
+}
+
+impl<R: Real> Cells<R> for Slices<'_, R> {
+    #[inline(always)]
+    fn truncated(self, len: usize) -> Self {
+        Slices::truncated(self, len)
+    }
+    #[inline(always)]
+    fn get(&self, j: usize) -> Side<R> {
+        Slices::get(self, j)
+    }
+}
+
+/// q of a run of cells whose other fields all equal `side`'s.
+#[derive(Clone, Copy)]
+pub(super) struct Uniform<'a, R> {
+    q: &'a [R],
+    side: Side<R>,
+}
+
+impl<R: Real> Cells<R> for Uniform<'_, R> {
+    #[inline(always)]
+    fn truncated(self, len: usize) -> Self {
+        Self {
+            q: &self.q[..len],
+            side: self.side,
+        }
+    }
+    #[inline(always)]
+    fn get(&self, j: usize) -> Side<R> {
+        Side {
+            q: self.q[j],
+            ..self.side
+        }
+    }
+}
+
 /// The hot loop: stores each face flux and subtracts it from its left cell at once (the
 /// right cell gains it in a separate pass: doing both here would chain iterations along x and
 /// stop vectorisation). All slices have the length of `out`, so bounds checks vanish.
 #[inline(never)]
-fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool>(
+fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool, S: Cells<R>>(
     out: &mut [R],
     rhs: &mut [R],
-    left: Slices<'_, R>,
-    right: Slices<'_, R>,
+    left: S,
+    right: S,
     ax: AxisConst<R>,
 ) {
     let len = out.len();

@@ -1,0 +1,200 @@
+//! Work and precision of sieve against the simplest fast alternative, in the same run
+//! (issue 12, "Speed on one core first"): segregation column a of docs/model.md 7.1a on 6400
+//! cells at Courant 0.9 to t = 0.5, run by `Segregation::advance_to` and by a plain C loop of
+//! the same scheme (core/benches/c/column_a.c, compiled here with `cc -O2` and `-O3` for the same
+//! portable target). Prints cell updates per second, the L1 error of phihat against the exact
+//! solution and a checksum of the final bits for both, and their ratio. A ratio holds on a
+//! noisy machine; an absolute rate does not.
+//!
+//! Three sieve rows: the step as scenes run it (uniform coefficients detected: q streamed
+//! alone), the general five-array loop on the same column (forced by writing one cell's
+//! velocity as -0.0, which changes no face velocity), the f32 step, and the f64 step without
+//! the flush of vanishing fractions (docs/model.md 5.6), which the C loop does not have: that
+//! row's final bits must equal the C loop's.
+//!
+//! `cargo bench -p sieve-core --bench column_a_vs_c` (needs `cc`; without it the C row is
+//! skipped with a note).
+
+use sieve_core::exact::ColumnA;
+use sieve_core::{
+    Boundary, DirectionMode, Grid, Phase, Real, Scheme, Segregation, SegregationConfig,
+};
+use std::process::Command;
+use std::time::Instant;
+
+const CELLS: usize = 6400;
+const COURANT: f64 = 0.9;
+const T_END: f64 = 0.5;
+const REPEATS: usize = 15;
+
+type Column<R> = Segregation<R, 1, CELLS>;
+
+fn column<R: Real>(s: &mut Column<R>, general: bool, flush: bool) {
+    let grid = Grid::new([CELLS], [R::ZERO], [R::ONE], CELLS).unwrap();
+    let mut cfg = SegregationConfig::new();
+    cfg.scheme = Scheme::Modified;
+    cfg.phase = Phase::Small;
+    cfg.courant = R::from_f64(COURANT);
+    cfg.gravity = [-R::ONE];
+    cfg.direction = DirectionMode::Gravity;
+    if !flush {
+        cfg.flush_below = R::ZERO;
+    }
+    s.setup(grid, [[Boundary::Wall; 2]], cfg).unwrap();
+    let c = R::from_f64(0.64);
+    for i in 0..CELLS {
+        let u = if general && i == CELLS / 3 {
+            -R::ZERO
+        } else {
+            R::ZERO
+        };
+        s.set_cell(i, c, R::ONE, [u], c * R::HALF);
+    }
+    s.prepare().unwrap();
+    assert_eq!(s.uniform_axes(), [!general]);
+}
+
+struct Row {
+    name: String,
+    steps: u64,
+    seconds: f64,
+    l1: f64,
+    checksum: u64,
+}
+
+impl Row {
+    fn rate(&self) -> f64 {
+        CELLS as f64 * self.steps as f64 / self.seconds
+    }
+}
+
+fn l1_and_checksum(q: impl Fn(usize) -> f64) -> (f64, u64) {
+    let exact = ColumnA {
+        s: 1.0,
+        m: 0.5,
+        height: 1.0,
+    };
+    let h = 1.0 / CELLS as f64;
+    let (mut l1, mut sum) = (0.0, 0u64);
+    for i in 0..CELLS {
+        let (z0, z1) = (i as f64 * h, (i + 1) as f64 * h);
+        l1 += (q(i) / 0.64 - exact.phihat_cell_average(z0, z1, T_END)).abs() * h;
+        sum = sum.wrapping_mul(1099511628211).wrapping_add(q(i).to_bits());
+    }
+    (l1, sum)
+}
+
+fn sieve_row<R: Real>(name: &str, general: bool, flush: bool) -> Row {
+    let mut s: Box<Column<R>> = Box::default();
+    let mut best = f64::INFINITY;
+    let mut steps = 0;
+    for _ in 0..REPEATS {
+        column(&mut s, general, flush);
+        let t0 = Instant::now();
+        steps = s.advance_to(std::hint::black_box(R::from_f64(T_END)), u64::MAX);
+        best = best.min(t0.elapsed().as_secs_f64());
+    }
+    let (l1, checksum) = l1_and_checksum(|i| s.phi(i).to_f64());
+    Row {
+        name: name.into(),
+        steps,
+        seconds: best,
+        l1,
+        checksum,
+    }
+}
+
+fn c_row(opt: &str) -> Result<Row, String> {
+    let src = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/c/column_a.c");
+    let exe = std::env::temp_dir().join(format!("sieve-column-a-c-{}", std::process::id()));
+    let cc = Command::new("cc")
+        .args([opt, "-std=c11", "-o"])
+        .arg(&exe)
+        .arg(src)
+        .arg("-lm")
+        .status()
+        .map_err(|e| format!("cc: {e}"))?;
+    if !cc.success() {
+        return Err(format!("cc failed on {src}"));
+    }
+    let out = Command::new(&exe)
+        .args([
+            CELLS.to_string(),
+            COURANT.to_string(),
+            T_END.to_string(),
+            REPEATS.to_string(),
+        ])
+        .output()
+        .map_err(|e| format!("{}: {e}", exe.display()))?;
+    let _ = std::fs::remove_file(&exe);
+    let text = String::from_utf8_lossy(&out.stdout);
+    let f: Vec<&str> = text.split_whitespace().collect();
+    if f.len() != 5 {
+        return Err(format!("unexpected output of the C loop: {text:?}"));
+    }
+    let num = |i: usize| f[i].parse::<f64>().map_err(|e| format!("{}: {e}", f[i]));
+    Ok(Row {
+        name: format!("plain C loop, cc {opt}"),
+        steps: f[1].parse().map_err(|e| format!("{e}"))?,
+        seconds: num(2)?,
+        l1: num(3)?,
+        checksum: f[4].parse().map_err(|e| format!("{e}"))?,
+    })
+}
+
+fn main() {
+    // `cargo bench` passes --bench; `cargo test --benches` runs this once as a smoke test.
+    let rows = vec![
+        sieve_row::<f64>("sieve f64 (uniform fast path)", false, true),
+        sieve_row::<f64>("sieve f64 (general loop)", true, true),
+        sieve_row::<f32>("sieve f32 (uniform fast path)", false, true),
+        sieve_row::<f64>("sieve f64, subnormal flush off", false, false),
+    ];
+    let c = c_row("-O2");
+    let c3 = c_row("-O3");
+    println!("column a, {CELLS} cells, Courant {COURANT}, t = {T_END}; best of {REPEATS} runs\n");
+    println!(
+        "{:<32} {:>6} {:>14} {:>12} {:>22}",
+        "", "steps", "cell-updates/s", "L1 error", "checksum of final phi"
+    );
+    let all: Vec<&Row> = rows
+        .iter()
+        .chain(c.as_ref().ok())
+        .chain(c3.as_ref().ok())
+        .collect();
+    for r in &all {
+        println!(
+            "{:<32} {:>6} {:>14.3e} {:>12.4e} {:>22}",
+            r.name,
+            r.steps,
+            r.rate(),
+            r.l1,
+            r.checksum
+        );
+    }
+    match &c {
+        Ok(c) => {
+            println!();
+            let fastest = match &c3 {
+                Ok(c3) if c3.rate() > c.rate() => c3,
+                _ => c,
+            };
+            for r in &rows {
+                println!(
+                    "{}: {:.2}x the rate of the faster C loop ({})",
+                    r.name,
+                    r.rate() / fastest.rate(),
+                    fastest.name
+                );
+            }
+            // The C loop has no flush of vanishing fractions (docs/model.md 5.6); without it
+            // sieve does the C loop's arithmetic exactly.
+            let same = rows[3].checksum == c.checksum;
+            println!(
+                "f64 final state without the flush {} the C loop's bit for bit",
+                if same { "equals" } else { "differs from" }
+            );
+        }
+        Err(e) => println!("\nC loop skipped: {e}"),
+    }
+}
