@@ -125,6 +125,20 @@ pub(super) fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
 /// cell that empties almost exactly in one step reaches (and it is flushed at the next pass).
 pub const FLUSH_EVERY: u64 = 8;
 
+/// Independent running maxima of the bound check in [`Segregation::apply_increment`].
+const LANES: usize = 4;
+
+/// `x`, with a zero of either sign returned as +0 (a running maximum split into lanes finds
+/// the same value as one chain, but not necessarily the same sign of zero).
+#[inline(always)]
+fn positive_zero<R: Real>(x: R) -> R {
+    if x == R::ZERO {
+        R::ZERO
+    } else {
+        x
+    }
+}
+
 impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// One explicit step of length `dt` (at most [`Self::stable_dt`]); the caller owns the clock
     /// only through [`Self::advance_to`]: this adds `dt` to the time itself.
@@ -330,20 +344,41 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 below = below.max(-q[i]);
             }
         }
+        let len = n - s;
+        let (q, dq, c, f) = (
+            &mut self.q[s..n],
+            &self.rhs[s..n],
+            &self.c[s..n],
+            &self.flux[..len],
+        );
+        // The running maxima in LANES independent chains: one chain of `max` costs a
+        // floating-point latency per cell and held this loop at half the C loop's rate
+        // (core/benches/column_a_vs_c.rs). A maximum is exact, so the lanes give the same value
+        // in any order; only the sign of a zero maximum could differ, and it is made +0.
+        let (mut hi, mut lo) = ([above; LANES], [below; LANES]);
+        let whole = len - len % LANES;
+        for ((q, dq), (f, c)) in q[..whole]
+            .chunks_exact_mut(LANES)
+            .zip(dq[..whole].chunks_exact(LANES))
+            .zip(
+                f[..whole]
+                    .chunks_exact(LANES)
+                    .zip(c[..whole].chunks_exact(LANES)),
+            )
         {
-            let len = n - s;
-            let (q, dq, c, f) = (
-                &mut self.q[s..n],
-                &self.rhs[s..n],
-                &self.c[s..n],
-                &self.flux[..len],
-            );
-            for i in 0..len {
-                q[i] += dq[i] + f[i];
-                above = above.max(q[i] - c[i]);
-                below = below.max(-q[i]);
+            for l in 0..LANES {
+                q[l] += dq[l] + f[l];
+                hi[l] = hi[l].max(q[l] - c[l]);
+                lo[l] = lo[l].max(-q[l]);
             }
         }
+        for i in whole..len {
+            q[i] += dq[i] + f[i];
+            hi[0] = hi[0].max(q[i] - c[i]);
+            lo[0] = lo[0].max(-q[i]);
+        }
+        above = positive_zero(hi.iter().fold(hi[0], |m, &x| m.max(x)));
+        below = positive_zero(lo.iter().fold(lo[0], |m, &x| m.max(x)));
         self.excess = [above, below];
         // The flush (docs/model.md 5.6) every FLUSH_EVERY steps, in a pass of its own: in the
         // update loop above it cost 12 % of the 1D step (a third reduction); here < 2 %.
@@ -356,6 +391,17 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// to the flushed counter (docs/model.md 5.6).
     fn flush_box(&mut self) {
         let floor = self.cfg.flush_below;
+        // Most passes find nothing to flush. A branch-free scan (vectorised) finds out first;
+        // the in-order pass below, whose sum is a chain, runs only if it has work. A +0 cell
+        // is a no-op there (the counter never holds -0: it starts at +0 and a rounded sum of
+        // two values is -0 only if both are), so it does not count as work.
+        let q = &self.q[..self.grid.len()];
+        let work = q.iter().fold(false, |w, x| {
+            w | ((x.abs() < floor) & (x.to_bits_u64() != 0))
+        });
+        if !work {
+            return;
+        }
         let mut flushed = self.flushed;
         for q in &mut self.q[..self.grid.len()] {
             if q.abs() < floor {
