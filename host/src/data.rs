@@ -351,3 +351,43 @@ pub struct Profiles {
     /// sqrt(a eta0 / eps0): sqrt(T)/shear of steady uniform shear (model.md 2).
     pub ratio_theory: f64,
 }
+
+/// Drum readouts (`drum.rs`, issue 8): the `drum` block of summary.json.
+/// One ring of a radial profile (`drum.rs`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RadialBin {
+    /// Inner radius [m].
+    pub r_lo: f64,
+    /// Outer radius [m].
+    pub r_hi: f64,
+    /// Dense cells (c >= 0.3) whose centre lies in the ring.
+    pub cells: usize,
+    /// Mean phihat of those cells (NaN if none).
+    pub phihat: f64,
+    /// Mean c of those cells (NaN if none).
+    pub c: f64,
+}
+
+/// The `drum` block of summary.json.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DrumSummary {
+    /// Time window of the averages [s] (the last revolution, or the second half of the run
+    /// if it is shorter than one revolution).
+    pub window: [f64; 2],
+    /// Snapshots in the window.
+    pub samples: usize,
+    /// Circulation centre in the lab, relative to the drum axis [m] (x, z).
+    pub circulation_centre: [f64; 2],
+    /// Its time-averaged lab speed [m/s].
+    pub centre_speed: f64,
+    /// Its phihat at the last output.
+    pub centre_phihat: f64,
+    /// Dynamic angle of repose of the free surface [deg], mean over the window.
+    pub angle_of_repose_deg: f64,
+    /// Flowing-layer thickness [m] (NaN if the velocity along the slope never turns).
+    pub flowing_layer_thickness: f64,
+    /// phihat about the circulation centre, at the last output.
+    pub radial_about_centre: Vec<RadialBin>,
+    /// phihat about the drum axis, at the last output.
+    pub radial_about_axis: Vec<RadialBin>,
+}

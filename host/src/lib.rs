@@ -5,7 +5,8 @@
 //! diagnostics -> [`output`] (summary.json, series.csv, final.csv, VTK fields, PNG plots,
 //! written atomically). [`converge`] runs a scene on several grids; [`cli`] parses the command
 //! line; [`flow`] solves the granular flow of a scene (frozen or coupled) and [`fit`] fits S0 to a
-//! segregation time; [`sweep`] runs the product of `--set` values; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 3 for a
+//! segregation time; [`drum`] reads a drum's circulation centre, radial profiles, angle of
+//! repose and flowing layer off its snapshots; [`silo`] the discharge through outlets; [`sweep`] runs the product of `--set` values; [`soft_sensor`] records sensor frames and replays the soft sensor; [`error`] maps failures to exit codes (2 for bad input, 3 for a
 //! numerical failure, 130/143 for SIGINT/SIGTERM, 1 otherwise); [`interrupt`] stops a run early
 //! and keeps what it wrote.
 
@@ -13,6 +14,7 @@ pub mod checkpoint;
 pub mod cli;
 pub mod converge;
 pub mod data;
+pub mod drum;
 pub mod embedded;
 pub mod error;
 pub mod estimate;

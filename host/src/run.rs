@@ -752,6 +752,14 @@ pub fn run_scene_with(
     if let Some(p) = &out.profiles {
         redraw::write_profiles(&staging.path().join("profiles.csv"), p)?;
     }
+    // Drum readouts from the snapshots just written (so a resumed run measures the same).
+    let drum = crate::drum::analyse(scene, &fields_dir, &out.pvd)?;
+    if let Some(d) = &drum {
+        output::write_file(
+            &staging.path().join("radial.csv"),
+            crate::drum::radial_csv(d).as_bytes(),
+        )?;
+    }
     let first = stats.series.first().copied();
     let last = stats.series.last().copied();
     let mass_initial = first.map_or(0.0, |r| r.mass);
@@ -827,6 +835,7 @@ pub fn run_scene_with(
                 Vec::new()
             },
         }),
+        drum,
     };
     summary.write(&staging.path().join("summary.json"))?;
     if let Some(w) = crate::estimate::bounds_warning(

@@ -178,8 +178,19 @@ pub fn list(axes: &[Axis]) -> String {
     s
 }
 
-/// Creates the sweep directory, or accepts it if it is empty or was written by a sweep.
-fn prepare_dir(out: &Path) -> Result<()> {
+/// Creates the sweep directory, or accepts it if it is empty or was written by a sweep. Never
+/// the current directory or one of its parents (as `sieve run --out`). A whole sweep holds the
+/// directory's lock (a second sweep into it is refused); the tasks of a Slurm job array run
+/// side by side in one directory, so a task (`lock = false`) takes only its run's own lock.
+fn prepare_dir(out: &Path, lock: bool) -> Result<Option<output::target::Lock>> {
+    output::target::refuse_ancestor(out)?;
+    let parent = output::target::parent_of(out);
+    std::fs::create_dir_all(&parent).map_err(|e| Error::io(&parent, e))?;
+    let held = if lock {
+        Some(output::target::Lock::take(out)?)
+    } else {
+        None
+    };
     if out.exists() {
         if !out.is_dir() {
             return Err(Error::input(format!(
@@ -202,7 +213,8 @@ fn prepare_dir(out: &Path) -> Result<()> {
     output::write_file_atomically(
         &out.join(MARKER),
         format!("sieve {} sweep\n", env!("CARGO_PKG_VERSION")).as_bytes(),
-    )
+    )?;
+    Ok(held)
 }
 
 /// How one run ended.
@@ -263,7 +275,7 @@ pub fn sweep(opts: &SweepOptions) -> Result<usize> {
             )));
         }
     }
-    prepare_dir(&opts.out)?;
+    let _lock = prepare_dir(&opts.out, opts.task.is_none())?;
     let indices: Vec<usize> = match opts.task {
         Some(t) => vec![t],
         None => (0..n).collect(),

@@ -202,4 +202,19 @@ fn a_sweep_that_cannot_succeed_says_so_before_it_starts() {
         1,
         "only notes.txt"
     );
+    // Never the current directory or a parent of it, even an empty one.
+    let empty = d.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    for out in [".", ".."] {
+        let (code, _, err) = run(sieve(&empty)
+            .args(["sweep", "column-a", "--out", out])
+            .args(SETS));
+        assert_eq!(code, 2, "--out {out}: {err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert_eq!(
+            std::fs::read_dir(&empty).unwrap().count(),
+            0,
+            "--out {out} wrote"
+        );
+    }
 }

@@ -482,15 +482,12 @@ fn a_3d_drum_slice_runs_on_cut_cells() {
     assert!(s["psi_final"].as_f64().unwrap() < 0.5);
 }
 
-#[test]
-fn tumbler_runs_coupled_on_cut_cells_with_both_phases_to_round_off() {
-    // The built-in tumbler (model.md 7.5: half-filled drum, rotating frame, back-coupling),
-    // a short stretch on a coarse grid: flow and segregation on cut cells, the small grains
-    // carried on the flow's face mass fluxes.
-    let d = tempfile::tempdir().unwrap();
+/// A short coupled drum run (18 x 18, 1.5 rev/s, 0.2 s) into `dir/out`: exit 0, both phases
+/// to round-off, bounds exact, nothing clipped; returns its summary.
+fn short_drum_run(dir: &Path, scene: &str, out: &str) -> serde_json::Value {
     let args = [
         "run",
-        "tumbler",
+        scene,
         "--quiet",
         "--grid",
         "18x18",
@@ -499,22 +496,30 @@ fn tumbler_runs_coupled_on_cut_cells_with_both_phases_to_round_off() {
         "--set",
         "frame.rev_per_s=1.5",
         "--out",
-        "t",
+        out,
     ];
-    let (code, _, err) = run_in(d.path(), &args);
-    assert_eq!(code, 0, "{err}");
-    let s = json(&d.path().join("t/summary.json"));
+    let (code, _, err) = run_in(dir, &args);
+    assert_eq!(code, 0, "{scene}: {err}");
+    let s = json(&dir.join(out).join("summary.json"));
     let drift = s["mass_rel_drift"].as_f64().unwrap();
-    assert!(drift.abs() < 1e-12, "small-grain drift {drift}");
+    assert!(drift.abs() < 1e-12, "{scene}: small-grain drift {drift}");
     assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
     assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
-    assert_eq!(s["geometry"]["shape"], "drum");
     assert_eq!(s["frame"]["kind"], "rotating");
     assert_eq!(s["flow"]["clipped_mass"].as_f64().unwrap(), 0.0);
+    s
+}
+
+#[test]
+fn tumbler_runs_coupled_on_cut_cells_with_both_phases_to_round_off() {
+    // The built-in tumbler (model.md 7.5: half-filled drum, rotating frame, back-coupling),
+    // a short stretch on a coarse grid: flow and segregation on cut cells, the small grains
+    // carried on the flow's face mass fluxes.
+    let d = tempfile::tempdir().unwrap();
+    let s = short_drum_run(d.path(), "tumbler", "t");
+    assert_eq!(s["geometry"]["shape"], "drum");
     // rerun: the same bits
-    let (code, _, err) = run_in(d.path(), &[&args[..10], &["t2"]].concat());
-    assert_eq!(code, 0, "{err}");
-    let s2 = json(&d.path().join("t2/summary.json"));
+    let s2 = short_drum_run(d.path(), "tumbler", "t2");
     assert_eq!(s["state_hash"], s2["state_hash"]);
 }
 
@@ -595,4 +600,50 @@ fn psi_is_sampled_once_per_revolution() {
     }
     // mixed start: Psi = 1 (to the 1e-9 of the empty cells' c)
     assert!((per_rev[0] - 1.0).abs() < 1e-8, "{}", per_rev[0]);
+    // Drum readouts over the last revolution (host/src/drum.rs; exact answers on a
+    // constructed drum in drum_readouts.rs). Here: counter-clockwise at 1.5 rev/s the bed is
+    // carried up on the right, so its surface rises to the right; the centre lies in the bed,
+    // below the axis, and barely moves; the radial rings cover the bed.
+    let drum = &s["drum"];
+    assert_eq!(drum["window"][1].as_f64().unwrap(), 1.4);
+    let angle = drum["angle_of_repose_deg"].as_f64().unwrap();
+    assert!(angle > 0.0 && angle < 60.0, "angle of repose {angle}");
+    let centre = [
+        drum["circulation_centre"][0].as_f64().unwrap(),
+        drum["circulation_centre"][1].as_f64().unwrap(),
+    ];
+    assert!(
+        centre[1] < 0.0 && centre[0].hypot(centre[1]) < 0.05,
+        "{centre:?}"
+    );
+    let omega_r = std::f64::consts::TAU * 1.5 * 0.05;
+    let speed = drum["centre_speed"].as_f64().unwrap();
+    assert!(
+        speed < 0.2 * omega_r,
+        "centre speed {speed} vs omega R {omega_r}"
+    );
+    let rings = drum["radial_about_centre"].as_array().unwrap();
+    assert!(rings.iter().any(|r| r["cells"].as_u64().unwrap() > 0));
+    assert!(d.path().join("t/radial.csv").exists());
+    assert!(d.path().join("t/plots/radial.png").exists());
+}
+
+#[test]
+fn square_tumbler_runs_in_its_rotating_frame_with_both_phases_to_round_off() {
+    // A square drum is not rotation-invariant: only the rotating frame can solve it (issue 8).
+    let d = tempfile::tempdir().unwrap();
+    let s = short_drum_run(d.path(), "tumbler-square", "t");
+    assert_eq!(s["geometry"]["shape"], "square-drum");
+    // the square's open area (2 * 0.045)^2: flat walls are cut exactly, only the four corner
+    // cells (two walls in one cell) are approximated, each by less than a cell
+    let open = s["geometry"]["open_volume"].as_f64().unwrap();
+    let cell = (0.10625f64 / 18.0).powi(2);
+    let err = (open - 0.09f64.powi(2)).abs();
+    assert!(
+        err < 4.0 * cell,
+        "open area {open}: {} cells off",
+        err / cell
+    );
+    // not a circular drum: no drum readouts
+    assert!(s.get("drum").is_none());
 }

@@ -261,6 +261,24 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
         }
     }
 
+    let radial = run.join("radial.csv");
+    if radial.exists() {
+        let curves = read_radial(&radial)?;
+        if !curves.is_empty() {
+            plot::xy_curves(
+                &plots.join("radial.png"),
+                &format!(
+                    "{name}: phihat about the circulation centre and the drum axis, t = {}",
+                    super::num(t_end)
+                ),
+                "distance r [mm] (ring midpoint)",
+                "mean phihat of the dense cells (c >= 0.3)",
+                &curves,
+            )?;
+            written.push("radial.png".into());
+        }
+    }
+
     let profiles = run.join("profiles.csv");
     if profiles.exists() {
         let p = read_profiles(&profiles)?;
@@ -275,6 +293,45 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
         );
     }
     Ok(written)
+}
+
+/// A labelled curve of (x, y) points.
+type Curve = (String, Vec<(f64, f64)>);
+
+/// The two radial profiles of `radial.csv` (drum.rs) as curves (r in mm, phihat), empty
+/// rings left out.
+fn read_radial(path: &Path) -> Result<Vec<Curve>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let bad = |line: usize| {
+        Error::failure(format!(
+            "{}: line {line}: not a radial profile row",
+            path.display()
+        ))
+    };
+    let mut curves: Vec<Curve> = Vec::new();
+    for (k, line) in text.lines().enumerate().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() != 6 {
+            return Err(bad(k + 1));
+        }
+        let num = |s: &str| s.parse::<f64>().map_err(|_| bad(k + 1));
+        let (lo, hi, phihat) = (num(f[1])?, num(f[2])?, num(f[4])?);
+        let label = if f[0] == "centre" {
+            "about the circulation centre"
+        } else {
+            "about the drum axis"
+        };
+        if curves.last().is_none_or(|c| c.0 != label) {
+            curves.push((label.into(), Vec::new()));
+        }
+        if phihat.is_finite() {
+            if let Some(c) = curves.last_mut() {
+                c.1.push((500.0 * (lo + hi), phihat));
+            }
+        }
+    }
+    curves.retain(|c| !c.1.is_empty());
+    Ok(curves)
 }
 
 /// `sieve plot DIR`: redraws the pictures of the finished run in `dir` into `dir/plots`,

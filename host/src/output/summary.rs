@@ -159,6 +159,10 @@ pub struct Summary {
     /// The frame of reference, for scenes with a `[frame]`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frame: Option<crate::data::FrameSummary>,
+    /// Drum readouts (circulation centre, radial profiles, angle of repose, flowing layer),
+    /// for 2D circular drums.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drum: Option<crate::data::DrumSummary>,
 }
 
 impl Summary {

@@ -106,7 +106,7 @@ pub fn stem_of(target: &Path) -> String {
 }
 
 /// Refuses `.`, `..`, `/` and any directory that holds the current one.
-fn refuse_ancestor(target: &Path) -> Result<()> {
+pub fn refuse_ancestor(target: &Path) -> Result<()> {
     let shown = target.display();
     let lexical = target.file_name().is_none(); // ".", "..", "/", "a/.."
     let Ok(canon) = std::fs::canonicalize(target) else {

@@ -36,6 +36,7 @@ builtins!(
     "drum-settling",
     "tumbler",
     "tumbler-75",
+    "tumbler-square",
 );
 
 /// The scene `sieve run` runs without a SCENE argument: 2D, segregates visibly (mixes, then

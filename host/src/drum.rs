@@ -1,0 +1,336 @@
+//! What a process engineer reads off a rotating drum (issue 8; model.md 7.5), measured from
+//! the run's own VTK snapshots after the run (so a resumed run measures the same):
+//!
+//! * the **circulation centre**: the point of the dense bed with the lowest time-averaged lab
+//!   speed (the eye of the bed's recirculation), over the last revolution;
+//! * **radial profiles** of phihat (and c) about that centre and about the drum axis, at the
+//!   last output: a core of fines shows as phihat falling with r;
+//! * the **dynamic angle of repose** of the free surface (a straight line fitted to the lab
+//!   surface over the central 60 % of the drum's width, averaged over the window);
+//! * the **flowing-layer thickness**: the depth below the surface, along its normal through
+//!   the point above the drum axis, at which the time-averaged velocity along the slope
+//!   turns from downhill (the flowing layer) to uphill (the bed turning with the drum).
+//!
+//! The grid turns with the drum (rotating frame, model.md 2.5), so every snapshot is first
+//! mapped into the lab: position `o + Rot(omega t)(x - o)`, velocity
+//! `Rot(omega t)(u + omega e_y x (x - o))`, and binned on a lab grid of the solver's cells.
+//! A lab-frame drum is the same map with a zero angle. 2D drums only (a 3D drum's mid-plane
+//! would be the next step); scenes without a circular drum get nothing.
+
+pub use crate::data::{DrumSummary, RadialBin};
+use crate::error::Result;
+use crate::output::vtk::{read_vti, Vti};
+use crate::scene::{Scene, ShapeKind};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// c that marks the free surface and the dense bed: half the bed's packing.
+const DENSE: f64 = 0.3;
+
+/// A snapshot mapped into the lab and binned on the lab grid (the solver's cells).
+struct LabField {
+    /// Per lab cell: c, phihat, lab velocity (x, z); NaN where no grain cell landed.
+    c: Vec<f64>,
+    phihat: Vec<f64>,
+    v: Vec<[f64; 2]>,
+}
+
+/// The lab grid: the solver's cells, axes x and z (2D).
+#[derive(Clone, Copy)]
+struct LabGrid {
+    n: [usize; 2],
+    origin: [f64; 2],
+    h: [f64; 2],
+}
+
+impl LabGrid {
+    fn of(v: &Vti) -> Self {
+        Self {
+            n: [v.cells[0], v.cells[2]],
+            origin: [v.origin[0], v.origin[2]],
+            h: [v.spacing[0], v.spacing[2]],
+        }
+    }
+    fn center(&self, i: usize) -> [f64; 2] {
+        let (ix, iz) = (i % self.n[0], i / self.n[0]);
+        [
+            self.origin[0] + (ix as f64 + 0.5) * self.h[0],
+            self.origin[1] + (iz as f64 + 0.5) * self.h[1],
+        ]
+    }
+    fn index(&self, p: [f64; 2]) -> Option<usize> {
+        let ix = ((p[0] - self.origin[0]) / self.h[0]).floor();
+        let iz = ((p[1] - self.origin[1]) / self.h[1]).floor();
+        (ix >= 0.0 && iz >= 0.0 && (ix as usize) < self.n[0] && (iz as usize) < self.n[1])
+            .then(|| ix as usize + self.n[0] * iz as usize)
+    }
+    fn len(&self) -> usize {
+        self.n[0] * self.n[1]
+    }
+}
+
+/// The drum a scene describes, if it is a 2D circular drum: axis, radius, omega.
+struct Drum {
+    axis: [f64; 2],
+    radius: f64,
+    omega: f64,
+}
+
+fn drum_of(scene: &Scene) -> Option<Drum> {
+    let g = scene.geometry.as_ref()?;
+    if scene.dim != 2 || !matches!(g.shape, ShapeKind::Drum) {
+        return None;
+    }
+    let rotating = scene
+        .frame
+        .as_ref()
+        .filter(|f| f.kind == crate::scene::FrameKind::Rotating);
+    Some(Drum {
+        axis: [g.center[0], g.center[1]],
+        radius: g.size,
+        omega: rotating.map_or(0.0, |f| std::f64::consts::TAU * f.rev_per_s),
+    })
+}
+
+/// Maps snapshot `v` into the lab (module docs) on `grid`: each lab cell takes the solver cell
+/// that lies under its centre at the snapshot's time (a pull, so no lab cell is left out).
+fn lab_field(v: &Vti, grid: LabGrid, drum: &Drum) -> Option<LabField> {
+    let (c, phihat, u) = (v.array("c")?, v.array("phihat")?, v.array("u")?);
+    let n = grid.len();
+    if c.len() != n || phihat.len() != n || u.len() != 3 * n {
+        return None;
+    }
+    let volume = v.array("volume");
+    let (s, co) = (drum.omega * v.t).sin_cos();
+    let mut out = LabField {
+        c: vec![f64::NAN; n],
+        phihat: vec![f64::NAN; n],
+        v: vec![[f64::NAN; 2]; n],
+    };
+    for j in 0..n {
+        let p = grid.center(j);
+        let q = [p[0] - drum.axis[0], p[1] - drum.axis[1]];
+        // back into the turning grid: Rot(-omega t)
+        let x = [co * q[0] + s * q[1], -s * q[0] + co * q[1]];
+        let Some(i) = grid.index([drum.axis[0] + x[0], drum.axis[1] + x[1]]) else {
+            continue;
+        };
+        if volume.is_some_and(|vol| vol[i] <= 0.0) {
+            continue; // solid
+        }
+        let xi = grid.center(i);
+        let r = [xi[0] - drum.axis[0], xi[1] - drum.axis[1]];
+        // omega e_y x r with x to the right and z up: a positive omega turns x towards z.
+        let w = [
+            u[3 * i] - drum.omega * r[1],
+            u[3 * i + 2] + drum.omega * r[0],
+        ];
+        out.c[j] = c[i];
+        out.phihat[j] = phihat[i];
+        out.v[j] = [co * w[0] - s * w[1], s * w[0] + co * w[1]];
+    }
+    Some(out)
+}
+
+/// Surface height of lab column `ix` (the top of the highest dense cell), if the column holds
+/// grains.
+fn surface(grid: LabGrid, f: &LabField, ix: usize) -> Option<f64> {
+    (0..grid.n[1]).rev().find_map(|iz| {
+        let c = f.c[ix + grid.n[0] * iz];
+        (c >= DENSE).then(|| grid.origin[1] + (iz as f64 + 1.0) * grid.h[1])
+    })
+}
+
+/// Least-squares slope and intercept of the surface over the central 60 % of the drum.
+fn surface_line(grid: LabGrid, f: &LabField, drum: &Drum) -> Option<(f64, f64)> {
+    let pts: Vec<(f64, f64)> = (0..grid.n[0])
+        .filter_map(|ix| {
+            let x = grid.origin[0] + (ix as f64 + 0.5) * grid.h[0] - drum.axis[0];
+            (x.abs() <= 0.6 * drum.radius)
+                .then(|| surface(grid, f, ix).map(|z| (x, z - drum.axis[1])))
+                .flatten()
+        })
+        .collect();
+    if pts.len() < 3 {
+        return None;
+    }
+    let n = pts.len() as f64;
+    let (mx, mz) = pts
+        .iter()
+        .fold((0.0, 0.0), |(a, b), p| (a + p.0 / n, b + p.1 / n));
+    let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let sxz: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - mz)).sum();
+    let b = sxz / sxx;
+    Some((b, mz - b * mx))
+}
+
+fn radial(grid: LabGrid, f: &LabField, about: [f64; 2], width: f64, r_max: f64) -> Vec<RadialBin> {
+    let bins = (r_max / width).ceil().max(1.0) as usize;
+    let mut sums = vec![(0usize, 0.0, 0.0); bins];
+    for i in 0..grid.len() {
+        if !(f.c[i] >= DENSE) {
+            continue;
+        }
+        let x = grid.center(i);
+        let r = ((x[0] - about[0]).powi(2) + (x[1] - about[1]).powi(2)).sqrt();
+        let k = (r / width) as usize;
+        if k < bins {
+            sums[k].0 += 1;
+            sums[k].1 += f.phihat[i];
+            sums[k].2 += f.c[i];
+        }
+    }
+    sums.iter()
+        .enumerate()
+        .map(|(k, &(n, p, c))| RadialBin {
+            r_lo: k as f64 * width,
+            r_hi: (k + 1) as f64 * width,
+            cells: n,
+            phihat: if n > 0 { p / n as f64 } else { f64::NAN },
+            c: if n > 0 { c / n as f64 } else { f64::NAN },
+        })
+        .collect()
+}
+
+/// The drum readouts of a finished run from its snapshots `entries` (time, file in `fields`);
+/// `None` for scenes that are not 2D circular drums or whose snapshots lack c, phihat or u.
+pub fn analyse(
+    scene: &Scene,
+    fields: &Path,
+    entries: &[(f64, String)],
+) -> Result<Option<DrumSummary>> {
+    let Some(drum) = drum_of(scene) else {
+        return Ok(None);
+    };
+    let Some(&(t_last, _)) = entries.last() else {
+        return Ok(None);
+    };
+    let period = if drum.omega != 0.0 {
+        std::f64::consts::TAU / drum.omega.abs()
+    } else {
+        f64::INFINITY
+    };
+    let t0 = if period <= t_last {
+        t_last - period
+    } else {
+        t_last / 2.0
+    };
+    let window: Vec<&(f64, String)> = entries.iter().filter(|(t, _)| *t >= t0).collect();
+    let mut grid = None;
+    let mut fields_in = Vec::with_capacity(window.len());
+    for (_, file) in &window {
+        let v = read_vti(&fields.join(file))?;
+        let g = *grid.get_or_insert_with(|| LabGrid::of(&v));
+        let Some(f) = lab_field(&v, g, &drum) else {
+            return Ok(None);
+        };
+        fields_in.push(f);
+    }
+    let (Some(grid), Some(last)) = (grid, fields_in.last()) else {
+        return Ok(None);
+    };
+    let n = grid.len();
+    // Time averages per lab cell over the snapshots where grains were there.
+    let mut speed = vec![0.0; n];
+    let mut vel = vec![[0.0; 2]; n];
+    let mut dense = vec![0usize; n];
+    for f in &fields_in {
+        for i in 0..n {
+            if f.c[i] >= DENSE {
+                dense[i] += 1;
+                speed[i] += (f.v[i][0].powi(2) + f.v[i][1].powi(2)).sqrt();
+                vel[i][0] += f.v[i][0];
+                vel[i][1] += f.v[i][1];
+            }
+        }
+    }
+    let samples = fields_in.len();
+    let hmax = grid.h[0].max(grid.h[1]);
+    // The circulation centre: dense in every snapshot, at least two cells inside the wall.
+    let centre = (0..n)
+        .filter(|&i| dense[i] == samples)
+        .filter(|&i| {
+            let x = grid.center(i);
+            let r = ((x[0] - drum.axis[0]).powi(2) + (x[1] - drum.axis[1]).powi(2)).sqrt();
+            r <= drum.radius - 2.0 * hmax
+        })
+        .min_by(|&a, &b| speed[a].total_cmp(&speed[b]));
+    let Some(centre) = centre else {
+        return Ok(None);
+    };
+    let centre_xz = grid.center(centre);
+    // Angle of repose: mean over the window of the fitted surface slopes.
+    let slopes: Vec<f64> = fields_in
+        .iter()
+        .filter_map(|f| surface_line(grid, f, &drum).map(|(b, _)| b))
+        .collect();
+    let angle = if slopes.is_empty() {
+        f64::NAN
+    } else {
+        slopes.iter().map(|b| b.atan().to_degrees()).sum::<f64>() / slopes.len() as f64
+    };
+    let thickness = surface_line(grid, last, &drum).map_or(f64::NAN, |(b, a)| {
+        // Down the inward normal from the surface point above the axis; downhill tangent.
+        let norm = (1.0 + b * b).sqrt();
+        let normal = [b / norm, -1.0 / norm];
+        let downhill = if b >= 0.0 {
+            [-1.0 / norm, -b / norm]
+        } else {
+            [1.0 / norm, b / norm]
+        };
+        let start = [drum.axis[0], drum.axis[1] + a];
+        let step = 0.25 * grid.h[0].min(grid.h[1]);
+        let mut seen_downhill = false;
+        let mut depth = 0.0;
+        while depth < 2.0 * drum.radius {
+            let p = [start[0] + depth * normal[0], start[1] + depth * normal[1]];
+            if let Some(i) = grid.index(p) {
+                if dense[i] > 0 {
+                    let m = dense[i] as f64;
+                    let along = (vel[i][0] * downhill[0] + vel[i][1] * downhill[1]) / m;
+                    if along > 0.0 {
+                        seen_downhill = true;
+                    } else if seen_downhill {
+                        return depth;
+                    }
+                }
+            }
+            depth += step;
+        }
+        f64::NAN
+    });
+    let width = (drum.radius / 10.0).max(hmax);
+    Ok(Some(DrumSummary {
+        window: [t0, t_last],
+        samples,
+        circulation_centre: [centre_xz[0] - drum.axis[0], centre_xz[1] - drum.axis[1]],
+        centre_speed: speed[centre] / samples as f64,
+        centre_phihat: last.phihat[centre],
+        angle_of_repose_deg: angle,
+        flowing_layer_thickness: thickness,
+        radial_about_centre: radial(grid, last, centre_xz, width, drum.radius),
+        radial_about_axis: radial(grid, last, drum.axis, width, drum.radius),
+    }))
+}
+
+/// `radial.csv`: both radial profiles, one row per ring.
+pub fn radial_csv(d: &DrumSummary) -> String {
+    let mut s = String::from("about,r_lo,r_hi,cells,phihat,c\n");
+    for (about, bins) in [
+        ("centre", &d.radial_about_centre),
+        ("axis", &d.radial_about_axis),
+    ] {
+        for b in bins {
+            let _ = writeln!(
+                s,
+                "{about},{},{},{},{},{}",
+                crate::output::num(b.r_lo),
+                crate::output::num(b.r_hi),
+                b.cells,
+                crate::output::num(b.phihat),
+                crate::output::num(b.c)
+            );
+        }
+    }
+    s
+}

@@ -1,0 +1,165 @@
+//! The drum readouts (host/src/drum.rs, issue 8) on a synthetic drum whose answers are known by
+//! construction: in the lab, a bed below a surface tilted at 30 deg through the drum axis, a
+//! flowing layer 8 mm thick sliding downhill, and below it grains turning rigidly
+//! (counter-clockwise) about the eye C, which lies at the layer's foot: above C they move
+//! downhill with the layer, below it uphill with the drum. Fines within 12 mm of C. The snapshots are written in the drum's
+//! rotating frame (as the solver writes them) at 1 rev/s over one revolution, so the readouts
+//! must undo the rotation to find C, the 30 deg, the 8 mm and the core.
+
+use sieve::data::Snapshot;
+use sieve::output::vtk::write_vti;
+use std::f64::consts::{PI, TAU};
+
+const ANGLE: f64 = 30.0;
+const LAYER: f64 = 0.008;
+/// The eye: 5 mm right of the axis, one layer thickness below the surface, in the lab.
+const CENTRE: [f64; 2] = [
+    0.005 + LAYER * 0.5, // x_s + LAYER sin 30
+    0.005 * 0.577_350_269_189_625_8 - LAYER * 0.866_025_403_784_438_6, // z_s - LAYER cos 30
+];
+const CORE: f64 = 0.012;
+
+struct Lab {
+    slope: f64,
+}
+
+impl Lab {
+    /// Depth below the surface z = slope x (relative to the axis), along its normal.
+    fn depth(&self, p: [f64; 2]) -> f64 {
+        (self.slope * p[0] - p[1]) / (1.0 + self.slope * self.slope).sqrt()
+    }
+    fn c(&self, p: [f64; 2]) -> f64 {
+        if self.depth(p) > 0.0 {
+            0.6
+        } else {
+            1e-9
+        }
+    }
+    fn phihat(&self, p: [f64; 2]) -> f64 {
+        let r = ((p[0] - CENTRE[0]).powi(2) + (p[1] - CENTRE[1]).powi(2)).sqrt();
+        if r < CORE {
+            1.0
+        } else {
+            0.0
+        }
+    }
+    fn velocity(&self, p: [f64; 2]) -> [f64; 2] {
+        let n = (1.0 + self.slope * self.slope).sqrt();
+        let d = self.depth(p);
+        if d < 0.0 {
+            [0.0, 0.0]
+        } else if d < LAYER {
+            // downhill along the surface (it rises to the right), faster at the top
+            let s = 0.05 * (1.0 - d / LAYER) + 0.01;
+            [-s / n, -s * self.slope / n]
+        } else {
+            // rigid rotation about C, counter-clockwise
+            let w = 2.0;
+            [-w * (p[1] - CENTRE[1]), w * (p[0] - CENTRE[0])]
+        }
+    }
+}
+
+#[test]
+fn readouts_recover_the_constructed_drum() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fields = dir.path();
+    let (scene, _) = sieve::scene::load(
+        "tumbler",
+        &[
+            "grid.cells=[64,64]".into(),
+            "frame.rev_per_s=1.0".into(),
+            "run.t_end=1.0".into(),
+            "run.output_interval=0.1".into(),
+        ],
+    )
+    .expect("scene");
+    let g = scene.geometry.clone().expect("geometry");
+    let (axis, omega) = ([g.center[0], g.center[1]], TAU * 1.0);
+    let lab = Lab {
+        slope: (ANGLE * PI / 180.0).tan(),
+    };
+    let h = scene.spacing();
+    let n = scene.len();
+    let mut entries = Vec::new();
+    for k in 0..=10 {
+        let t = 0.1 * k as f64;
+        let (s, co) = (omega * t).sin_cos();
+        let mut snap = Snapshot {
+            t,
+            c: vec![0.0; n],
+            phi: vec![0.0; n],
+            temp: vec![0.0; n],
+            u: vec![[0.0; 3]; n],
+            p: None,
+            volume: Some(vec![1.0; n]),
+        };
+        for i in 0..n {
+            let (ix, iz) = (i % scene.cells[0], i / scene.cells[0]);
+            let r = [
+                scene.lower[0] + (ix as f64 + 0.5) * h[0] - axis[0],
+                scene.lower[1] + (iz as f64 + 0.5) * h[1] - axis[1],
+            ];
+            if r[0].hypot(r[1]) > g.size {
+                snap.volume.as_mut().unwrap()[i] = 0.0;
+                snap.c[i] = 1e-9;
+                continue;
+            }
+            let p = [co * r[0] - s * r[1], s * r[0] + co * r[1]];
+            let c = lab.c(p);
+            let v = lab.velocity(p);
+            // back into the turning frame: Rot(-omega t) v - omega e_y x r
+            let w = [co * v[0] + s * v[1], -s * v[0] + co * v[1]];
+            snap.c[i] = c;
+            snap.phi[i] = c * lab.phihat(p);
+            snap.u[i] = [w[0] + omega * r[1], 0.0, w[1] - omega * r[0]];
+        }
+        let name = format!("state_{k:04}.vti");
+        write_vti(&fields.join(&name), &scene, &snap).expect("vti");
+        entries.push((t, name));
+    }
+    let d = sieve::drum::analyse(&scene, fields, &entries)
+        .expect("analyse")
+        .expect("a 2D drum with velocities");
+    let cell = h[0];
+    assert_eq!(d.samples, 11, "one revolution of 0.1 s outputs");
+    assert_eq!(d.window, [0.0, 1.0]);
+    let miss = (d.circulation_centre[0] - CENTRE[0]).hypot(d.circulation_centre[1] - CENTRE[1]);
+    assert!(
+        miss <= 1.5 * cell,
+        "centre {:?} vs {CENTRE:?} ({miss} m)",
+        d.circulation_centre
+    );
+    assert!(
+        d.centre_speed < 2.0 * cell,
+        "speed at the centre {}",
+        d.centre_speed
+    );
+    assert_eq!(d.centre_phihat, 1.0);
+    assert!(
+        (d.angle_of_repose_deg - ANGLE).abs() < 1.5,
+        "angle {}",
+        d.angle_of_repose_deg
+    );
+    assert!(
+        (d.flowing_layer_thickness - LAYER).abs() <= 1.5 * cell,
+        "layer {} vs {LAYER} (cell {cell})",
+        d.flowing_layer_thickness
+    );
+    // The core: pure fines in the first ring about C, none beyond the core radius + a cell.
+    let about = &d.radial_about_centre;
+    assert_eq!(about[0].phihat, 1.0, "{about:?}");
+    for b in about
+        .iter()
+        .filter(|b| b.r_lo >= CORE + cell && b.cells > 0)
+    {
+        assert_eq!(b.phihat, 0.0, "ring {b:?}");
+    }
+    // About the drum axis the core is off-centre: the first ring is not pure.
+    assert!(d.radial_about_axis[0].phihat < 1.0);
+    let csv = sieve::drum::radial_csv(&d);
+    assert!(
+        csv.starts_with("about,r_lo,r_hi,cells,phihat,c\ncentre,0,"),
+        "{csv}"
+    );
+}
