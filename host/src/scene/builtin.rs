@@ -37,6 +37,8 @@ builtins!(
     "tumbler",
     "tumbler-75",
     "tumbler-square",
+    "tumbler-3d",
+    "tumbler-3d-walls",
 );
 
 /// The scene `sieve run` runs without a SCENE argument: 2D, segregates visibly (mixes, then
