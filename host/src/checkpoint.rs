@@ -699,6 +699,9 @@ impl Session {
                     c("out")?,
                     c("out_small")?,
                     c("surface")?,
+                    c("stagnant")?,
+                    c("band_phihat")?,
+                    c("core_phihat")?,
                 ];
                 Some(
                     (0..rows)
@@ -712,6 +715,9 @@ impl Session {
                             out: cols[6][k],
                             out_small: cols[7][k],
                             surface: cols[8][k],
+                            stagnant: cols[9][k],
+                            band_phihat: cols[10][k],
+                            core_phihat: cols[11][k],
                         })
                         .collect(),
                 )
@@ -788,7 +794,7 @@ impl Session {
         e.put("series.undershoot_max", col(|r| r.undershoot_max));
         if let Some(rows) = &progress.discharge {
             e.put("discharge.rows", Value::U64(rows.len() as u64));
-            let cols: [DischargeColumn; 9] = [
+            let cols: [DischargeColumn; 12] = [
                 ("t", |r| r.t),
                 ("rate", |r| r.rate),
                 ("rate_small", |r| r.rate_small),
@@ -798,6 +804,9 @@ impl Session {
                 ("out", |r| r.out),
                 ("out_small", |r| r.out_small),
                 ("surface", |r| r.surface),
+                ("stagnant", |r| r.stagnant),
+                ("band_phihat", |r| r.band_phihat),
+                ("core_phihat", |r| r.core_phihat),
             ];
             for (name, f) in cols {
                 e.put(

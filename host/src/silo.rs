@@ -55,7 +55,22 @@ pub struct DischargeRow {
     /// Mean free-surface height over the columns [m] (where c first reaches
     /// [`SURFACE_LEVEL`] from above; 2D/3D; the lower box edge for an empty column).
     pub surface: f64,
+    /// Share of the bed (cells with c >= [`DENSE`]) moving slower than [`STAGNANT`] of the
+    /// outlet speed: the stagnant zones (model.md 7.6); NaN if nothing flows out.
+    pub stagnant: f64,
+    /// Mean phihat of the shear band around the stagnant zones (speed between [`STAGNANT`] and
+    /// [`FLOWING`] of the outlet speed), where the V-shaped layer of fines grows.
+    pub band_phihat: f64,
+    /// Mean phihat of the flowing core (speed at least [`FLOWING`] of the outlet speed).
+    pub core_phihat: f64,
 }
+
+/// Volume fraction of the bed for the zone readouts.
+pub const DENSE: f64 = 0.3;
+/// Speed, relative to the outlet speed, below which the bed counts as stagnant (issue 9: 1 %).
+pub const STAGNANT: f64 = 0.01;
+/// Speed, relative to the outlet speed, from which the bed counts as the flowing core.
+pub const FLOWING: f64 = 0.1;
 
 /// Volume fraction that marks the free surface.
 pub const SURFACE_LEVEL: f64 = 0.2;
@@ -84,6 +99,14 @@ pub struct DischargeSummary {
     pub steady_fines_fraction: f64,
     /// Small-grain fraction of the discharge in the last output interval with outflow.
     pub final_fines_fraction: f64,
+    /// The zones at the end of the steady window ([`DischargeRow`]): the stagnant share of
+    /// the bed, and phihat in the shear band around the stagnant zones (the V-shaped layer of
+    /// fines, model.md 7.6) and in the flowing core.
+    pub stagnant_fraction: f64,
+    /// See [`Self::stagnant_fraction`].
+    pub band_phihat: f64,
+    /// See [`Self::stagnant_fraction`].
+    pub core_phihat: f64,
     /// True if the run stopped because the discharge ended: the box is empty (< 1e-3 of the
     /// grains left), or more than half has left and the rate fell below 1e-3 of its peak
     /// (a flat floor keeps a resting heap beside the orifice: the stagnant corners).
@@ -115,6 +138,7 @@ impl DischargeSeries {
         let sum = |s: [[R; 2]; D]| s.iter().flatten().map(|v| v.to_f64()).sum::<f64>();
         let out = sum(cpl.flow.discharged());
         let out_small = sum(cpl.discharged_small());
+        let [stagnant, band_phihat, core_phihat] = zones(cpl);
         let (rate, rate_small, fines_fraction) = match self.rows.last() {
             Some(p) if t > p.t => {
                 let (dq, ds) = (out - p.out, out_small - p.out_small);
@@ -133,6 +157,9 @@ impl DischargeSeries {
             out,
             out_small,
             surface: surface_height(cpl),
+            stagnant,
+            band_phihat,
+            core_phihat,
         });
     }
 
@@ -178,6 +205,9 @@ impl DischargeSeries {
             .iter()
             .find(|r| r.out >= 0.5 * m0)
             .or(self.rows.last());
+        let zones = end.map_or([f64::NAN; 3], |r| {
+            [r.stagnant, r.band_phihat, r.core_phihat]
+        });
         let (window, rate, frac) = match (start, end) {
             (Some(a), Some(b)) if b.t > a.t => (
                 [a.t, b.t],
@@ -207,18 +237,21 @@ impl DischargeSeries {
                 .find(|r| r.fines_fraction.is_finite())
                 .map_or(f64::NAN, |r| r.fines_fraction),
             emptied: self.emptied,
+            stagnant_fraction: zones[0],
+            band_phihat: zones[1],
+            core_phihat: zones[2],
         }
     }
 
     /// `discharge.csv`.
     pub fn csv(&self) -> String {
         let mut s = String::from(
-            "t,rate,rate_small,fines_fraction,mass,mass_small,out,out_small,surface_height\n",
+            "t,rate,rate_small,fines_fraction,mass,mass_small,out,out_small,surface_height,stagnant_fraction,band_phihat,core_phihat\n",
         );
         for r in &self.rows {
             let _ = writeln!(
                 s,
-                "{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.t,
                 r.rate,
                 r.rate_small,
@@ -227,11 +260,66 @@ impl DischargeSeries {
                 r.mass_small,
                 r.out,
                 r.out_small,
-                r.surface
+                r.surface,
+                r.stagnant,
+                r.band_phihat,
+                r.core_phihat
             );
         }
         s
     }
+}
+
+/// The zones of the bed at this moment (model.md 7.6): the share of the dense bed that is
+/// stagnant, and the mean phihat of the shear band around the stagnant zones and of the
+/// flowing core, by speed relative to the outlet speed (the largest speed of a dense cell
+/// beside an open boundary face). NaN where a zone is empty or nothing flows out.
+fn zones<R: Real, const D: usize, const N: usize>(cpl: &Coupled<'_, R, D, N>) -> [f64; 3] {
+    let f = &cpl.flow;
+    let grid = f.grid();
+    let n = grid.len();
+    let speed = |i: usize| {
+        let u = f.velocity(i);
+        u.iter()
+            .map(|v| v.to_f64() * v.to_f64())
+            .sum::<f64>()
+            .sqrt()
+    };
+    let dense = |i: usize| f.c(i).to_f64() >= DENSE;
+    let mut outlet = 0.0f64;
+    for a in 0..D {
+        for high in [false, true] {
+            grid.for_each_boundary_cell(a, high, |i, _| {
+                if f.open_fraction(a, high, i) > R::ZERO && dense(i) {
+                    outlet = outlet.max(speed(i));
+                }
+            });
+        }
+    }
+    if !(outlet > 0.0) {
+        return [f64::NAN; 3];
+    }
+    let (mut bed, mut still) = (0usize, 0usize);
+    let (mut band, mut core) = ((0.0, 0usize), (0.0, 0usize));
+    for i in (0..n).filter(|&i| dense(i)) {
+        bed += 1;
+        let r = speed(i) / outlet;
+        let phihat = (cpl.seg.phi(i) / cpl.seg.c(i)).to_f64();
+        if r < STAGNANT {
+            still += 1;
+        } else if r < FLOWING {
+            band = (band.0 + phihat, band.1 + 1);
+        } else {
+            core = (core.0 + phihat, core.1 + 1);
+        }
+    }
+    let mean = |(s, k): (f64, usize)| if k > 0 { s / k as f64 } else { f64::NAN };
+    let share = if bed > 0 {
+        still as f64 / bed as f64
+    } else {
+        f64::NAN
+    };
+    [share, mean(band), mean(core)]
 }
 
 /// Mean over the vertical grid lines of the height where `c` first reaches

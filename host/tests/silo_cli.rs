@@ -57,7 +57,7 @@ fn coarse_silo_discharges_with_exact_mass_accounting() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next(),
-        Some("t,rate,rate_small,fines_fraction,mass,mass_small,out,out_small,surface_height")
+        Some("t,rate,rate_small,fines_fraction,mass,mass_small,out,out_small,surface_height,stagnant_fraction,band_phihat,core_phihat")
     );
     let rows: Vec<Vec<f64>> = lines
         .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
