@@ -484,7 +484,48 @@ pub fn collect(opts: &SweepOptions) -> Result<usize> {
     output::write_file_atomically(&opts.out.join("sweep.csv"), csv.as_bytes())?;
     output::write_file_atomically(&opts.out.join("sweep.json"), text.as_bytes())?;
     draw(opts, &rows)?;
+    draw_psi(opts, &rows)?;
     Ok(missing)
+}
+
+/// `sweep_psi.png`: Psi(t) of every run that finished, on one figure, labelled by its swept
+/// values (e.g. a tumbler at five speeds, issue 8). Skipped for a single run or more than 12
+/// (the figure would be unreadable; each run keeps its own psi.png).
+fn draw_psi(opts: &SweepOptions, rows: &Rows) -> Result<()> {
+    let done: Vec<usize> = rows
+        .iter()
+        .filter(|(_, r)| r.is_some())
+        .map(|(i, _)| *i)
+        .collect();
+    if done.len() < 2 || done.len() > 12 {
+        return Ok(());
+    }
+    let mut threshold = 0.05;
+    let mut curves = Vec::with_capacity(done.len());
+    for &i in &done {
+        let dir = run_dir(&opts.out, i);
+        let series = crate::output::redraw::read_series(&dir.join("series.csv"))?;
+        if let Some(t) = rows[i]
+            .1
+            .as_ref()
+            .and_then(|r| r.get("psi_threshold"))
+            .and_then(Value::as_f64)
+        {
+            threshold = t;
+        }
+        let label = combination(&opts.axes, i)
+            .iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join(" ");
+        curves.push((label, series.iter().map(|r| (r.t, r.psi)).collect()));
+    }
+    plot::time_curves(
+        &opts.out.join("sweep_psi.png"),
+        &format!("{}: mixing index of every run", opts.scene),
+        &curves,
+        threshold,
+    )
 }
 
 /// `sweep.png`: the chosen summary value against the first swept key with numeric values,

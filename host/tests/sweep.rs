@@ -103,12 +103,12 @@ fn sweep_runs_every_combination_and_tabulates_them() {
         "{csv}"
     );
     assert!(csv.lines().nth(4).unwrap().contains(&hash(&rows[3])));
-    assert!(
-        std::fs::metadata(d.path().join("sw/sweep.png"))
-            .unwrap()
-            .len()
-            > 1000
-    );
+    for png in ["sw/sweep.png", "sw/sweep_psi.png"] {
+        assert!(
+            std::fs::metadata(d.path().join(png)).unwrap().len() > 1000,
+            "{png}"
+        );
+    }
 }
 
 #[test]
