@@ -63,9 +63,11 @@
 
 pub mod cg;
 pub mod coupled;
+mod pressure;
 mod step;
 mod walls;
 
+pub use pressure::PressureMode;
 pub use walls::CutWall;
 
 use crate::boundary::{check_periodic_pairs, Boundary, Openings};
@@ -226,6 +228,10 @@ pub struct FlowConfig<R, const D: usize> {
     /// frame turning with a drum, with rotating gravity, centrifugal and Coriolis forces
     /// ([`crate::frame`]). `gravity` above is always the lab's.
     pub frame: Frame<R, D>,
+    /// How stage 2 advances the pressure (model.md 5.3): explicit forward-backward (default,
+    /// acoustic time-step limit) or implicit (one SPD solve per step, no acoustic limit;
+    /// [`PressureMode`]).
+    pub pressure: PressureMode,
 }
 
 impl<R: Real, const D: usize> FlowConfig<R, D> {
@@ -247,6 +253,7 @@ impl<R: Real, const D: usize> FlowConfig<R, D> {
             cg_max_iterations: 2000,
             free_surface_push: false,
             frame: Frame::Lab,
+            pressure: PressureMode::Explicit,
         }
     }
 }
@@ -365,6 +372,11 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     ap: [R; N],
     pre: [R; N],
     line: [R; N],
+    /// Pressure increment of the implicit pressure solve ([`PressureMode::Implicit`]); scratch
+    /// within a step (each solve starts from 0, so a restored checkpoint keeps its bits).
+    dp: [R; N],
+    /// Iterations of the last implicit pressure solve (0 in explicit mode).
+    last_pressure_cg: u32,
     /// Gravity of the current step as seen in the frame (the lab's in the lab frame).
     g_now: [R; D],
     prepared: bool,
@@ -407,6 +419,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 cg_max_iterations: 1,
                 free_surface_push: false,
                 frame: Frame::Lab,
+                pressure: PressureMode::Explicit,
             },
             c: z,
             m: zd,
@@ -434,6 +447,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             ap: z,
             pre: z,
             line: z,
+            dp: z,
+            last_pressure_cg: 0,
             g_now: [R::ZERO; D],
             prepared: false,
             time: R::ZERO,
@@ -631,7 +646,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let mut rate = R::ZERO;
         for i in 0..n {
             let (c, rcp, rlp) = (self.c_eff(i), self.c_rcp[i], self.c_rlp[i]);
-            let a_s = closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt();
+            // Implicit pressure: no acoustic limit (model.md 5.4).
+            let a_s = if self.cfg.pressure == PressureMode::Implicit {
+                R::ZERO
+            } else {
+                closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt()
+            };
             let mut r = R::ZERO;
             for a in 0..D {
                 r += (self.u[a][i].abs() + a_s) / h[a] + (body[a] / h[a]).sqrt();
@@ -866,6 +886,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Iterations of the last step's solves (velocity components..., temperature last).
     pub fn last_cg_iterations(&self) -> [u32; 4] {
         self.last_cg
+    }
+    /// Iterations of the last step's implicit pressure solve (0 in explicit mode; they are
+    /// also counted in [`Self::cg_iterations`]).
+    pub fn last_pressure_iterations(&self) -> u32 {
+        self.last_pressure_cg
     }
 
     /// Visits the per-cell arrays that carry information from one step to the next, over the
