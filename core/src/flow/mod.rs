@@ -23,7 +23,10 @@
 //!    With [`FlowConfig::free_surface_push`] the share `(1 - w)` of a face also pushes each
 //!    of its cells outwards with its own pressure `p / h` (`p = 0` at a free-surface face, the
 //!    finite-volume form), so a vertical free face releases its pressure and a block can
-//!    collapse. Then **wall contact**: a wall cell that cannot carry its weight by pressure
+//!    collapse. With [`PressureMode::Implicit`] ([`FlowConfig::pressure`]) the pressure is
+//!    instead the end-of-step one of a single linearised SPD solve before the transport, and
+//!    the transport's face velocities use it too (module `pressure`, model.md 5.3); no
+//!    acoustic time-step limit. Then **wall contact**: a wall cell that cannot carry its weight by pressure
 //!    (loose, `c <= c_rlp`, or under a nearly empty neighbour) loses the momentum pointing into
 //!    the wall, with Coulomb friction `tan(phi_w)` on that impulse (see `wall_contact`).
 //! 3. **Viscosity** (implicit, one SPD system per velocity component, since the asymmetric
@@ -50,6 +53,8 @@
 //!   this limit (the donor limiter guarantees it), but accuracy does. The wave speed grows
 //!   like `g(c)` near `c_rcp`; the limiter caps `g <= 1/margin` (1000 by default), so the step
 //!   never collapses to zero. For the glass beads at c = 0.6, `a_s = 7.9 m/s`.
+//! - With [`PressureMode::Implicit`] the acoustic term `a_s / h_a` drops out of the Courant
+//!   sum; the free-fall term and the fastest (often dilute) grains hold the step.
 //! - Viscosity, conduction and dissipation are implicit: no limit (they diverge as `T -> 0`
 //!   and as `c -> c_rcp`, which is why they must be).
 //! - Regularisation: transport coefficients use `T_eff = max(T, T_min)`
@@ -372,9 +377,6 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     ap: [R; N],
     pre: [R; N],
     line: [R; N],
-    /// Pressure increment of the implicit pressure solve ([`PressureMode::Implicit`]); scratch
-    /// within a step (each solve starts from 0, so a restored checkpoint keeps its bits).
-    dp: [R; N],
     /// Iterations of the last implicit pressure solve (0 in explicit mode).
     last_pressure_cg: u32,
     /// Gravity of the current step as seen in the frame (the lab's in the lab frame).
@@ -447,7 +449,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             ap: z,
             pre: z,
             line: z,
-            dp: z,
             last_pressure_cg: 0,
             g_now: [R::ZERO; D],
             prepared: false,

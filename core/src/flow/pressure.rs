@@ -28,7 +28,8 @@
 //!   forces). The clamp at 0 is where the linearisation would put tension into an expanding
 //!   loose cell, which the closure cannot produce.
 //!
-//! The solve starts from `dp = 0` every step, so a restored checkpoint keeps its bits.
+//! The solve starts from `dp = 0` every step, so a restored checkpoint keeps its bits; `dp`
+//! lives in the face-flux array of axis 0, which the transport rewrites before reading.
 
 use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
 use super::step::open_low;
@@ -76,9 +77,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         for hh in h.iter().take(D) {
             hmin = hmin.min(*hh);
         }
-        // A cell whose sound crosses less than 1e-6 of a cell per step is acoustically
-        // rigid-free anyway; the floor keeps the diagonal finite where `a_s = 0` (empty or
-        // cold loose cells, whose pressure does not depend on c).
+        // The floor keeps the diagonal finite where `a_s = 0` (empty or cold loose cells,
+        // whose pressure does not depend on c); a cell whose sound crosses less than 1e-6 of
+        // a cell per step has no acoustic coupling worth solving for.
         let a2_floor = R::from_f64(1e-12) * (hmin / dt) * (hmin / dt);
         let mut vnorm = R::ZERO;
         for i in 0..n {
@@ -92,7 +93,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             );
             self.diag[i] = v / a2.max(a2_floor);
             self.rhs[i] = R::ZERO;
-            self.dp[i] = R::ZERO;
             vnorm += v * v;
         }
         for a in 0..D {
@@ -147,11 +147,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             periodic: self.periodic(),
             kf: &self.kf,
         };
+        // The increment lives in `flux[0]`: the transport's first pass rewrites every entry
+        // of it before reading any, so it is free here (and the flow keeps its size per cell).
+        let dp = &mut self.flux[0];
+        dp[..n].fill(R::ZERO);
         let res = cg::solve(
             &st,
             &self.diag,
             &self.rhs,
-            &mut self.dp,
+            dp,
             Scratch {
                 r: &mut self.r,
                 p: &mut self.pv,
@@ -172,7 +176,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.last_pressure_cg = res.iterations;
         self.cg_iterations += u64::from(res.iterations);
         for i in 0..n {
-            self.p[i] = (self.p[i] + self.dp[i]).max(R::ZERO);
+            self.p[i] = (self.p[i] + self.flux[0][i]).max(R::ZERO);
         }
     }
 
