@@ -302,6 +302,8 @@ pub struct FlowSummary {
     pub equations: String,
     /// "off", "r0" or "half".
     pub back_coupling: String,
+    /// How the flow advanced its pressure: "explicit" or "implicit" (`flow.pressure`).
+    pub pressure: String,
     /// Flow steps to the steady state (frozen-flow; null when coupled).
     pub flow_steps_to_steady: Option<u64>,
     /// Flow steps in total.

@@ -17,11 +17,13 @@ use crate::data::{
 };
 use crate::error::{Error, Result};
 use crate::scene::validate::{FlowModel, WallSlip};
-use crate::scene::{solver_errors, BackCoupling, Equations, Fields, FrameKind, Scene, SpinUp};
+use crate::scene::{
+    solver_errors, BackCoupling, Equations, Fields, FrameKind, PressureKind, Scene, SpinUp,
+};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{
-    CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, Slip,
+    CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, PressureMode, Slip,
 };
 use sieve_core::frame::{Frame, Rotation};
 use sieve_core::{Boundary, Grid, Real, Segregation};
@@ -83,6 +85,10 @@ fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<
     cfg.t_min = R::from_f64(fm.t_min);
     // Only faded faces (next to a nearly empty cell) feel it: no effect on a filled box.
     cfg.free_surface_push = true;
+    cfg.pressure = match fm.pressure {
+        PressureKind::Explicit => PressureMode::Explicit,
+        PressureKind::Implicit => PressureMode::Implicit,
+    };
     // A rotating frame (docs/frames.md): the grid turns with the container; validation
     // allows it with a coupled flow only and checks the centre, axis and rate.
     if let Some(fr) = scene
@@ -205,6 +211,7 @@ fn summary_of<R: Real, const D: usize, const N: usize>(
     FlowSummary {
         equations: fm.equations.name().into(),
         back_coupling: fm.back_coupling.name().into(),
+        pressure: flow.config().pressure.name().into(),
         flow_steps_to_steady: to_steady,
         flow_steps: flow.steps(),
         cg_iterations: flow.cg_iterations(),

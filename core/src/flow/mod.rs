@@ -23,7 +23,10 @@
 //!    With [`FlowConfig::free_surface_push`] the share `(1 - w)` of a face also pushes each
 //!    of its cells outwards with its own pressure `p / h` (`p = 0` at a free-surface face, the
 //!    finite-volume form), so a vertical free face releases its pressure and a block can
-//!    collapse. Then **wall contact**: a wall cell that cannot carry its weight by pressure
+//!    collapse. With [`PressureMode::Implicit`] ([`FlowConfig::pressure`]) the pressure is
+//!    instead the end-of-step one of a single linearised SPD solve before the transport, and
+//!    the transport's face velocities use it too (module `pressure`, model.md 5.3); no
+//!    acoustic time-step limit. Then **wall contact**: a wall cell that cannot carry its weight by pressure
 //!    (loose, `c <= c_rlp`, or under a nearly empty neighbour) loses the momentum pointing into
 //!    the wall, with Coulomb friction `tan(phi_w)` on that impulse (see `wall_contact`).
 //! 3. **Viscosity** (implicit, one SPD system per velocity component, since the asymmetric
@@ -50,6 +53,8 @@
 //!   this limit (the donor limiter guarantees it), but accuracy does. The wave speed grows
 //!   like `g(c)` near `c_rcp`; the limiter caps `g <= 1/margin` (1000 by default), so the step
 //!   never collapses to zero. For the glass beads at c = 0.6, `a_s = 7.9 m/s`.
+//! - With [`PressureMode::Implicit`] the acoustic term `a_s / h_a` drops out of the Courant
+//!   sum; the free-fall term and the fastest (often dilute) grains hold the step.
 //! - Viscosity, conduction and dissipation are implicit: no limit (they diverge as `T -> 0`
 //!   and as `c -> c_rcp`, which is why they must be).
 //! - Regularisation: transport coefficients use `T_eff = max(T, T_min)`
@@ -63,9 +68,11 @@
 
 pub mod cg;
 pub mod coupled;
+mod pressure;
 mod step;
 mod walls;
 
+pub use pressure::PressureMode;
 pub use walls::CutWall;
 
 use crate::boundary::{check_periodic_pairs, Boundary, Openings};
@@ -226,6 +233,10 @@ pub struct FlowConfig<R, const D: usize> {
     /// frame turning with a drum, with rotating gravity, centrifugal and Coriolis forces
     /// ([`crate::frame`]). `gravity` above is always the lab's.
     pub frame: Frame<R, D>,
+    /// How stage 2 advances the pressure (model.md 5.3): explicit forward-backward (default,
+    /// acoustic time-step limit) or implicit (one SPD solve per step, no acoustic limit;
+    /// [`PressureMode`]).
+    pub pressure: PressureMode,
 }
 
 impl<R: Real, const D: usize> FlowConfig<R, D> {
@@ -247,6 +258,7 @@ impl<R: Real, const D: usize> FlowConfig<R, D> {
             cg_max_iterations: 2000,
             free_surface_push: false,
             frame: Frame::Lab,
+            pressure: PressureMode::Explicit,
         }
     }
 }
@@ -365,6 +377,8 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     ap: [R; N],
     pre: [R; N],
     line: [R; N],
+    /// Iterations of the last implicit pressure solve (0 in explicit mode).
+    last_pressure_cg: u32,
     /// Gravity of the current step as seen in the frame (the lab's in the lab frame).
     g_now: [R; D],
     prepared: bool,
@@ -407,6 +421,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 cg_max_iterations: 1,
                 free_surface_push: false,
                 frame: Frame::Lab,
+                pressure: PressureMode::Explicit,
             },
             c: z,
             m: zd,
@@ -434,6 +449,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             ap: z,
             pre: z,
             line: z,
+            last_pressure_cg: 0,
             g_now: [R::ZERO; D],
             prepared: false,
             time: R::ZERO,
@@ -631,7 +647,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let mut rate = R::ZERO;
         for i in 0..n {
             let (c, rcp, rlp) = (self.c_eff(i), self.c_rcp[i], self.c_rlp[i]);
-            let a_s = closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt();
+            // Implicit pressure: no acoustic limit (model.md 5.4).
+            let a_s = if self.cfg.pressure == PressureMode::Implicit {
+                R::ZERO
+            } else {
+                closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt()
+            };
             let mut r = R::ZERO;
             for a in 0..D {
                 r += (self.u[a][i].abs() + a_s) / h[a] + (body[a] / h[a]).sqrt();
@@ -866,6 +887,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Iterations of the last step's solves (velocity components..., temperature last).
     pub fn last_cg_iterations(&self) -> [u32; 4] {
         self.last_cg
+    }
+    /// Iterations of the last step's implicit pressure solve (0 in explicit mode; they are
+    /// also counted in [`Self::cg_iterations`]).
+    pub fn last_pressure_iterations(&self) -> u32 {
+        self.last_pressure_cg
     }
 
     /// Visits the per-cell arrays that carry information from one step to the next, over the

@@ -1,7 +1,7 @@
 //! One time step of the flow (the scheme of the module docs of [`super`]).
 
 use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
-use super::{Flow, FlowSide, OutletPressure, Slip};
+use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip};
 use crate::boundary::Boundary;
 use crate::closure;
 use crate::frame::{turn_by, Frame};
@@ -28,8 +28,16 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             self.u_prev[a][..n].copy_from_slice(&self.u[a][..n]);
         }
         self.g_now = self.cfg.frame.gravity(self.cfg.gravity, self.time);
+        let implicit = self.cfg.pressure == PressureMode::Implicit;
+        if implicit {
+            // p^{n+1} = p^n + dp from one SPD solve; the transport's face velocities and the
+            // momentum update below both use it (model.md 5.3, implicit pressure).
+            self.implicit_pressure(dt);
+        }
         self.transport(dt);
-        self.pressures(); // new c, old T: forward-backward acoustics
+        if !implicit {
+            self.pressures(); // new c, old T: forward-backward acoustics
+        }
         self.pressure_and_gravity(dt);
         self.coefficients();
         self.velocity_from_momentum();
@@ -41,7 +49,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.steps += 1;
     }
 
-    fn periodic(&self) -> [bool; D] {
+    pub(super) fn periodic(&self) -> [bool; D] {
         let mut p = [false; D];
         for a in 0..D {
             p[a] = self.bc[a][0].kind == Boundary::Periodic;
@@ -51,24 +59,33 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
     /// Mass flux through the low boundary face of `first` along `a` (positive = into the cell).
     /// An opening in a wall is an outflow face scaled by its open fraction.
-    fn low_flux(&self, a: usize, first: usize, side: &FlowSide<R, D>) -> R {
+    pub(super) fn low_flux(&self, a: usize, first: usize, side: &FlowSide<R, D>, dt: R) -> R {
         match side.kind {
             Boundary::Inflow => upwind(side.c, self.c[first], side.velocity[a]),
             Boundary::Outflow => upwind(R::ZERO, self.c[first], self.u[a][first].min(R::ZERO)),
             Boundary::Wall if !side.openings.is_empty() => {
                 let open = self.open_fraction(a, false, first);
-                open * upwind(R::ZERO, self.c[first], self.u[a][first].min(R::ZERO))
+                let v = self.outlet_velocity(a, first, false, side, dt).0;
+                open * upwind(R::ZERO, self.c[first], v.min(R::ZERO))
             }
             _ => R::ZERO,
         }
     }
 
     /// Mass flux through the high boundary face of `last` along `a` (positive = out of the cell).
-    fn high_flux(&self, a: usize, last: usize, first: usize, side: &FlowSide<R, D>) -> R {
+    pub(super) fn high_flux(
+        &self,
+        a: usize,
+        last: usize,
+        first: usize,
+        side: &FlowSide<R, D>,
+        dt: R,
+    ) -> R {
         match side.kind {
             Boundary::Wall if !side.openings.is_empty() => {
                 let open = self.open_fraction(a, true, last);
-                open * upwind(self.c[last], R::ZERO, self.u[a][last].max(R::ZERO))
+                let v = self.outlet_velocity(a, last, true, side, dt).0;
+                open * upwind(self.c[last], R::ZERO, v.max(R::ZERO))
             }
             Boundary::Wall => R::ZERO,
             Boundary::Periodic => upwind(
@@ -95,10 +112,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let vac = self.cfg.vacuum;
         // Compact parts only: the direct gravity of faded faces is not a pressure mode, and
         // counting it would let the correction hold an unsupported surface cell in the air.
-        self.cell_forces(false);
+        // (The implicit face velocity needs no cell accelerations.)
+        if self.cfg.pressure == PressureMode::Explicit {
+            self.cell_forces(false);
+        }
         // With an embedded wall every face flux is scaled by its open aperture (0 inside a
         // merge group) and the limiters and the update work in content units (`walls`).
         let emb = self.walls.on;
+        let implicit = self.cfg.pressure == PressureMode::Implicit;
         // Pass 1: face fluxes (stored at the left cell), inflow and outflow of each cell.
         self.inflow[..n].fill(R::ZERO);
         self.diag[..n].fill(R::ZERO);
@@ -123,7 +144,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 let mut f = if hi.kind == Boundary::Periodic {
                     self.interior_flux(a, last, first, dt, cap, vac)
                 } else {
-                    self.high_flux(a, last, first, &hi)
+                    self.high_flux(a, last, first, &hi, dt)
                 };
                 if emb {
                     f *= if hi.kind == Boundary::Periodic {
@@ -143,9 +164,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             });
             if open_low(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
-                    let mut f = self.low_flux(a, first, &lo);
+                    let mut f = self.low_flux(a, first, &lo, dt);
                     if emb {
                         f *= self.walls.ap_lo[a][first];
+                    }
+                    if implicit {
+                        // kept for pass 2: the implicit outlet velocity depends on the cell's
+                        // c, which pass 2 changes, and the limiter factors are for this flux
+                        self.flux_low[a][first] = f;
                     }
                     if f > R::ZERO {
                         self.inflow[first] += lam * f;
@@ -214,10 +240,13 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             });
             if open_low(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
-                    let mut f = self.low_flux(a, first, &lo);
-                    if emb {
-                        f *= self.walls.ap_lo[a][first];
-                    }
+                    let f = if implicit {
+                        self.flux_low[a][first]
+                    } else if emb {
+                        self.low_flux(a, first, &lo, dt) * self.walls.ap_lo[a][first]
+                    } else {
+                        self.low_flux(a, first, &lo, dt)
+                    };
                     let mut df = R::ZERO;
                     if f > R::ZERO {
                         let f = f * self.inflow[first];
@@ -249,6 +278,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     #[inline(always)]
     fn interior_flux(&self, a: usize, l: usize, r: usize, dt: R, cap: R, vac: R) -> R {
         let (cl, cr) = (self.c[l], self.c[r]);
+        if self.cfg.pressure == PressureMode::Implicit {
+            // The end-of-step face velocity `u_f* + dt F_f(p^{n+1}) / c_f` (`p` holds the
+            // implicit p^{n+1}): the face velocity the pressure solve predicted.
+            let (ff, _) = self.implicit_face_force(a, l, r);
+            return upwind(cl, cr, self.implicit_face_velocity(a, l, r, dt, ff, vac));
+        }
         let (ff, _) = self.face_force(a, self.face_body(a, l), cl, self.p[l], cr, self.p[r]);
         let cf = (cl + cr) * R::HALF;
         let acc = |i: usize| {
@@ -317,7 +352,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// next to a nearly empty cell, so such a cell is not blown away by a dense neighbour).
     /// Returns `(F, w)`.
     #[inline(always)]
-    fn face_force(&self, a: usize, b: R, cl: R, pl: R, cr: R, pr: R) -> (R, R) {
+    pub(super) fn face_force(&self, a: usize, b: R, cl: R, pl: R, cr: R, pr: R) -> (R, R) {
         let w = (cl.min(cr) / self.cfg.surface).min(R::ONE);
         let h = self.grid.spacing()[a];
         (w * ((pl - pr) / h + b * (cl + cr) * R::HALF), w)
@@ -328,7 +363,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// acceleration at the face (a potential force, so it belongs in the compact face force
     /// and a bed in relative equilibrium is in exact discrete balance).
     #[inline(always)]
-    fn face_body(&self, a: usize, l: usize) -> R {
+    pub(super) fn face_body(&self, a: usize, l: usize) -> R {
         match &self.cfg.frame {
             Frame::Lab => self.g_now[a],
             Frame::Rotating(rot) => {
@@ -341,7 +376,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
     /// Body acceleration along `a` at the low box face of a line (see [`Self::face_body`]).
     #[inline(always)]
-    fn low_face_body(&self, a: usize) -> R {
+    pub(super) fn low_face_body(&self, a: usize) -> R {
         match &self.cfg.frame {
             Frame::Lab => self.g_now[a],
             Frame::Rotating(rot) => self.g_now[a] + rot.centrifugal(a, self.grid.origin()[a]),
@@ -972,7 +1007,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
 /// Whether the low side of an axis has boundary faces that move mass (inflow, outflow, or a
 /// wall with openings).
-fn open_low<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
+pub(super) fn open_low<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
     matches!(side.kind, Boundary::Inflow | Boundary::Outflow)
         || (side.kind == Boundary::Wall && !side.openings.is_empty())
 }

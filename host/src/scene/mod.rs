@@ -367,6 +367,20 @@ pub struct FlowSpec {
     /// "auto" (default): spin the flow up on 4 columns and replicate when the scene is
     /// periodic in x and its initial data do not depend on x; "full": always the whole grid.
     pub spin_up: Option<SpinUp>,
+    /// "explicit" (default): forward-backward pressure, acoustic time-step limit;
+    /// "implicit": one pressure solve per step, no acoustic limit (docs/implicit-pressure.md).
+    pub pressure: Option<PressureKind>,
+}
+
+/// How the flow advances its pressure (model.md 5.3, 5.4).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PressureKind {
+    /// Forward-backward, held to `a_s dt / h < 1`.
+    #[default]
+    Explicit,
+    /// Linearised implicit pressure solve per step.
+    Implicit,
 }
 
 /// Where the frozen flow is spun up.

@@ -329,5 +329,6 @@ pub(super) fn check(
         t_min: t_min?,
         courant,
         spin_up: fs.spin_up.unwrap_or_default(),
+        pressure: fs.pressure.unwrap_or_default(),
     })
 }

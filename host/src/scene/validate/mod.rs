@@ -25,7 +25,7 @@ mod run;
 pub use problems::Problems;
 
 use super::expr::Expr;
-use super::{BackCoupling, Equations, ExactKind, Precision, SceneFile, SpinUp};
+use super::{BackCoupling, Equations, ExactKind, Precision, PressureKind, SceneFile, SpinUp};
 use crate::error::{Error, Result};
 use sieve_core::{Boundary, Phase, Scheme};
 
@@ -142,6 +142,8 @@ pub struct FlowModel {
     pub courant: f64,
     /// Spin-up policy.
     pub spin_up: SpinUp,
+    /// Pressure mode of the flow step.
+    pub pressure: PressureKind,
 }
 
 /// A validated scene: every number finite and in range, every expression compiled.

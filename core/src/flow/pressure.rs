@@ -1,0 +1,308 @@
+//! Implicit pressure of the flow (model.md 5.3 stage 2, implicit mode; 5.4).
+//!
+//! # Why
+//! The explicit forward-backward pressure is stable only for `a_s dt / h < 1`, and the sound
+//! speed of a dense granular bed (`a_s ~ 10 m/s`, growing like `g(c)` towards `c_rcp`) is some
+//! 300 times its flow speed in a slow drum. The implicit pressure takes the acoustic coupling
+//! `c -> p -> u -> c` within the step, so only the advective and free-fall terms of the
+//! Courant rule remain ([`super::Flow::stable_dt`]).
+//!
+//! # The scheme (one linear solve per step, before the transport)
+//! - The pressure is linearised about the state at the start of the step,
+//!   `p^{n+1} = p^n + a_s^2 (c^{n+1} - c^n)` with `a_s^2 = dp/dc` at fixed `T`
+//!   ([`crate::closure::sound_speed_squared`], at `max(a_s^2, a_floor^2)`).
+//! - Each face velocity is the end-of-step one, `u_f = (u_L + u_R)/2 + dt F_f(p^{n+1}) / c_f`,
+//!   with the *same* compact face force `F_f` as the explicit step (hydrostatic wall ghosts,
+//!   fade weight `w`, the frame's body force), so a bed in discrete lithostatic balance has
+//!   `u_f = 0` and no increment at all. The mass flux is `c_up u_f`.
+//! - Eliminating `c^{n+1}` and `u_f` gives, per cell (content units, open volume `V`),
+//!   `V dp / a_s^2 + (dt/h)^2 sum_f alpha_f w_f (c_up/c_f)_f (dp_i - dp_j) = -(dt/h) sum_f
+//!   alpha_f F_f^0` with `F^0` the face fluxes at `p^n`: symmetric positive definite (the
+//!   upwind side of each face is lagged from `F^0`), solved by [`super::cg`]. An outlet opening
+//!   with ghost pressure 0 moves grains out with the cell's velocity plus `dt` times the cell's
+//!   half of the outlet face force over `c` (what the momentum update gives the cell), which
+//!   adds `(dt/h)^2 alpha w / 2` to its cell's diagonal (Dirichlet `dp = 0` outside).
+//! - `p = max(p^n + dp, 0)` then drives both the transport's face velocities (stage 1, whose
+//!   conservative limiters act on those final fluxes: mass to round-off and
+//!   `0 <= c <= c_max` by construction) and the momentum update (stage 2, the same face
+//!   forces). The clamp at 0 is where the linearisation would put tension into an expanding
+//!   loose cell, which the closure cannot produce.
+//!
+//! The solve starts from `dp = 0` every step, so a restored checkpoint keeps its bits; `dp`
+//! lives in the face-flux array of axis 0, which the transport rewrites before reading.
+
+use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
+use super::step::open_low;
+use super::{Flow, FlowSide, OutletPressure};
+use crate::boundary::Boundary;
+use crate::closure;
+use crate::real::Real;
+use crate::segregation::flux::transport as upwind;
+
+/// How stage 2 of the flow step advances the pressure (model.md 5.3, 5.4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum PressureMode {
+    /// Forward-backward: `p` from the new `c` after the transport. Cheap per step, but held
+    /// to the acoustic limit `a_s dt / h < 1`.
+    #[default]
+    Explicit,
+    /// One linearised SPD solve per step for the pressure increment (module docs): no
+    /// acoustic limit; the step is held by the advective and free-fall terms only.
+    Implicit,
+}
+
+impl PressureMode {
+    /// The scene-file name: `"explicit"` or `"implicit"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            PressureMode::Explicit => "explicit",
+            PressureMode::Implicit => "implicit",
+        }
+    }
+}
+
+impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
+    /// Sets `p` to the implicit `p^{n+1}` of the step of length `dt` (module docs).
+    pub(super) fn implicit_pressure(&mut self, dt: R) {
+        let n = self.grid.len();
+        let h = self.grid.spacing();
+        let grid = self.grid;
+        let vac = self.cfg.vacuum;
+        let emb = self.walls.on;
+        let mat = self.cfg.material;
+        // p^n from the current c and T (the packing limits may have changed since the last
+        // step: back-coupling).
+        self.pressures();
+        let mut hmin = h[0];
+        for hh in h.iter().take(D) {
+            hmin = hmin.min(*hh);
+        }
+        // The floor keeps the diagonal finite where `a_s = 0` (empty or cold loose cells,
+        // whose pressure does not depend on c); a cell whose sound crosses less than 1e-6 of
+        // a cell per step has no acoustic coupling worth solving for.
+        let a2_floor = R::from_f64(1e-12) * (hmin / dt) * (hmin / dt);
+        let mut vnorm = R::ZERO;
+        for i in 0..n {
+            let v = self.mass_factor(i);
+            let a2 = closure::sound_speed_squared(
+                &mat,
+                self.c_eff(i),
+                self.t[i],
+                self.c_rcp[i],
+                self.c_rlp[i],
+            );
+            self.diag[i] = v / a2.max(a2_floor);
+            self.rhs[i] = R::ZERO;
+            vnorm += v * v;
+        }
+        for a in 0..D {
+            let lam = dt / h[a];
+            let kk = lam * lam;
+            self.kf[a][..n].fill(R::ZERO);
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    self.pressure_face(a, l, l + s, dt, vac);
+                }
+            }
+            let (lo, hi) = (self.bc[a][0], self.bc[a][1]);
+            grid.for_each_boundary_cell(a, true, |last, first| {
+                if hi.kind == Boundary::Periodic {
+                    return self.pressure_face(a, last, first, dt, vac);
+                }
+                let ap = if emb {
+                    self.walls.ap_hi[a][last]
+                } else {
+                    R::ONE
+                };
+                let f = ap * self.high_flux(a, last, first, &hi, dt);
+                let k = ap * self.outlet_velocity(a, last, true, &hi, dt).1;
+                self.rhs[last] -= lam * f;
+                self.diag[last] += kk * k;
+            });
+            if open_low(&lo) {
+                grid.for_each_boundary_cell(a, false, |first, _| {
+                    let ap = if emb {
+                        self.walls.ap_lo[a][first]
+                    } else {
+                        R::ONE
+                    };
+                    let f = ap * self.low_flux(a, first, &lo, dt);
+                    let k = ap * self.outlet_velocity(a, first, false, &lo, dt).1;
+                    self.rhs[first] += lam * f;
+                    self.diag[first] += kk * k;
+                });
+            }
+            for l in 0..n {
+                self.kf[a][l] *= kk;
+            }
+        }
+        // The residual is a content change per cell: stop at 1e-3 of a full cell's content
+        // times the relative tolerance when the right-hand side is smaller (near rest).
+        let floor = R::from_f64(1e-3) * vnorm.sqrt();
+        let st = Stencil {
+            grid: &self.grid,
+            periodic: self.periodic(),
+            kf: &self.kf,
+        };
+        // The increment lives in `flux[0]`: the transport's first pass rewrites every entry
+        // of it before reading any, so it is free here (and the flow keeps its size per cell).
+        let dp = &mut self.flux[0];
+        dp[..n].fill(R::ZERO);
+        let res = cg::solve(
+            &st,
+            &self.diag,
+            &self.rhs,
+            dp,
+            Scratch {
+                r: &mut self.r,
+                p: &mut self.pv,
+                ap: &mut self.ap,
+                pre: &mut self.pre,
+                line: &mut self.line,
+                // `inflow` is free until the transport's first pass.
+                tmp: &mut self.inflow,
+                coarse: self.coarse.as_flattened_mut(),
+            },
+            Stop {
+                relative: self.cfg.cg_tolerance,
+                floor,
+                max_iterations: self.cfg.cg_max_iterations,
+                preconditioner: Preconditioner::Auto,
+            },
+        );
+        self.last_pressure_cg = res.iterations;
+        self.cg_iterations += u64::from(res.iterations);
+        for i in 0..n {
+            self.p[i] = (self.p[i] + self.flux[0][i]).max(R::ZERO);
+        }
+    }
+
+    /// One interior (or wrap) face `(l, r)` along `a` of the pressure system: its coefficient
+    /// `alpha w c_up / c_f` into `kf[a][l]` (times `(dt/h)^2` later) and `-(dt/h) alpha F^0`
+    /// into the right-hand sides of its cells.
+    #[inline(always)]
+    fn pressure_face(&mut self, a: usize, l: usize, r: usize, dt: R, vac: R) {
+        let (cl, cr) = (self.c[l], self.c[r]);
+        let cf = (cl + cr) * R::HALF;
+        let (ff, w) = self.implicit_face_force(a, l, r);
+        let uf = self.implicit_face_velocity(a, l, r, dt, ff, vac);
+        let ap = if self.walls.on {
+            self.transport_aperture(a, l, r)
+        } else {
+            R::ONE
+        };
+        let k = if cf > vac {
+            // the lagged upwind side (the mean at a face at rest)
+            let cup = if uf > R::ZERO {
+                cl
+            } else if uf < R::ZERO {
+                cr
+            } else {
+                cf
+            };
+            w * cup / cf
+        } else {
+            R::ZERO
+        };
+        let f = ap * upwind(cl, cr, uf);
+        let lam = dt / self.grid.spacing()[a];
+        self.kf[a][l] = ap * k;
+        self.rhs[l] -= lam * f;
+        self.rhs[r] += lam * f;
+    }
+
+    /// The face force of the implicit face velocity and its weight: the compact force of
+    /// [`Self::face_force`]; with [`super::FlowConfig::free_surface_push`] unfaded (`w = 1`).
+    /// Why unfaded: the push is the finite-volume form of `p = 0` on a free-surface face, and
+    /// for the dual volume of such a face that is the full compact force
+    /// `(p_L - p_R)/h + b c_f` with the empty side's `p ~ 0`: it vanishes when the surface
+    /// cell holds the hydrostatic half-cell pressure `p = c |b| h / 2`, so the free surface
+    /// is in exact balance and its pressure coupling is inside the solve. Faded, the push
+    /// would act on the cells only, one step behind the mass flux, and the surface cells
+    /// chatter at the long implicit steps (measured: 8e-2 m/s on a collapse deposit at rest).
+    #[inline(always)]
+    pub(super) fn implicit_face_force(&self, a: usize, l: usize, r: usize) -> (R, R) {
+        let b = self.face_body(a, l);
+        let (cl, cr) = (self.c[l], self.c[r]);
+        if self.cfg.free_surface_push {
+            let h = self.grid.spacing()[a];
+            (
+                (self.p[l] - self.p[r]) / h + b * (cl + cr) * R::HALF,
+                R::ONE,
+            )
+        } else {
+            self.face_force(a, b, cl, self.p[l], cr, self.p[r])
+        }
+    }
+
+    /// End-of-step face velocity `(u_L + u_R)/2 + dt F_f / c_f` of the face `(l, r)` along
+    /// `a` with its compact force `ff` (0 acceleration towards an empty face).
+    #[inline(always)]
+    pub(super) fn implicit_face_velocity(
+        &self,
+        a: usize,
+        l: usize,
+        r: usize,
+        dt: R,
+        ff: R,
+        vac: R,
+    ) -> R {
+        let cf = (self.c[l] + self.c[r]) * R::HALF;
+        let um = (self.u[a][l] + self.u[a][r]) * R::HALF;
+        if cf > vac {
+            um + dt * (ff / cf)
+        } else {
+            um
+        }
+    }
+
+    /// Velocity through an opening of the boundary face of cell `i` (side `high` of axis
+    /// `a`), and the coefficient `open w` of its pressure coupling: in explicit mode the
+    /// cell's velocity (and 0); in implicit mode the cell's end-of-step velocity from its
+    /// half of the outlet face force, `u_i + dt F_open / (2 c_i)` with the outlet ghost
+    /// `(c_i, p_ghost)`, and `open w / 2` if the ghost pressure is 0 and the face moves
+    /// grains out (a Dirichlet `dp = 0` outside).
+    pub(super) fn outlet_velocity(
+        &self,
+        a: usize,
+        i: usize,
+        high: bool,
+        side: &FlowSide<R, D>,
+        dt: R,
+    ) -> (R, R) {
+        let u = self.u[a][i];
+        let ci = self.c[i];
+        let opening = side.kind == Boundary::Wall && !side.openings.is_empty();
+        if self.cfg.pressure == super::PressureMode::Explicit || !opening || ci <= self.cfg.vacuum {
+            return (u, R::ZERO);
+        }
+        let open = self.open_fraction(a, high, i);
+        if open == R::ZERO {
+            return (u, R::ZERO);
+        }
+        let pi = self.p[i];
+        let pg = match side.outlet {
+            OutletPressure::Zero => R::ZERO,
+            OutletPressure::ZeroGradient => pi,
+        };
+        let (f, w) = if high {
+            self.face_force(a, self.face_body(a, i), ci, pi, ci, pg)
+        } else {
+            self.face_force(a, self.low_face_body(a), ci, pg, ci, pi)
+        };
+        // The cell's own half of the face force, as the momentum update gives it (the other
+        // half belongs to the ghost): the full face force would double the outlet's push
+        // against the explicit mode, where the outflow leaves with the cell's velocity.
+        let v = u + dt * (R::HALF * f / ci);
+        let out = if high { v > R::ZERO } else { v < R::ZERO };
+        let k = if out && side.outlet == OutletPressure::Zero {
+            R::HALF * open * w
+        } else {
+            R::ZERO
+        };
+        (v, k)
+    }
+}
