@@ -662,7 +662,7 @@ fn three_d_tumblers_run_coupled_on_cut_cells_with_both_phases_to_round_off() {
             "--grid",
             grid,
             "--t-end",
-            "0.02",
+            "0.1",
             "--set",
             "frame.rev_per_s=1.5",
             "--out",
@@ -679,6 +679,6 @@ fn three_d_tumblers_run_coupled_on_cut_cells_with_both_phases_to_round_off() {
         assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
         assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
         assert_eq!(s["flow"]["clipped_mass"].as_f64().unwrap(), 0.0);
-        assert!(s["steps"].as_u64().unwrap() > 10, "{scene}: it ran");
+        assert!(s["steps"].as_u64().unwrap() >= 5, "{scene}: it ran");
     }
 }
