@@ -20,6 +20,7 @@ pub mod fit;
 pub mod flow;
 pub mod interrupt;
 pub mod output;
+pub mod parallel;
 pub mod progress;
 pub mod run;
 pub mod scene;

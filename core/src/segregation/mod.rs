@@ -488,7 +488,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 return Err(SetupError::InflowOutOfRange { cell: i });
             }
         }
-        self.derive_coefficients();
+        self.derive_coefficients(0..n);
         self.prepared = true;
         Ok(())
     }
@@ -507,12 +507,15 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 });
             }
         }
-        self.derive_coefficients();
+        self.derive_coefficients(0..n);
         self.prepared = true;
         Ok(())
     }
 
-    fn derive_coefficients(&mut self) {
+    /// Derives T, the direction, `k` and the stable rate; the rate is the maximum over the
+    /// cells `owned` only (all cells but for a subdomain, whose outermost halo layer sees a
+    /// one-sided velocity gradient: [`Self::prepare_owned`]).
+    fn derive_coefficients(&mut self, owned: core::ops::Range<usize>) {
         let n = self.grid.len();
         let cfg = self.cfg;
         let h = self.grid.spacing();
@@ -593,7 +596,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 self.k[a][i] = if ci > cfg.vacuum { s_a / ci } else { R::ZERO };
                 cell_rate += (ui[a].abs() + s_a.abs()) / h[a];
             }
-            rate = rate.max(cell_rate);
+            if owned.contains(&i) {
+                rate = rate.max(cell_rate);
+            }
         }
         self.rate = rate;
     }
@@ -748,6 +753,63 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             *sa = self.k[a][i] * self.c[i] * sign;
         }
         s
+    }
+
+    /// [`Self::prepare`] for a subdomain (docs/parallel.md, [`crate::decomp`]): the stable
+    /// rate is taken over the cells `owned` only. The outermost halo layer of a subdomain
+    /// sees a one-sided velocity gradient (a wall where the global grid goes on), so its
+    /// derived T, direction and rate differ from the global ones; its fluxes only ever reach
+    /// halo cells, but its rate would reach the time step. The maximum over the owned cells of
+    /// all subdomains is the global maximum exactly, so the global dt is the minimum of the
+    /// subdomains' dt to the bit.
+    pub fn prepare_owned(&mut self, owned: core::ops::Range<usize>) -> Result<(), SetupError> {
+        self.prepare()?;
+        if owned != (0..self.grid.len()) {
+            self.derive_coefficients(owned);
+        }
+        Ok(())
+    }
+
+    /// The flush of vanishing fractions (docs/model.md 5.6) done by a subdomain driver on the
+    /// cells `cells` after step number `steps_before` (counted before the step), exactly as
+    /// [`Self::step`] would have done it with `floor` as [`SegregationConfig::flush_below`]:
+    /// every [`step::FLUSH_EVERY`] steps on `q` alone, or after every step on `q + carry`
+    /// when the updates are compensated. The subdomain's own step runs with the flush off
+    /// (its halo cells must not count), and every flushed value is handed to `flushed` in cell
+    /// order, so the driver can add them to the global counter in the serial order. Returns
+    /// whether this step flushes at all.
+    pub fn flush_cells(
+        &mut self,
+        cells: core::ops::Range<usize>,
+        floor: R,
+        steps_before: u64,
+        mut flushed: impl FnMut(usize, R),
+    ) -> bool {
+        if floor <= R::ZERO {
+            return false;
+        }
+        if self.cfg.compensated {
+            for i in cells {
+                let v = self.q[i] + self.carry[i];
+                if v.abs() < floor {
+                    flushed(i, v);
+                    self.q[i] = R::ZERO;
+                    self.carry[i] = R::ZERO;
+                }
+            }
+            true
+        } else if steps_before % step::FLUSH_EVERY == 0 {
+            for i in cells {
+                let q = self.q[i];
+                if q.abs() < floor {
+                    flushed(i, q);
+                    self.q[i] = R::ZERO;
+                }
+            }
+            true
+        } else {
+            false
+        }
     }
 }
 
