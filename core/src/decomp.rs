@@ -21,7 +21,8 @@
 //!   taken over owned cells only ([`Segregation::prepare_owned`]);
 //! - the step number, on which the flush of docs/model.md 5.6 depends, is the global one;
 //!   the subdomain steps with the flush off and the driver flushes the owned cells
-//!   ([`Segregation::flush_cells`]), handing the flushed values over in cell order;
+//!   and tracks the bound maxima over the owned cells ([`Segregation::end_owned_step`]),
+//!   handing the flushed values over in cell order;
 //! - the time step is a minimum, and `C / max rate` is the minimum of `C / rate` over
 //!   subdomains exactly (correctly rounded division is monotone).
 //!
@@ -234,7 +235,7 @@ impl Subdomain {
 
 /// Sets up `local` as subdomain `sub` of the prepared solver `global`: its grid and
 /// boundaries, every state array of its rows (halos included) copied from `global`, the
-/// clock and bound maxima, the flush off (the driver flushes: [`Segregation::flush_cells`]),
+/// clock and bound maxima, the flush off (the driver flushes: [`Segregation::end_owned_step`]),
 /// then prepared with the stable rate over the owned cells. `global` must be prepared (T
 /// from shear is then the derived one; re-deriving it gives the same bits).
 pub fn load_subdomain<R: Real, const D: usize, const N: usize, const M: usize>(

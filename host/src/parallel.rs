@@ -67,6 +67,7 @@ struct Chunk<R> {
     taken: u64,
     time: R,
     steps: u64,
+    /// The bound maxima over the owned cells ([`Segregation::end_owned_step`]).
     excess: [R; 2],
     /// (step number before the step, value) of every non-zero flushed fraction, in order.
     flushed: Vec<(u64, R)>,
@@ -205,6 +206,7 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         l.set_clock(g.time(), g.steps());
         l.set_tracked_excess(g.tracked_excess());
         let own = sub.owned_cells();
+        let mut excess = g.tracked_excess();
         let mut flushed = Vec::new();
         let mut taken = 0;
         // The control of Segregation::advance_to, step for step.
@@ -217,7 +219,7 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
             } else {
                 l.step(dt);
             }
-            l.flush_cells(own.clone(), self.floor, before, |_, v| {
+            l.end_owned_step(own.clone(), self.floor, before, &mut excess, |_, v| {
                 if v != R::ZERO {
                     flushed.push((before, v));
                 }
@@ -229,7 +231,7 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
             taken,
             time: l.time(),
             steps: l.steps(),
-            excess: l.tracked_excess(),
+            excess,
             flushed,
         }
     }

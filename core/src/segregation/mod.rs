@@ -770,46 +770,60 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         Ok(())
     }
 
-    /// The flush of vanishing fractions (docs/model.md 5.6) done by a subdomain driver on the
-    /// cells `cells` after step number `steps_before` (counted before the step), exactly as
-    /// [`Self::step`] would have done it with `floor` as [`SegregationConfig::flush_below`]:
-    /// every [`step::FLUSH_EVERY`] steps on `q` alone, or after every step on `q + carry`
-    /// when the updates are compensated. The subdomain's own step runs with the flush off
-    /// (its halo cells must not count), and every flushed value is handed to `flushed` in cell
-    /// order, so the driver can add them to the global counter in the serial order. Returns
-    /// whether this step flushes at all.
-    pub fn flush_cells(
+    /// The end of a step of a subdomain (docs/parallel.md, [`crate::decomp`]), on the cells
+    /// `cells` (the owned ones) only: the running bound maxima `excess` (as
+    /// [`Self::tracked_excess`]) and the flush of vanishing fractions (docs/model.md 5.6) with
+    /// `floor` as [`SegregationConfig::flush_below`], exactly as [`Self::step`] does them
+    /// after step number `steps_before` (counted before the step): the maxima of `q - c` and
+    /// `-q` (of `q + carry` when compensated) after the update; the flush every
+    /// [`step::FLUSH_EVERY`] steps on `q`, or after every step on `q + carry` when
+    /// compensated. A subdomain steps with the flush off and its own maxima ignored: its halo
+    /// cells must count for neither (the outermost halo row is updated against a wall that
+    /// is not there and may overshoot where the global grid does not). Every flushed value is
+    /// handed to `flushed` in cell order, so that the driver adds them to the global counter
+    /// in the serial order.
+    pub fn end_owned_step(
         &mut self,
         cells: core::ops::Range<usize>,
         floor: R,
         steps_before: u64,
+        excess: &mut [R; 2],
         mut flushed: impl FnMut(usize, R),
-    ) -> bool {
-        if floor <= R::ZERO {
-            return false;
-        }
+    ) {
+        let [mut above, mut below] = *excess;
+        let (lo, hi) = (cells.start, cells.end);
         if self.cfg.compensated {
-            for i in cells {
-                let v = self.q[i] + self.carry[i];
+            let (q, e, c) = (
+                &mut self.q[lo..hi],
+                &mut self.carry[lo..hi],
+                &self.c[lo..hi],
+            );
+            for i in 0..hi - lo {
+                let v = q[i] + e[i];
+                above = above.max(v - c[i]);
+                below = below.max(-v);
                 if v.abs() < floor {
-                    flushed(i, v);
-                    self.q[i] = R::ZERO;
-                    self.carry[i] = R::ZERO;
+                    flushed(lo + i, v);
+                    q[i] = R::ZERO;
+                    e[i] = R::ZERO;
                 }
             }
-            true
-        } else if steps_before % step::FLUSH_EVERY == 0 {
-            for i in cells {
-                let q = self.q[i];
-                if q.abs() < floor {
-                    flushed(i, q);
-                    self.q[i] = R::ZERO;
-                }
-            }
-            true
         } else {
-            false
+            let (q, c) = (&mut self.q[lo..hi], &self.c[lo..hi]);
+            for i in 0..hi - lo {
+                above = above.max(q[i] - c[i]);
+                below = below.max(-q[i]);
+            }
+            if floor > R::ZERO && steps_before % step::FLUSH_EVERY == 0 {
+                for (i, qi) in q.iter_mut().enumerate() {
+                    if qi.abs() < floor {
+                        flushed(lo + i, *qi);
+                        *qi = R::ZERO;
+                    }
+                }
+            }
         }
+        *excess = [above, below];
     }
 }
 
