@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::scene::Scene;
 use sieve_core::decomp::{self, Side, Subdomain};
 use sieve_core::segregation::snap_slack;
-use sieve_core::{Real, Scheme, Segregation};
+use sieve_core::{Real, Segregation};
 use std::sync::{Barrier, Mutex};
 
 /// Grids with fewer cells run on one thread unless `--threads` asks otherwise: a barrier per
@@ -47,8 +47,6 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
         .is_some_and(|f| f.equations == crate::scene::Equations::Coupled)
     {
         Some("coupled-flow scenes")
-    } else if scene.scheme != Scheme::Modified {
-        Some("the godunov and upwind fluxes (their overshoot in a halo row would reach overshoot_max)")
     } else {
         None
     };
