@@ -21,6 +21,8 @@ pub mod flow;
 pub mod interrupt;
 pub mod output;
 pub mod parallel;
+#[cfg(feature = "mpi")]
+pub mod parallel_mpi;
 pub mod progress;
 pub mod run;
 pub mod scene;
