@@ -507,13 +507,13 @@ pub fn execute(cli: Cli) -> Result<()> {
                 max_cell_steps: a.max_cell_steps,
                 max_output: a.max_output,
             };
+            crate::parallel::request_threads(a.threads.map(usize::from));
             let summary = run::run_scene_with(
                 &scene,
                 &fields,
                 &RunOptions {
                     out: out.clone(),
                     quiet: a.quiet,
-                    threads: a.threads.map(usize::from),
                 },
                 resume,
             )?;

@@ -18,7 +18,26 @@ use crate::scene::Scene;
 use sieve_core::decomp::{self, Side, Subdomain};
 use sieve_core::segregation::snap_slack;
 use sieve_core::{Real, Segregation};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Barrier, Mutex};
+
+/// `--threads` of this process (0: not given). A process-wide setting of the command line,
+/// like the signal handlers, rather than a field of `RunOptions`, so that the library's
+/// callers that build `RunOptions` need not change.
+static REQUESTED: AtomicUsize = AtomicUsize::new(0);
+
+/// Sets `--threads` for the runs of this process (`None`: the default of [`plan`]).
+pub fn request_threads(n: Option<usize>) {
+    REQUESTED.store(n.unwrap_or(0), Ordering::Relaxed);
+}
+
+/// `--threads` as set by [`request_threads`].
+pub fn requested_threads() -> Option<usize> {
+    match REQUESTED.load(Ordering::Relaxed) {
+        0 => None,
+        n => Some(n),
+    }
+}
 
 /// Grids with fewer cells run on one thread unless `--threads` asks otherwise: a barrier per
 /// step costs a few microseconds, a step of 65,536 cells about 0.4 ms.
@@ -292,14 +311,14 @@ fn fold_flushed<R: Real>(start: R, chunks: &[Chunk<R>]) -> R {
     }
 }
 
-/// The driver of a run, if it uses more than one thread: `requested` is `--threads`;
+/// The driver of a run, if it uses more than one thread ([`requested_threads`], [`plan`]);
 /// a note goes to stderr when a requested split is not possible.
 pub fn driver_for<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
     scene: &Scene,
-    requested: Option<usize>,
     quiet: bool,
 ) -> Result<Option<Driver<R, D, N>>> {
+    let requested = requested_threads();
     let (threads, note) = plan(scene, requested);
     if let (Some(n), false) = (note, quiet) {
         eprintln!("{n}");

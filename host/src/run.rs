@@ -443,8 +443,6 @@ pub struct RunOptions {
     pub out: std::path::PathBuf,
     /// No progress bar.
     pub quiet: bool,
-    /// `--threads` (None: all cores on large grids; [`crate::parallel::plan`]).
-    pub threads: Option<usize>,
 }
 
 /// Checkpoints of `sieve run` ([`crate::checkpoint`]).
@@ -477,7 +475,6 @@ struct RunJob<'a> {
     fields_dir: std::path::PathBuf,
     staging: std::path::PathBuf,
     quiet: bool,
-    threads: Option<usize>,
     /// The largest bound violation seen at an output time (for the warning line).
     worst: std::cell::Cell<Option<crate::estimate::Violation>>,
     /// Number of output times (the last always gets a snapshot).
@@ -580,7 +577,7 @@ impl SolverJob for RunJob<'_> {
         let bar = progress_bar(self.quiet, &scene.name, scene.t_end);
         let mut pvd = kept_pvd(scene, ckpt.as_ref(), self.outputs)?;
         let nothing = |_: &mut crate::checkpoint::Entries| {};
-        let driver = crate::parallel::driver_for(s, scene, self.threads, self.quiet)?;
+        let driver = crate::parallel::driver_for(s, scene, self.quiet)?;
         let step = driver
             .as_ref()
             .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));
@@ -686,7 +683,7 @@ impl FlowJob for RunJob<'_> {
                 }
             }
             let keep = |e: &mut cp::Entries| cp::put_frozen(e, &kept);
-            let driver = crate::parallel::driver_for(s, scene, self.threads, self.quiet)?;
+            let driver = crate::parallel::driver_for(s, scene, self.quiet)?;
             let step = driver
                 .as_ref()
                 .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));
@@ -766,7 +763,6 @@ pub fn run_scene_with(
         fields_dir: fields_dir.clone(),
         staging: staging.path().to_path_buf(),
         quiet: opts.quiet,
-        threads: opts.threads,
         worst: std::cell::Cell::new(None),
         outputs: output_times(scene.t_end, scene.output_interval).len(),
         ckpt,
