@@ -76,6 +76,16 @@ impl<R: Real, const D: usize> Grid<R, D> {
         })
     }
 
+    /// The slab of `rows` cells along the last axis whose first row is row `first` of this
+    /// grid (negative or past the end for the halo rows of a subdomain, docs/parallel.md):
+    /// the same spacing to the bit (a new [`Self::new`] would divide a new extent and could
+    /// round it differently), the origin moved by `first` rows. `rows` must not be 0.
+    pub fn slab(&self, first: i64, rows: usize) -> Self {
+        let mut g = *self;
+        g.cells[D - 1] = rows;
+        g.origin[D - 1] += R::from_f64(first as f64) * self.spacing[D - 1];
+        g
+    }
     /// Cells along each axis.
     #[inline]
     pub fn cells(&self) -> [usize; D] {

@@ -14,6 +14,7 @@
 
 pub mod boundary;
 pub mod closure;
+pub mod decomp;
 pub mod diagnostics;
 pub mod exact;
 pub mod flow;

@@ -235,6 +235,10 @@ pub struct RunArgs {
     /// overrides come from the checkpoint (SCENE and --set, if given, must be the same).
     #[arg(long, value_name = "DIR", conflicts_with = "out")]
     pub resume: Option<PathBuf>,
+    /// Threads for the segregation step of box scenes, 1 to 1024, with the same bits as one
+    /// [default: all cores on grids of 65,536 cells or more, else 1; docs/parallel.md].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..=1024))]
+    pub threads: Option<u16>,
 }
 
 /// Arguments of `sieve converge`.
@@ -503,6 +507,7 @@ pub fn execute(cli: Cli) -> Result<()> {
                 max_cell_steps: a.max_cell_steps,
                 max_output: a.max_output,
             };
+            crate::parallel::request_threads(a.threads.map(usize::from));
             let summary = run::run_scene_with(
                 &scene,
                 &fields,

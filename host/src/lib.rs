@@ -22,6 +22,9 @@ pub mod fit;
 pub mod flow;
 pub mod interrupt;
 pub mod output;
+pub mod parallel;
+#[cfg(feature = "mpi")]
+pub mod parallel_mpi;
 pub mod progress;
 pub mod run;
 pub mod scene;

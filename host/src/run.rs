@@ -231,7 +231,25 @@ pub fn time_loop_with<R: Real, const D: usize, const N: usize>(
     scene: &Scene,
     progress: &crate::progress::Progress,
     geo: Option<&CutCells<R, D, N>>,
+    ckpt: Option<Checkpoints<'_>>,
+    on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
+) -> Result<LoopStats> {
+    time_loop_driven(s, scene, progress, geo, ckpt, None, on_output)
+}
+
+/// `advance_to` of a run on subdomains ([`crate::parallel::Driver::advance`]).
+pub type Stepper<'a, R, const D: usize, const N: usize> =
+    &'a dyn Fn(&mut Segregation<R, D, N>, R, u64) -> u64;
+
+/// [`time_loop_with`] whose steps are taken by `stepper` (`--threads`) instead of
+/// `advance_to`: the same steps and bits, so nothing else in the loop changes.
+pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    progress: &crate::progress::Progress,
+    geo: Option<&CutCells<R, D, N>>,
     mut ckpt: Option<Checkpoints<'_>>,
+    stepper: Option<Stepper<'_, R, D, N>>,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
     let times = output_times(scene.t_end, scene.output_interval);
@@ -269,9 +287,10 @@ pub fn time_loop_with<R: Real, const D: usize, const N: usize>(
     // checkpoint between chunks resumes onto the same steps.
     let chunk = (4_000_000 / scene.len()).max(1) as u64;
     let mut checked = false;
-    let advance = |s: &mut Segregation<R, D, N>, target: R, n: u64| match geo {
-        Some(g) => s.advance_to_embedded(target, n, g),
-        None => s.advance_to(target, n),
+    let advance = |s: &mut Segregation<R, D, N>, target: R, n: u64| match (stepper, geo) {
+        (Some(d), _) => d(s, target, n),
+        (None, Some(g)) => s.advance_to_embedded(target, n, g),
+        (None, None) => s.advance_to(target, n),
     };
     if dt == 0.0 {
         // Nothing would ever move the clock: refused before the start (exit 2), not a
@@ -558,12 +577,17 @@ impl SolverJob for RunJob<'_> {
         let bar = progress_bar(self.quiet, &scene.name, scene.t_end);
         let mut pvd = kept_pvd(scene, ckpt.as_ref(), self.outputs)?;
         let nothing = |_: &mut crate::checkpoint::Entries| {};
-        let stats = time_loop_with(
+        let driver = crate::parallel::driver_for(s, scene, self.quiet)?;
+        let step = driver
+            .as_ref()
+            .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));
+        let stats = time_loop_driven(
             s,
             scene,
             &bar,
             geo,
             ckpt.as_mut().map(|c| (c, &nothing as &dyn Fn(&mut _))),
+            step.as_ref().map(|f| f as Stepper<'_, R, D, N>),
             |k, t, s| {
                 let mut snap = Snapshot::of(s, scene);
                 snap.volume = volume.clone();
@@ -659,12 +683,17 @@ impl FlowJob for RunJob<'_> {
                 }
             }
             let keep = |e: &mut cp::Entries| cp::put_frozen(e, &kept);
-            let stats = time_loop_with(
+            let driver = crate::parallel::driver_for(s, scene, self.quiet)?;
+            let step = driver
+                .as_ref()
+                .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));
+            let stats = time_loop_driven(
                 s,
                 scene,
                 &bar,
                 None,
                 ckpt.as_mut().map(|c| (c, &keep as &dyn Fn(&mut _))),
+                step.as_ref().map(|f| f as Stepper<'_, R, D, N>),
                 |k, t, s| {
                     let mut snap = Snapshot::of(s, scene);
                     snap.p = Some(frozen.p.clone());

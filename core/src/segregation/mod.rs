@@ -493,7 +493,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 return Err(SetupError::InflowOutOfRange { cell: i });
             }
         }
-        self.derive_coefficients();
+        self.derive_coefficients(0..n);
         self.detect_uniform();
         self.prepared = true;
         Ok(())
@@ -513,7 +513,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 });
             }
         }
-        self.derive_coefficients();
+        self.derive_coefficients(0..n);
         self.detect_uniform();
         self.prepared = true;
         Ok(())
@@ -537,7 +537,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
     }
 
-    fn derive_coefficients(&mut self) {
+    /// Derives T, the direction, `k` and the stable rate; the rate is the maximum over the
+    /// cells `owned` only (all cells but for a subdomain, whose outermost halo layer sees a
+    /// one-sided velocity gradient: [`Self::prepare_owned`]).
+    fn derive_coefficients(&mut self, owned: core::ops::Range<usize>) {
         let n = self.grid.len();
         let cfg = self.cfg;
         let h = self.grid.spacing();
@@ -618,7 +621,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 self.k[a][i] = if ci > cfg.vacuum { s_a / ci } else { R::ZERO };
                 cell_rate += (ui[a].abs() + s_a.abs()) / h[a];
             }
-            rate = rate.max(cell_rate);
+            if owned.contains(&i) {
+                rate = rate.max(cell_rate);
+            }
         }
         self.rate = rate;
     }
@@ -779,6 +784,77 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             *sa = self.k[a][i] * self.c[i] * sign;
         }
         s
+    }
+
+    /// [`Self::prepare`] for a subdomain (docs/parallel.md, [`crate::decomp`]): the stable
+    /// rate is taken over the cells `owned` only. The outermost halo layer of a subdomain
+    /// sees a one-sided velocity gradient (a wall where the global grid goes on), so its
+    /// derived T, direction and rate differ from the global ones; its fluxes only ever reach
+    /// halo cells, but its rate would reach the time step. The maximum over the owned cells of
+    /// all subdomains is the global maximum exactly, so the global dt is the minimum of the
+    /// subdomains' dt to the bit.
+    pub fn prepare_owned(&mut self, owned: core::ops::Range<usize>) -> Result<(), SetupError> {
+        self.prepare()?;
+        if owned != (0..self.grid.len()) {
+            self.derive_coefficients(owned);
+        }
+        Ok(())
+    }
+
+    /// The end of a step of a subdomain (docs/parallel.md, [`crate::decomp`]), on the cells
+    /// `cells` (the owned ones) only: the running bound maxima `excess` (as
+    /// [`Self::tracked_excess`]) and the flush of vanishing fractions (docs/model.md 5.6) with
+    /// `floor` as [`SegregationConfig::flush_below`], exactly as [`Self::step`] does them
+    /// after step number `steps_before` (counted before the step): the maxima of `q - c` and
+    /// `-q` (of `q + carry` when compensated) after the update; the flush every
+    /// [`step::FLUSH_EVERY`] steps on `q`, or after every step on `q + carry` when
+    /// compensated. A subdomain steps with the flush off and its own maxima ignored: its halo
+    /// cells must count for neither (the outermost halo row is updated against a wall that
+    /// is not there and may overshoot where the global grid does not). Every flushed value is
+    /// handed to `flushed` in cell order, so that the driver adds them to the global counter
+    /// in the serial order.
+    pub fn end_owned_step(
+        &mut self,
+        cells: core::ops::Range<usize>,
+        floor: R,
+        steps_before: u64,
+        excess: &mut [R; 2],
+        mut flushed: impl FnMut(usize, R),
+    ) {
+        let [mut above, mut below] = *excess;
+        let (lo, hi) = (cells.start, cells.end);
+        if self.cfg.compensated {
+            let (q, e, c) = (
+                &mut self.q[lo..hi],
+                &mut self.carry[lo..hi],
+                &self.c[lo..hi],
+            );
+            for i in 0..hi - lo {
+                let v = q[i] + e[i];
+                above = above.max(v - c[i]);
+                below = below.max(-v);
+                if v.abs() < floor {
+                    flushed(lo + i, v);
+                    q[i] = R::ZERO;
+                    e[i] = R::ZERO;
+                }
+            }
+        } else {
+            let (q, c) = (&mut self.q[lo..hi], &self.c[lo..hi]);
+            for i in 0..hi - lo {
+                above = above.max(q[i] - c[i]);
+                below = below.max(-q[i]);
+            }
+            if floor > R::ZERO && steps_before % step::FLUSH_EVERY == 0 {
+                for (i, qi) in q.iter_mut().enumerate() {
+                    if qi.abs() < floor {
+                        flushed(lo + i, *qi);
+                        *qi = R::ZERO;
+                    }
+                }
+            }
+        }
+        *excess = [above, below];
     }
 }
 

@@ -1,0 +1,338 @@
+//! `sieve run --threads N`: the segregation step of box scenes on subdomains, one thread per
+//! subdomain, with the same bits as one thread (docs/parallel.md).
+//!
+//! The global solver stays the state of record: the time loop ([`crate::run`]) calls
+//! [`Driver::advance`] in place of `Segregation::advance_to`. Each call copies the tracked
+//! fractions of every subdomain's rows from the global solver (it may have been restored or
+//! replayed since), steps all subdomains on scoped threads with a halo exchange and one
+//! barrier after every step, and copies the owned rows back. Everything between calls
+//! (diagnostics, outputs, checkpoints, signals, the replay that resolves the segregation
+//! time) sees the global solver exactly as a serial run leaves it.
+//!
+//! The flushed-mass counter (docs/model.md 5.6) is a running sum in cell order: each worker
+//! hands over the values it flushed with their step number, and they are added here in
+//! (step, cell) order, the serial order.
+
+use crate::error::{Error, Result};
+use crate::scene::Scene;
+use sieve_core::decomp::{self, Side, Subdomain};
+use sieve_core::segregation::snap_slack;
+use sieve_core::{Real, Segregation};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Barrier, Mutex};
+
+/// `--threads` of this process (0: not given). A process-wide setting of the command line,
+/// like the signal handlers, rather than a field of `RunOptions`, so that the library's
+/// callers that build `RunOptions` need not change.
+static REQUESTED: AtomicUsize = AtomicUsize::new(0);
+
+/// Sets `--threads` for the runs of this process (`None`: the default of [`plan`]).
+pub fn request_threads(n: Option<usize>) {
+    REQUESTED.store(n.unwrap_or(0), Ordering::Relaxed);
+}
+
+/// `--threads` as set by [`request_threads`].
+pub fn requested_threads() -> Option<usize> {
+    match REQUESTED.load(Ordering::Relaxed) {
+        0 => None,
+        n => Some(n),
+    }
+}
+
+/// Grids with fewer cells run on one thread unless `--threads` asks otherwise: a barrier per
+/// step costs a few microseconds, a step of 65,536 cells about 0.4 ms.
+pub const AUTO_MIN_CELLS: usize = 1 << 16;
+
+/// The state array a step exchanges: a face flux reads `q` of both cells; the coefficients
+/// are static between prepares and a cell's carried rounding error enters no flux.
+const EXCHANGED: &[&str] = &["q"];
+
+/// How many threads a run uses: `requested` (`--threads`; `None` = all cores for grids of
+/// at least [`AUTO_MIN_CELLS`] cells), or 1 with the reason when the scene cannot be split.
+pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) {
+    let wanted = match requested {
+        Some(n) => n,
+        None if scene.len() < AUTO_MIN_CELLS => 1,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    if wanted <= 1 {
+        return (1, None);
+    }
+    let why = if scene.geometry.is_some() {
+        Some("cut-cell (geometry) scenes")
+    } else if scene
+        .flow
+        .as_ref()
+        .is_some_and(|f| f.equations == crate::scene::Equations::Coupled)
+    {
+        Some("coupled-flow scenes")
+    } else {
+        None
+    };
+    match why {
+        Some(w) => (
+            1,
+            requested
+                .map(|n| format!("note: --threads {n}: {w} run on one thread (docs/parallel.md)")),
+        ),
+        None => (wanted, None),
+    }
+}
+
+/// What one worker hands back after a chunk of steps.
+struct Chunk<R> {
+    taken: u64,
+    time: R,
+    steps: u64,
+    /// The bound maxima over the owned cells ([`Segregation::end_owned_step`]).
+    excess: [R; 2],
+    /// (step number before the step, value) of every non-zero flushed fraction, in order.
+    flushed: Vec<(u64, R)>,
+}
+
+/// Subdomains of a prepared box solver, stepped on threads.
+pub struct Driver<R: Real, const D: usize, const N: usize> {
+    subs: Vec<Subdomain>,
+    locals: Mutex<Vec<Box<Segregation<R, D, N>>>>,
+    /// The flush floor of the global configuration (the subdomains step with it off).
+    floor: R,
+    /// The state arrays copied in and out per chunk.
+    fields: &'static [&'static str],
+    /// Halo messages, `[subdomain][side][parity of the step]`.
+    mail: Vec<[[Mutex<Vec<R>>; 2]; 2]>,
+}
+
+impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
+    /// Splits the prepared `global` into `parts` subdomains along the last axis (fewer if
+    /// the rows do not allow as many: [`decomp::max_parts`]). Must run on a thread with room
+    /// for one solver on its stack (each subdomain is built there, then boxed).
+    pub fn new(global: &Segregation<R, D, N>, parts: usize) -> Result<Self> {
+        let halo = decomp::halo_width(global);
+        let rows = global.grid().cells()[D - 1];
+        let parts = parts.min(decomp::max_parts(rows, halo)).max(1);
+        let mut subs = Vec::with_capacity(parts);
+        let mut locals = Vec::with_capacity(parts);
+        for k in 0..parts {
+            let sub = Subdomain::new(global.grid(), global.boundaries(), parts, k, halo)
+                .map_err(|e| Error::failure(format!("cannot split the grid: {e:?}")))?;
+            let mut local = Box::new(Segregation::<R, D, N>::zeroed());
+            decomp::load_subdomain(global, &sub, &mut local)
+                .map_err(|e| Error::failure(format!("subdomain {k}: {e:?}")))?;
+            subs.push(sub);
+            locals.push(local);
+        }
+        // The global step is the minimum over the subdomains (exact: model.md 5 and
+        // core/src/decomp.rs); a difference is a bug, not bad input.
+        let dt = locals
+            .iter()
+            .map(|l| l.stable_dt())
+            .fold(R::MAX, |a, b| a.min(b));
+        if dt.to_bits_u64() != global.stable_dt().to_bits_u64() {
+            return Err(Error::failure(format!(
+                "subdomain time step {:e} differs from the global {:e}",
+                dt.to_f64(),
+                global.stable_dt().to_f64()
+            )));
+        }
+        let mail = subs
+            .iter()
+            .map(|s| {
+                let m = |side| Mutex::new(vec![R::ZERO; s.message_len(side, EXCHANGED.len())]);
+                [[m(Side::Low), m(Side::Low)], [m(Side::High), m(Side::High)]]
+            })
+            .collect();
+        let cfg = global.config();
+        Ok(Self {
+            subs,
+            locals: Mutex::new(locals),
+            floor: cfg.flush_below,
+            fields: if cfg.compensated {
+                &["q", "carry"]
+            } else {
+                &["q"]
+            },
+            mail,
+        })
+    }
+
+    /// Number of subdomains (threads).
+    pub fn parts(&self) -> usize {
+        self.subs.len()
+    }
+
+    /// `global.advance_to(target, max_steps)` on the subdomains: the same steps, the same
+    /// bits in the global solver afterwards; returns the number of steps taken.
+    pub fn advance(&self, global: &mut Segregation<R, D, N>, target: R, max_steps: u64) -> u64 {
+        if !target.is_finite() || max_steps == 0 || global.time() >= target {
+            return 0;
+        }
+        let dt = global.stable_dt();
+        let slack = snap_slack(target);
+        let mut locals = self.locals.lock().expect("subdomains");
+        let barrier = Barrier::new(self.subs.len());
+        let g: &Segregation<R, D, N> = global;
+        let chunks: Vec<Chunk<R>> = std::thread::scope(|scope| {
+            let mut work = locals.iter_mut().zip(&self.subs);
+            let (l0, s0) = work.next().expect("at least one subdomain");
+            let barrier = &barrier;
+            let handles: Vec<_> = work
+                .map(|(l, sub)| {
+                    scope.spawn(move || self.work(g, sub, l, target, dt, slack, max_steps, barrier))
+                })
+                .collect();
+            let first = self.work(g, s0, l0, target, dt, slack, max_steps, barrier);
+            std::iter::once(first)
+                .chain(
+                    handles
+                        .into_iter()
+                        .map(|h| h.join().expect("a subdomain thread panicked")),
+                )
+                .collect()
+        });
+        for (l, sub) in locals.iter().zip(&self.subs) {
+            decomp::gather_rows(l.as_ref(), sub, global, self.fields);
+        }
+        let c0 = &chunks[0];
+        debug_assert!(chunks
+            .iter()
+            .all(|c| c.taken == c0.taken && c.steps == c0.steps));
+        global.set_clock(c0.time, c0.steps);
+        let mut excess = global.tracked_excess();
+        for c in &chunks {
+            excess = [excess[0].max(c.excess[0]), excess[1].max(c.excess[1])];
+        }
+        global.set_tracked_excess(excess);
+        global.set_flushed_tracked(fold_flushed(global.flushed_tracked(), &chunks));
+        c0.taken
+    }
+
+    /// One subdomain's chunk: copy in, step, flush the owned cells, exchange halos.
+    #[allow(clippy::too_many_arguments)]
+    fn work(
+        &self,
+        g: &Segregation<R, D, N>,
+        sub: &Subdomain,
+        l: &mut Segregation<R, D, N>,
+        target: R,
+        dt: R,
+        slack: R,
+        max_steps: u64,
+        barrier: &Barrier,
+    ) -> Chunk<R> {
+        decomp::copy_rows(g, sub, l, self.fields);
+        l.set_clock(g.time(), g.steps());
+        l.set_tracked_excess(g.tracked_excess());
+        let own = sub.owned_cells();
+        let mut excess = g.tracked_excess();
+        let mut flushed = Vec::new();
+        let mut taken = 0;
+        // The control of Segregation::advance_to, step for step.
+        while l.time() < target && taken < max_steps {
+            let before = l.steps();
+            let remaining = target - l.time();
+            if remaining <= dt || remaining - dt <= slack {
+                l.step(remaining);
+                l.set_clock(target, l.steps());
+            } else {
+                l.step(dt);
+            }
+            l.end_owned_step(own.clone(), self.floor, before, &mut excess, |_, v| {
+                if v != R::ZERO {
+                    flushed.push((before, v));
+                }
+            });
+            taken += 1;
+            self.exchange(sub, l, (taken % 2) as usize, barrier);
+        }
+        Chunk {
+            taken,
+            time: l.time(),
+            steps: l.steps(),
+            excess,
+            flushed,
+        }
+    }
+
+    /// Sends the owned rows next to each cut, waits for every subdomain, receives the
+    /// neighbours' rows into the halos. Messages alternate between two buffers by the parity
+    /// of the step, so one barrier per step suffices: a buffer is written again only two
+    /// steps later, after its reader has passed the next barrier.
+    fn exchange(
+        &self,
+        sub: &Subdomain,
+        l: &mut Segregation<R, D, N>,
+        parity: usize,
+        barrier: &Barrier,
+    ) {
+        for side in [Side::Low, Side::High] {
+            if sub.neighbour(side).is_some() {
+                let mut m = self.mail[sub.index][side as usize][parity]
+                    .lock()
+                    .expect("halo buffer");
+                decomp::pack(l, sub, side, EXCHANGED, &mut m);
+            }
+        }
+        barrier.wait();
+        for side in [Side::Low, Side::High] {
+            if let Some(nb) = sub.neighbour(side) {
+                let m = self.mail[nb][side.opposite() as usize][parity]
+                    .lock()
+                    .expect("halo buffer");
+                decomp::unpack(l, sub, side, EXCHANGED, &m);
+            }
+        }
+    }
+}
+
+/// The flushed counter after a chunk: `start` plus every flushed value in (step, cell)
+/// order, which is (step, subdomain, cell in the subdomain) order. Zeros are skipped: the
+/// counter starts at +0 and adding a zero to it changes no bit.
+fn fold_flushed<R: Real>(start: R, chunks: &[Chunk<R>]) -> R {
+    let mut total = start;
+    let mut at = vec![0usize; chunks.len()];
+    loop {
+        let next = chunks
+            .iter()
+            .zip(&at)
+            .filter_map(|(c, &k)| c.flushed.get(k).map(|e| e.0))
+            .min();
+        let Some(step) = next else {
+            return total;
+        };
+        for (c, k) in chunks.iter().zip(at.iter_mut()) {
+            while let Some(&(s, v)) = c.flushed.get(*k) {
+                if s != step {
+                    break;
+                }
+                total += v;
+                *k += 1;
+            }
+        }
+    }
+}
+
+/// The driver of a run, if it uses more than one thread ([`requested_threads`], [`plan`]);
+/// a note goes to stderr when a requested split is not possible.
+pub fn driver_for<R: Real, const D: usize, const N: usize>(
+    s: &Segregation<R, D, N>,
+    scene: &Scene,
+    quiet: bool,
+) -> Result<Option<Driver<R, D, N>>> {
+    let requested = requested_threads();
+    let (threads, note) = plan(scene, requested);
+    if let (Some(n), false) = (note, quiet) {
+        eprintln!("{n}");
+    }
+    if threads <= 1 {
+        return Ok(None);
+    }
+    let d = Driver::new(s, threads)?;
+    if d.parts() < threads && requested.is_some() && !quiet {
+        eprintln!(
+            "note: --threads {threads}: {} rows allow {} subdomains",
+            s.grid().cells()[D - 1],
+            d.parts()
+        );
+    }
+    Ok((d.parts() > 1).then_some(d))
+}

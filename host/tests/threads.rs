@@ -1,0 +1,377 @@
+//! Domain decomposition on threads (issue 12, docs/parallel.md): the same bits for 1, 2, 3 and
+//! 4 threads.
+//!
+//! In process: a serial solver and the threaded driver ([`sieve::parallel::Driver`]) take the
+//! same steps one at a time, and after every step the state hash (core/src/hash.rs), the
+//! flushed-mass counter and the bound maxima must agree to the bit; a failure names the first
+//! step and the first cell (with its coordinates) where the two differ. The grids have row
+//! counts that no thread count divides (23, 11), a periodic split axis (the first and last
+//! subdomains are neighbours), inflow, diffusion, T and direction from the velocity gradient
+//! (halo 2), compensated updates, the large phase, and cells that are flushed (docs/model.md
+//! 5.6). Through the CLI: `--threads 1` and `--threads 3` write the same files byte for byte.
+
+use assert_cmd::Command;
+use sieve::parallel::Driver;
+use sieve_core::segregation::SegregationConfig;
+use sieve_core::{
+    state_hash, Boundaries, Boundary, DirectionMode, Grid, Phase, Scheme, Segregation,
+    TemperatureMode,
+};
+use std::path::{Path, PathBuf};
+
+const N: usize = 1024;
+type Solver = Segregation<f64, 2, N>;
+type Solver3 = Segregation<f64, 3, N>;
+
+/// A smooth, nowhere-symmetric field in [0, 1) from the cell index (so every cell differs).
+fn wiggle(i: usize, k: f64) -> f64 {
+    let x = i as f64 * 0.618_033_988_75 * k;
+    x - x.floor()
+}
+
+/// Fills `s`: c in [0.45, 0.6] (a few empty cells), phi in [0, c] with some cells far below
+/// the flush floor, velocity `u(i)`, T given.
+fn fill<const D: usize>(
+    s: &mut Segregation<f64, D, N>,
+    u: impl Fn(&Grid<f64, D>, usize) -> [f64; D],
+) {
+    let g = *s.grid();
+    for i in 0..g.len() {
+        let c = if i % 97 == 5 {
+            0.0
+        } else {
+            0.45 + 0.15 * wiggle(i, 1.0)
+        };
+        // the top three rows: fines far below the flush floor 2^-800 (the fines sink, so
+        // the top row stays that small until the first flush)
+        let top = g.coords(i)[D - 1] + 3 >= g.cells()[D - 1];
+        let phi = match i % 13 {
+            _ if top => 1e-250 * (1.0 + wiggle(i, 5.0)),
+            1 => c,
+            2 => 0.0,
+            _ => c * wiggle(i, 3.0),
+        };
+        let t = 1e-3 * (1.0 + wiggle(i, 7.0));
+        s.set_cell(i, c, t, u(&g, i), phi.min(c));
+        s.set_inflow(i, 0.5 * c);
+    }
+}
+
+/// Where two solvers first differ, in words (step, cell, coordinates, values).
+fn first_difference<const D: usize>(
+    a: &Segregation<f64, D, N>,
+    b: &Segregation<f64, D, N>,
+    step: usize,
+    what: &str,
+) -> String {
+    for i in 0..a.len() {
+        if a.phi(i).to_bits() != b.phi(i).to_bits() || a.carry(i).to_bits() != b.carry(i).to_bits()
+        {
+            return format!(
+                "{what}: first divergence at step {step}, cell {i} {:?}: phi {:e} (serial) vs {:e} (threads)",
+                a.grid().coords(i),
+                a.phi(i),
+                b.phi(i)
+            );
+        }
+    }
+    format!(
+        "{what}: first divergence at step {step} in the clock or counters: t {:e} vs {:e}, flushed {:e} vs {:e}, excess {:?} vs {:?}",
+        a.time(),
+        b.time(),
+        a.flushed_tracked(),
+        b.flushed_tracked(),
+        a.tracked_excess(),
+        b.tracked_excess()
+    )
+}
+
+/// Steps `serial` and a copy driven by `threads` threads one step at a time to `t_end`
+/// (the last step shortened, as in a run), comparing after every step. Returns the steps.
+fn same_bits<const D: usize>(serial: &Segregation<f64, D, N>, threads: usize, what: &str) -> usize {
+    let mut a = serial.clone();
+    let mut b = serial.clone();
+    let driver = Driver::new(&b, threads).unwrap();
+    assert_eq!(driver.parts(), threads, "{what}: split into fewer parts");
+    let t_end = 40.5 * a.stable_dt();
+    let mut step = 0;
+    while a.time() < t_end {
+        step += 1;
+        let na = a.advance_to(t_end, 1);
+        let nb = driver.advance(&mut b, t_end, 1);
+        assert_eq!((na, nb), (1, 1));
+        let same = state_hash(&a) == state_hash(&b)
+            && a.steps() == b.steps()
+            && a.flushed_tracked().to_bits() == b.flushed_tracked().to_bits()
+            && a.tracked_excess().map(f64::to_bits) == b.tracked_excess().map(f64::to_bits);
+        assert!(same, "{}", first_difference(&a, &b, step, what));
+    }
+    // and in chunks of several steps (what the run loop asks for)
+    let (mut c, mut d) = (serial.clone(), serial.clone());
+    let driver = Driver::new(&d, threads).unwrap();
+    let target = 7.25 * c.stable_dt();
+    c.advance_to(target, 5);
+    driver.advance(&mut d, target, 5);
+    c.advance_to(t_end, u64::MAX);
+    driver.advance(&mut d, t_end, u64::MAX);
+    assert_eq!(state_hash(&c), state_hash(&a), "{what}: chunked serial");
+    assert!(
+        state_hash(&d) == state_hash(&a) && d.flushed_tracked() == a.flushed_tracked(),
+        "{}",
+        first_difference(&a, &d, step, &format!("{what}, in chunks"))
+    );
+    step
+}
+
+fn grid2(nx: usize, ny: usize) -> Grid<f64, 2> {
+    Grid::new([nx, ny], [0.0, 0.0], [0.037, 0.023], N).unwrap()
+}
+
+/// A 2D shear layer (x periodic, walls or periodic in y), T and direction from the velocity
+/// gradient: halo 2.
+fn shear_2d(bc_y: Boundary, phase: Phase, compensated: bool) -> Solver {
+    shear_2d_with(bc_y, phase, compensated, Scheme::Modified)
+}
+
+fn shear_2d_with(bc_y: Boundary, phase: Phase, compensated: bool, scheme: Scheme) -> Solver {
+    let mut s = Solver::zeroed();
+    let mut cfg = SegregationConfig::new();
+    cfg.scheme = scheme;
+    cfg.gravity = [0.0, -9.81];
+    cfg.s0 = 0.3;
+    cfg.direction = DirectionMode::Flow;
+    cfg.temperature = TemperatureMode::FromShear {
+        heating: 1.5,
+        eta0: 1e-3,
+        eps0: 10.0,
+    };
+    cfg.diffusion = 1e-7;
+    cfg.phase = phase;
+    cfg.compensated = compensated;
+    let bc: Boundaries<2> = [[Boundary::Periodic; 2], [bc_y; 2]];
+    s.setup(grid2(37, 23), bc, cfg).unwrap();
+    fill(&mut s, |g, i| {
+        let [x, y] = g.center(i);
+        [
+            0.02 * (y / 0.023).powi(2) + 1e-3 * (x * 170.0).sin(),
+            1e-3 * (x * 170.0).cos() * (y * 137.0).sin(),
+        ]
+    });
+    s.prepare().unwrap();
+    s
+}
+
+#[test]
+fn two_d_shear_same_bits_for_1_to_4_threads() {
+    let s = shear_2d(Boundary::Wall, Phase::Small, false);
+    assert_eq!(sieve_core::decomp::halo_width(&s), 2);
+    let mut steps = 0;
+    for threads in 1..=4 {
+        steps = same_bits(&s, threads, &format!("2D walls, {threads} threads"));
+    }
+    assert!(steps >= 40, "{steps} steps");
+    // the flush happened (phi = 1e-250 cells) and was counted
+    let mut a = s.clone();
+    a.advance_to(40.5 * s.stable_dt(), u64::MAX);
+    assert!(a.flushed_tracked() > 0.0 && a.flushed_tracked() < 1e-240);
+}
+
+#[test]
+fn two_d_periodic_split_axis_large_phase_compensated() {
+    for (phase, compensated, scheme) in [
+        (Phase::Large, false, Scheme::Modified),
+        (Phase::Small, true, Scheme::Modified),
+        // the naive fluxes overshoot: the bound maxima must come from owned cells only
+        (Phase::Small, false, Scheme::Godunov),
+        (Phase::Large, false, Scheme::Upwind),
+    ] {
+        let s = shear_2d_with(Boundary::Periodic, phase, compensated, scheme);
+        for threads in [2, 3, 4] {
+            let what = format!("2D periodic y, {phase:?}, {scheme:?}, compensated {compensated}, {threads} threads");
+            same_bits(&s, threads, &what);
+        }
+    }
+}
+
+#[test]
+fn three_d_same_bits_for_1_to_4_threads() {
+    // 9 x 7 x 11: 11 rows; gravity direction and given T (halo 1), inflow at x = 0,
+    // outflow at x = 1, periodic in y, walls in z, diffusion.
+    let mut s = Solver3::zeroed();
+    let mut cfg = SegregationConfig::new();
+    cfg.gravity = [0.5, 0.0, -9.81];
+    cfg.diffusion = 2e-7;
+    let bc: Boundaries<3> = [
+        [Boundary::Inflow, Boundary::Outflow],
+        [Boundary::Periodic; 2],
+        [Boundary::Wall; 2],
+    ];
+    let g = Grid::new([9, 7, 11], [0.0; 3], [0.009, 0.007, 0.011], N).unwrap();
+    s.setup(g, bc, cfg).unwrap();
+    fill(&mut s, |g, i| {
+        let [_, _, z] = g.center(i);
+        [0.01 * z / 0.011, 0.0, 0.0]
+    });
+    s.prepare().unwrap();
+    assert_eq!(sieve_core::decomp::halo_width(&s), 1);
+    for threads in 1..=4 {
+        same_bits(&s, threads, &format!("3D, {threads} threads"));
+    }
+    // 11 rows allow 11 parts of halo 1; more are clamped
+    assert_eq!(Driver::new(&s, 64).unwrap().parts(), 11);
+}
+
+#[test]
+fn row_sums_fold_to_the_same_bits_for_any_split() {
+    use sieve_core::decomp::{owned_rows, RowSums};
+    let s = shear_2d(Boundary::Wall, Phase::Small, false);
+    let rows = s.grid().cells()[1];
+    let plane = s.grid().cells()[0];
+    let fold = |parts: usize| {
+        let mut total = RowSums::ZERO;
+        for k in 0..parts {
+            let mut partial = Vec::new();
+            RowSums::of_rows(&s, owned_rows(rows, parts, k), plane, |r| partial.push(r));
+            partial.into_iter().for_each(|r| total.add(r));
+        }
+        total
+    };
+    let one = fold(1);
+    for parts in [2, 3, 5, 23] {
+        let p = fold(parts);
+        assert_eq!(
+            [p.small, p.total, p.entropy].map(f64::to_bits),
+            [one.small, one.total, one.entropy].map(f64::to_bits),
+            "{parts} parts"
+        );
+    }
+    // and the serial diagnostics within the blocked sum's error bound
+    let d = sieve_core::diagnose(&s);
+    let vol = s.grid().cell_volume();
+    let abs: f64 = (0..s.len()).map(|i| s.phi(i).abs()).sum();
+    let bound = sieve_core::sum::error_bound(s.len(), abs) * 2.0 + 1e-300;
+    assert!((one.small * vol - d.mass_small).abs() <= bound * vol);
+    assert!(
+        (one.psi() - d.psi).abs() < 1e-12,
+        "{} vs {}",
+        one.psi(),
+        d.psi
+    );
+}
+
+// ---- the CLI: --threads 1 and --threads 3 write the same files ----
+
+fn run_in(dir: &Path, args: &[&str]) -> (i32, String) {
+    let out = Command::cargo_bin("sieve")
+        .unwrap()
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// summary.json without the wall-clock timings (the only values that may differ).
+fn summary_without_timings(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("summary.json")).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let o = v.as_object_mut().unwrap();
+    for k in [
+        "wall_seconds",
+        "stepping_seconds",
+        "cell_updates_per_second",
+    ] {
+        assert!(o.remove(k).is_some(), "summary.json has no {k}");
+    }
+    if let Some(f) = o.get_mut("flow").and_then(|f| f.as_object_mut()) {
+        f.remove("flow_seconds");
+    }
+    v
+}
+
+fn data_files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for top in ["", "fields"] {
+        for e in std::fs::read_dir(dir.join(top)).unwrap() {
+            let p = e.unwrap().path();
+            let name = p.file_name().unwrap();
+            if p.is_file() && name != "summary.json" && name != ".sieve-run" {
+                out.push(p.strip_prefix(dir).unwrap().to_path_buf());
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+fn same_outputs(args: &[&str]) {
+    let d = tempfile::tempdir().unwrap();
+    for (threads, out) in [("1", "one"), ("3", "three")] {
+        let mut a = vec!["run"];
+        a.extend_from_slice(args);
+        a.extend_from_slice(&["--threads", threads, "--out", out, "-q"]);
+        let (code, err) = run_in(d.path(), &a);
+        assert_eq!(code, 0, "{args:?} --threads {threads}: {err}");
+        assert!(err.is_empty(), "{args:?} --threads {threads}: {err}");
+    }
+    let (a, b) = (d.path().join("one"), d.path().join("three"));
+    let files = data_files(&a);
+    assert_eq!(files, data_files(&b), "{args:?}: different files");
+    assert!(files.iter().any(|f| f.ends_with("final.csv")));
+    assert!(files.iter().any(|f| f.ends_with("series.csv")));
+    for f in &files {
+        assert!(
+            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
+            "{args:?}: {} differs between 1 and 3 threads",
+            f.display()
+        );
+    }
+    assert_eq!(
+        summary_without_timings(&a),
+        summary_without_timings(&b),
+        "{args:?}"
+    );
+}
+
+#[test]
+fn cli_threads_1_and_3_write_the_same_files() {
+    // 2D, direction from the flow, x-periodic, 64 x 64 (64 rows: 22/21/21 per thread)
+    same_outputs(&["shear-cell-inverse", "--t-end", "20"]);
+    // 2D with inflow and outflow, 61 rows (uneven)
+    same_outputs(&["gray-thornton-plug", "--grid", "60x61", "--t-end", "0.2"]);
+}
+
+#[test]
+fn cli_threads_frozen_flow() {
+    // the segregation part of a frozen-flow scene
+    same_outputs(&["shear-cell", "--grid", "16x16", "--t-end", "2"]);
+}
+
+#[test]
+fn cli_threads_refusals_and_notes() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, err) = run_in(d.path(), &["run", "column-a", "--threads", "0", "-q"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--threads"), "{err}");
+    // a scene the split does not take (cut cells) runs on one thread, with a one-line note
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "drum-settling",
+            "--t-end",
+            "0.1",
+            "--threads",
+            "2",
+            "--out",
+            "g",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let note: Vec<&str> = err.lines().filter(|l| l.starts_with("note:")).collect();
+    assert_eq!(note.len(), 1, "{err}");
+    assert!(note[0].contains("one thread"), "{err}");
+}
