@@ -845,6 +845,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 above = above.max(q[i] - c[i]);
                 below = below.max(-q[i]);
             }
+            // as the step's lane-split maxima: a zero maximum is +0
+            above = step::positive_zero(above);
+            below = step::positive_zero(below);
             if floor > R::ZERO && steps_before % step::FLUSH_EVERY == 0 {
                 for (i, qi) in q.iter_mut().enumerate() {
                     if qi.abs() < floor {

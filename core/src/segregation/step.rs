@@ -131,7 +131,7 @@ const LANES: usize = 4;
 /// `x`, with a zero of either sign returned as +0 (a running maximum split into lanes finds
 /// the same value as one chain, but not necessarily the same sign of zero).
 #[inline(always)]
-fn positive_zero<R: Real>(x: R) -> R {
+pub(super) fn positive_zero<R: Real>(x: R) -> R {
     if x == R::ZERO {
         R::ZERO
     } else {
