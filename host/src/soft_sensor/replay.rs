@@ -52,6 +52,8 @@ pub struct ReplayRow {
     pub out_truth: [f64; 2],
     /// Fines fraction of the estimator's outflow this tick (0 if none).
     pub outflow_fines: f32,
+    /// Fines fraction of the estimator's outflow over its window (0 if none).
+    pub outflow_fines_window: f32,
 }
 
 /// Result of a replay.
@@ -223,6 +225,7 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
                 out_est: [out[0] as f64, out[1] as f64],
                 out_truth: [t.discharged[0] as f64, t.discharged[1] as f64],
                 outflow_fines: e.outflow_fines,
+                outflow_fines_window: e.outflow_fines_window,
             });
         }
         if !e.psi.is_finite() {
@@ -299,15 +302,26 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
     writeln!(out, "scene={}", r.scene)?;
     writeln!(
         out,
-        "{:>6} {:>6} {:>8} {:>8} {:>8} {:>9} {:>8} {:>6} {:>5}",
-        "tick", "seq", "time", "psi", "truth", "psi_err", "L1", "health", "subst"
+        "{:>6} {:>6} {:>8} {:>8} {:>8} {:>9} {:>8} {:>6} {:>5} {:>8} {:>8} {:>8}",
+        "tick",
+        "seq",
+        "time",
+        "psi",
+        "truth",
+        "psi_err",
+        "L1",
+        "health",
+        "subst",
+        "c_err",
+        "out_fin",
+        "out_win"
     )?;
     let n = r.rows.len();
     for (k, row) in r.rows.iter().enumerate() {
         if k % every.max(1) == 0 || k + 1 == n {
             writeln!(
                 out,
-                "{:>6} {:>6} {:>8.3} {:>8.4} {:>8.4} {:>9.5} {:>8.5} {:>#6x} {:>5}",
+                "{:>6} {:>6} {:>8.3} {:>8.4} {:>8.4} {:>9.5} {:>8.5} {:>#6x} {:>5} {:>8.5} {:>8.5} {:>8.5}",
                 row.tick,
                 row.seq,
                 row.time,
@@ -316,7 +330,10 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
                 row.psi - row.psi_truth,
                 row.l1,
                 row.health,
-                row.substeps
+                row.substeps,
+                row.c_err,
+                row.outflow_fines,
+                row.outflow_fines_window
             )?;
         }
     }
