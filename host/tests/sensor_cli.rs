@@ -276,11 +276,9 @@ fn bad_options_exit_2_with_one_line() {
         &["record", "shear-cell-mixed", "--set", "dim=3"],
         "dim = 3 is out of range: allowed 2",
     );
-    // A coupled flow has no fixed velocity field.
-    assert_bad(
-        &["record", "shear-cell", "--set", "model.equations=coupled"],
-        "model.equations = \"coupled\" is out of range: allowed \"prescribed\" or \"frozen-flow\"",
-    );
+    // A container (cut cells): the estimator is a box (coupled box scenes record since
+    // issue 9).
+    assert_bad(&["record", "tumbler"], "tumbler");
     // Given T and no shear: the soft sensor's T would be 0.
     assert_bad(&["record", "gray-thornton-plug"], "initial.u: has no shear");
     assert_bad(

@@ -95,6 +95,9 @@ fn largest_frame_fits_the_bound() {
         health: 63,
         substeps: u16::MAX,
         lag: 1.0,
+        outflow: -1.0e-3,
+        outflow_fines: 1.0,
+        outflow_fines_window: 0.5,
     };
     let mut s = [0u8; Estimate::POSTCARD_MAX_SIZE];
     let mut o = [0u8; ESTIMATE_WIRE_MAX];

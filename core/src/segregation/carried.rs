@@ -403,3 +403,263 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         out
     }
 }
+
+/// Which side a boundary face of [`Segregation::carry_own_velocity`] is on, and how open it is.
+#[inline(always)]
+fn outward<R: Real>(high: bool, u: R) -> R {
+    if high {
+        u
+    } else {
+        -u
+    }
+}
+
+impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
+    /// Carried transport on the solver's **own** velocity and its own carried `c` (the soft
+    /// sensor: a measured velocity, no flow model; issue 9, model.md 8). Each face moves the
+    /// mass amount `F = dt/h |u_face| A_donor` (the face velocity is the mean of the two cells'
+    /// normal velocities, as in [`Self::step`]'s transport; `A = c` of the donor, scaled down
+    /// by a donor limiter where a cell would lose more than it holds), and with it
+    /// `F qhat_donor` of the tracked phase. `c` and the tracked fraction `q` are updated by the
+    /// same kept share and the same received amounts in the same order, so
+    /// `0 <= q <= c` holds **exactly** in floating point whatever the velocity (a measured,
+    /// noisy, not divergence-free one included): `q keep <= c keep` and `F qhat <= F` term by
+    /// term, and rounded sums of termwise ordered terms stay ordered. A `q` that the
+    /// percolation stage left an ulp outside `[0, c]` is moved back into it with the
+    /// difference booked into the cell's compensated carry (so nothing is lost); the carry
+    /// itself (below an ulp) is not transported.
+    ///
+    /// Boundaries: walls move nothing, except their open part `open(axis, high, cell)` in
+    /// `[0, 1]` (an outlet, [`crate::boundary::Openings`]), through which grains only leave;
+    /// outflow sides take the cell's own state (zero gradient) either way; inflow sides bring
+    /// `c` of the cell with the tracked fraction of `inflow_phihat` (the small-phase fraction
+    /// of the inflow), and reset the inflow values of their cells to `inflow_phihat c` after
+    /// the update; periodic sides wrap. Returns what left through each side.
+    ///
+    /// The face coefficients `k = S.n / c` are rescaled to the new `c` (S does not depend on
+    /// c), so no `prepare` is needed: the next [`Self::step_percolation`] sees the new `c`
+    /// with the same segregation velocity and the same stable step. A cell that was empty at
+    /// the last `prepare` keeps `k = 0` until the next one. Does not advance the clock.
+    pub fn carry_own_velocity(
+        &mut self,
+        dt: R,
+        inflow_phihat: R,
+        open: impl Fn(usize, bool, usize) -> R,
+    ) -> Discharge<R, D> {
+        let n = self.grid.len();
+        let grid = self.grid;
+        let h = grid.spacing();
+        let vol = grid.cell_volume();
+        let vacuum = self.cfg.vacuum;
+        let small = self.cfg.phase == Phase::Small;
+        let inflow_q = if small {
+            inflow_phihat
+        } else {
+            R::ONE - inflow_phihat
+        };
+        let mut out = Discharge {
+            small: [[R::ZERO; 2]; D],
+            total: [[R::ZERO; 2]; D],
+            guarded: R::ZERO,
+        };
+        // Pass A: the amount each cell would give away with A = c, into `rhs`.
+        self.rhs[..n].fill(R::ZERO);
+        for a in 0..D {
+            let lam = dt / h[a];
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            let u = &self.u[a];
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let un = (u[l] + u[l + s]) * R::HALF;
+                    if un > R::ZERO {
+                        self.rhs[l] += lam * un * self.c[l];
+                    } else if un < R::ZERO {
+                        self.rhs[l + s] += lam * (-un) * self.c[l + s];
+                    }
+                }
+            }
+            for high in [false, true] {
+                let kind = self.bc[a][high as usize];
+                let (rhs, c) = (&mut self.rhs, &self.c);
+                grid.for_each_boundary_cell(a, high, |i, j| match kind {
+                    Boundary::Periodic => {
+                        if high {
+                            let un = (u[i] + u[j]) * R::HALF;
+                            if un > R::ZERO {
+                                rhs[i] += lam * un * c[i];
+                            } else if un < R::ZERO {
+                                rhs[j] += lam * (-un) * c[j];
+                            }
+                        }
+                    }
+                    Boundary::Wall => {
+                        let w = open(a, high, i);
+                        let uo = outward(high, u[i]);
+                        if w > R::ZERO && uo > R::ZERO {
+                            rhs[i] += lam * w * uo * c[i];
+                        }
+                    }
+                    Boundary::Inflow | Boundary::Outflow => {
+                        let uo = outward(high, u[i]);
+                        if uo > R::ZERO {
+                            rhs[i] += lam * uo * c[i];
+                        }
+                    }
+                });
+            }
+        }
+        // Pass B: the donor measure A_i (limited so no cell gives more than it holds) into
+        // `rhs`, the donor fraction qhat into `flux`; each cell keeps the share `keep` of q
+        // and c; k becomes the segregation velocity S = k c for the rescaling in pass D.
+        let mut guarded = R::ZERO;
+        for i in 0..n {
+            let c = self.c[i];
+            let mut q = self.q[i];
+            // Round-off of the percolation stage: into [0, c], the difference into the carry.
+            if q < R::ZERO {
+                self.carry[i] += q;
+                guarded -= q;
+                q = R::ZERO;
+            } else if q > c {
+                self.carry[i] += q - c;
+                guarded += q - c;
+                q = c;
+            }
+            let give = self.rhs[i];
+            let (lim, qhat, keep) = if c > R::ZERO {
+                let lim = if give > c { c / give } else { R::ONE };
+                (
+                    lim,
+                    (q / c).min(R::ONE),
+                    ((c - lim * give) / c).max(R::ZERO),
+                )
+            } else {
+                (R::ONE, R::ZERO, R::ONE)
+            };
+            self.rhs[i] = lim * c;
+            self.flux[i] = qhat;
+            self.q[i] = q * keep;
+            for a in 0..D {
+                self.k[a][i] *= c;
+            }
+            self.c[i] = c * keep;
+        }
+        out.guarded = guarded * vol;
+        // Pass C: every cell receives, face by face in a fixed order, F of c and F qhat of q.
+        for a in 0..D {
+            let lam = dt / h[a];
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let un = (self.u[a][l] + self.u[a][l + s]) * R::HALF;
+                    if un > R::ZERO {
+                        let f = lam * un * self.rhs[l];
+                        self.receive_own(l + s, f, self.flux[l]);
+                    } else if un < R::ZERO {
+                        let f = lam * (-un) * self.rhs[l + s];
+                        self.receive_own(l, f, self.flux[l + s]);
+                    }
+                }
+            }
+            for high in [false, true] {
+                let kind = self.bc[a][high as usize];
+                let side = high as usize;
+                grid.for_each_boundary_cell(a, high, |i, j| {
+                    let u = self.u[a][i];
+                    match kind {
+                        Boundary::Periodic => {
+                            if high {
+                                let un = (u + self.u[a][j]) * R::HALF;
+                                if un > R::ZERO {
+                                    let f = lam * un * self.rhs[i];
+                                    self.receive_own(j, f, self.flux[i]);
+                                } else if un < R::ZERO {
+                                    let f = lam * (-un) * self.rhs[j];
+                                    self.receive_own(i, f, self.flux[j]);
+                                }
+                            }
+                        }
+                        Boundary::Wall => {
+                            let w = open(a, high, i);
+                            let uo = outward(high, u);
+                            if w > R::ZERO && uo > R::ZERO {
+                                let f = lam * w * uo * self.rhs[i];
+                                out.small[a][side] += small_part(small, f, self.flux[i]) * vol;
+                                out.total[a][side] += f * vol;
+                            }
+                        }
+                        Boundary::Inflow | Boundary::Outflow => {
+                            let uo = outward(high, u);
+                            let f = lam * uo.abs() * self.rhs[i];
+                            if uo > R::ZERO {
+                                out.small[a][side] += small_part(small, f, self.flux[i]) * vol;
+                                out.total[a][side] += f * vol;
+                            } else if uo < R::ZERO {
+                                let qhat = if kind == Boundary::Inflow {
+                                    inflow_q
+                                } else {
+                                    self.flux[i]
+                                };
+                                self.receive_own(i, f, qhat);
+                                out.small[a][side] -= small_part(small, f, qhat) * vol;
+                                out.total[a][side] -= f * vol;
+                            }
+                        }
+                    }
+                });
+            }
+        }
+        // Pass D: k = S / c for the new c; inflow values follow the new c.
+        for i in 0..n {
+            let c = self.c[i];
+            for a in 0..D {
+                self.k[a][i] = if c > vacuum {
+                    self.k[a][i] / c
+                } else {
+                    R::ZERO
+                };
+            }
+        }
+        for a in 0..D {
+            for high in [false, true] {
+                if self.bc[a][high as usize] == Boundary::Inflow {
+                    let (ghost, c) = (&mut self.ghost, &self.c);
+                    grid.for_each_boundary_cell(a, high, |i, _| ghost[i] = inflow_phihat * c[i]);
+                }
+            }
+        }
+        out
+    }
+
+    /// Cell `i` receives the amount `f >= 0` of `c` with tracked fraction `qhat` in `[0, 1]`.
+    #[inline(always)]
+    fn receive_own(&mut self, i: usize, f: R, qhat: R) {
+        self.q[i] += f * qhat;
+        self.c[i] += f;
+    }
+}
+
+impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
+    /// The face coefficient `k_a = S_a / c` of cell `i` (0 in empty cells): derived by
+    /// `prepare`, rescaled by [`Self::carry_own_velocity`]. For bit-exact snapshots of a
+    /// carried `c`, whose rescaled `k` a fresh `prepare` would round differently.
+    pub fn face_coefficient(&self, axis: usize, i: usize) -> R {
+        self.k[axis][i]
+    }
+
+    /// Restores a face coefficient saved with [`Self::face_coefficient`] (snapshots only;
+    /// call after `prepare`/`prepare_velocity`, which would overwrite it).
+    pub fn set_face_coefficient(&mut self, axis: usize, i: usize, k: R) {
+        self.k[axis][i] = k;
+    }
+
+    /// Sets `c` of cell `i` exactly (bit-exact snapshot restore of a carried `c`); call
+    /// `prepare_velocity` after.
+    pub fn set_volume_fraction(&mut self, i: usize, c: R) {
+        self.c[i] = c;
+    }
+}

@@ -31,6 +31,26 @@ impl Region {
     }
 }
 
+/// An opening (outlet) in a wall side of the estimator's box: grains leave through the part
+/// `lower..upper` of the side (the coordinate along the side, m from the origin), as through
+/// the flow's [`crate::boundary::Openings`]; nothing enters through it (issue 9, silo).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensorOpening<R> {
+    /// Axis of the side's normal: 0 (an x side) or 1 (a z side, e.g. a silo floor).
+    pub axis: u8,
+    /// The high side of that axis (false: the low side, e.g. the floor).
+    pub high: bool,
+    /// Start of the opening along the other axis [m].
+    pub lower: R,
+    /// End of the opening along the other axis [m].
+    pub upper: R,
+}
+
+/// Largest number of openings of a sensor configuration.
+pub const MAX_OPENINGS: usize = 2;
+/// Largest outflow window in ticks ([`SensorConfig::outflow_window`]).
+pub const MAX_OUTFLOW_WINDOW: usize = 64;
+
 /// Everything the soft sensor needs besides the frames. Axis 0 is x (horizontal / downstream),
 /// axis 1 is z (up). Velocities in m/s, lengths in m, times in s.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -54,8 +74,13 @@ pub struct SensorConfig<R> {
     pub heating: R,
     /// Gravity [m/s^2].
     pub gravity: [R; 2],
-    /// Constant volume fraction c (a field may replace it, see `SoftSensor::set_c_field`).
+    /// Volume fraction c of the bed at power-up (a field may replace it, see
+    /// `SoftSensor::set_c_field`); from then on c is carried with the measured flow.
     pub c: R,
+    /// Height of the bed's free surface at power-up [m]: c below it, 0 above, the cell it
+    /// crosses filled in proportion (a silo's fill level, e.g. from a level sensor); the box
+    /// height for a full box.
+    pub fill_level: R,
     /// Initial relative small fraction phihat everywhere (the state at power-up).
     pub initial_phihat: R,
     /// phihat entering through inflow boundaries.
@@ -96,8 +121,13 @@ pub struct SensorConfig<R> {
     pub outlet: Option<u8>,
     /// Alarm when psi falls below this.
     pub psi_alarm: R,
-    /// Alarm when the outlet fines fraction leaves `[lo, hi]`.
+    /// Alarm when the outlet fines fraction leaves `[lo, hi]` (the fines fraction of the
+    /// outflow over the window if anything left the box during it, else the outlet region).
     pub fines_band: [R; 2],
+    /// Openings in wall sides (outlets), at most [`MAX_OPENINGS`].
+    pub openings: heapless::Vec<SensorOpening<R>, MAX_OPENINGS>,
+    /// Ticks over which the outflow fines fraction is averaged (1 to [`MAX_OUTFLOW_WINDOW`]).
+    pub outflow_window: u16,
 }
 
 /// Why a configuration cannot be used.
@@ -142,7 +172,13 @@ impl<R: SensorReal> SensorConfig<R> {
                 "gravity",
                 self.gravity[0].is_finite() && self.gravity[1].is_finite(),
             ),
-            ("c", nonneg(self.c) && self.c <= R::ONE),
+            (
+                "c",
+                nonneg(self.c)
+                    && self.c <= R::ONE
+                    && self.fill_level.is_finite()
+                    && self.fill_level > R::ZERO,
+            ),
             ("initial_phihat", unit(self.initial_phihat)),
             ("inflow_phihat", unit(self.inflow_phihat)),
             ("diffusion", nonneg(self.diffusion)),
@@ -173,6 +209,24 @@ impl<R: SensorReal> SensorConfig<R> {
                     return Err(ConfigError::Region);
                 }
             }
+        }
+        for o in &self.openings {
+            let a = o.axis as usize;
+            if a > 1 || self.bc[a][o.high as usize] != crate::boundary::Boundary::Wall {
+                return Err(ConfigError::Parameter("openings"));
+            }
+            let len = self.extent[1 - a];
+            if !(o.lower.is_finite()
+                && o.upper.is_finite()
+                && o.lower >= R::ZERO
+                && o.lower < o.upper
+                && o.upper <= len)
+            {
+                return Err(ConfigError::Parameter("openings"));
+            }
+        }
+        if self.outflow_window == 0 || self.outflow_window as usize > MAX_OUTFLOW_WINDOW {
+            return Err(ConfigError::Parameter("outflow_window"));
         }
         if let Some(o) = self.outlet {
             if o as usize >= self.regions.len() {

@@ -1,10 +1,11 @@
 //! The soft-sensor estimator: input handling, the budgeted tick, and the estimate.
 
 use super::config::{ConfigError, SensorConfig};
+use super::config::{MAX_OPENINGS, MAX_OUTFLOW_WINDOW};
 use super::entropy;
 use super::frame::{bump, Estimate, Reject, VelocityFrame};
 use super::{alarm, health, SensorReal, MAX_FRAME_VALUES};
-use crate::boundary::{Boundaries, Boundary};
+use crate::boundary::{Boundaries, Boundary, Opening, Openings};
 use crate::diagnostics::{self, state_hash};
 use crate::grid::Grid;
 use crate::hash::Fnv64;
@@ -128,6 +129,16 @@ pub struct SoftSensor<R: SensorReal, const N: usize> {
     accepted_this_tick: bool,
     /// Time of the frames accepted this tick, advanced by `finish_tick` (0 between ticks).
     pending: R,
+    /// Openings of the wall sides `[axis][low, high]` (outlets), from the configuration.
+    pub(super) open: [[Openings<R, 2>; 2]; 2],
+    /// What left the box this tick: grain volume and small-grain volume (per unit depth).
+    pub(super) tick_out: [R; 2],
+    /// The same per tick over the last `outflow_window` ticks (ring buffer).
+    pub(super) out_ring: [[R; 2]; MAX_OUTFLOW_WINDOW],
+    /// Next slot of `out_ring`.
+    pub(super) out_head: u16,
+    /// What left the box since configuration (grains, small grains).
+    pub(super) out_total: [R; 2],
 }
 
 impl<R: SensorReal, const N: usize> Default for SoftSensor<R, N> {
@@ -149,6 +160,7 @@ const fn empty_config<R: SensorReal>() -> SensorConfig<R> {
         heating: R::ZERO,
         gravity: [R::ZERO, R::NEG_ONE],
         c: R::ZERO,
+        fill_level: R::ONE,
         initial_phihat: R::ZERO,
         inflow_phihat: R::ZERO,
         diffusion: R::ZERO,
@@ -166,6 +178,8 @@ const fn empty_config<R: SensorReal>() -> SensorConfig<R> {
         outlet: None,
         psi_alarm: R::ZERO,
         fines_band: [R::ZERO, R::ONE],
+        openings: heapless::Vec::new(),
+        outflow_window: 1,
     }
 }
 
@@ -200,6 +214,11 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             substeps: 0,
             accepted_this_tick: false,
             pending: R::ZERO,
+            open: [[Openings::none(); 2]; 2],
+            tick_out: [R::ZERO; 2],
+            out_ring: [[R::ZERO; 2]; MAX_OUTFLOW_WINDOW],
+            out_head: 0,
+            out_total: [R::ZERO; 2],
         }
     }
 
@@ -239,10 +258,19 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.seg
             .setup(grid, cfg.bc, scfg)
             .map_err(|_| ConfigError::Parameter("segregation"))?;
-        let phi = cfg.initial_phihat * cfg.c;
+        let dz = cfg.extent[1] / R::from_u32(cfg.cells[1] as u32);
         for i in 0..grid.len() {
-            self.seg.set_cell(i, cfg.c, R::ZERO, [R::ZERO; 2], phi);
-            self.seg.set_inflow(i, cfg.inflow_phihat * cfg.c);
+            // The bed below the fill level; the cell it crosses in proportion.
+            let z0 = R::from_u32((i / cells[0]) as u32) * dz;
+            let share = if cfg.fill_level >= cfg.extent[1] {
+                R::ONE
+            } else {
+                ((cfg.fill_level - z0) / dz).max(R::ZERO).min(R::ONE)
+            };
+            let c = cfg.c * share;
+            self.seg
+                .set_cell(i, c, R::ZERO, [R::ZERO; 2], cfg.initial_phihat * c);
+            self.seg.set_inflow(i, cfg.inflow_phihat * c);
         }
         self.cfg = cfg.clone();
         self.vel = [R::ZERO; MAX_FRAME_VALUES];
@@ -257,6 +285,23 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.substeps = 0;
         self.accepted_this_tick = false;
         self.pending = R::ZERO;
+        self.open = [[Openings::none(); 2]; 2];
+        for o in &cfg.openings {
+            let (a, t) = (o.axis as usize, 1 - o.axis as usize);
+            let mut lower = [R::ZERO; 2];
+            let mut upper = [R::ZERO; 2];
+            lower[t] = o.lower;
+            upper[t] = o.upper;
+            // At most MAX_OPENINGS (2) in all, so one side never overflows.
+            debug_assert!(cfg.openings.len() <= MAX_OPENINGS);
+            self.open[a][o.high as usize]
+                .push(Opening { lower, upper })
+                .map_err(|_| ConfigError::Parameter("openings"))?;
+        }
+        self.tick_out = [R::ZERO; 2];
+        self.out_ring = [[R::ZERO; 2]; MAX_OUTFLOW_WINDOW];
+        self.out_head = 0;
+        self.out_total = [R::ZERO; 2];
         self.seg
             .prepare()
             .map_err(|_| ConfigError::Parameter("initial state"))
@@ -471,12 +516,12 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             let n = need as u16;
             let sub = dt / R::from_usize(n as usize);
             for _ in 0..n {
-                self.seg.step(sub);
+                self.substep(sub);
             }
             self.substeps += n;
         } else {
             for _ in 0..left {
-                self.seg.step(sdt);
+                self.substep(sdt);
             }
             self.substeps += left;
             self.lag += dt - sdt * R::from_usize(left as usize);
@@ -485,6 +530,30 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             }
             self.flags |= health::BUDGET_LIMITED;
         }
+    }
+
+    /// One substep (model.md 8): the segregation flux alone (modified Godunov, compensated),
+    /// then c and phi carried together by the face mass fluxes `c_donor u_face` of the
+    /// measured velocity ([`Segregation::carry_own_velocity`]), so `0 <= phi <= c` holds
+    /// exactly whatever the noise; what leaves through outlets and open sides is booked.
+    fn substep(&mut self, dt: R) {
+        self.seg.step_percolation(dt);
+        let grid = *self.seg.grid();
+        let open = &self.open;
+        let d = self
+            .seg
+            .carry_own_velocity(dt, self.cfg.inflow_phihat, |a, high, i| {
+                open[a][high as usize].fraction(&grid, a, i)
+            });
+        let (mut total, mut small) = (R::ZERO, R::ZERO);
+        for a in 0..2 {
+            for side in 0..2 {
+                total += d.total[a][side];
+                small += d.small[a][side];
+            }
+        }
+        self.tick_out[0] += total;
+        self.tick_out[1] += small;
     }
 
     /// Ends the tick: holds or freezes if no frame was accepted during it, then returns the
@@ -527,6 +596,12 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
                 bump(&mut self.counters.frozen_ticks);
             }
         }
+        // The tick's outflow into the window and the running total.
+        let slot = self.out_head as usize % self.cfg.outflow_window as usize;
+        self.out_ring[slot] = self.tick_out;
+        self.out_head = ((slot + 1) % self.cfg.outflow_window as usize) as u16;
+        self.out_total[0] += self.tick_out[0];
+        self.out_total[1] += self.tick_out[1];
         let t3 = clock();
         prof.substeps = t3 - t0 - prof.map - prof.prepare;
         let (e, excursions) = self.readout();
@@ -536,6 +611,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         prof.estimate = clock() - t3;
         self.flags = 0;
         self.substeps = 0;
+        self.tick_out = [R::ZERO; 2];
         self.accepted_this_tick = false;
         self.tick = self.tick.wrapping_add(1);
         (e, prof)
@@ -613,11 +689,31 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             // Cannot overflow: the configuration holds at most as many regions.
             let _ = regions.push(mean.to_f64() as f32);
         }
+        let fraction = |o: [R; 2]| {
+            if o[0] > R::ZERO {
+                (o[1] / o[0]).max(R::ZERO).min(R::ONE)
+            } else {
+                R::ZERO
+            }
+        };
+        let mut window = [R::ZERO; 2];
+        for o in &self.out_ring[..cfg.outflow_window as usize] {
+            window[0] += o[0];
+            window[1] += o[1];
+        }
+        let window_fines = fraction(window);
         let mut alarms = 0;
         if psi < cfg.psi_alarm {
             alarms |= alarm::PSI_LOW;
         }
-        if let Some(&fines) = cfg.outlet.and_then(|o| regions.get(o as usize)) {
+        // The fines fraction of what left over the window where something left, else the
+        // outlet region's mean.
+        let outlet_fines = if window[0] > R::ZERO {
+            Some(window_fines.to_f64() as f32)
+        } else {
+            cfg.outlet.and_then(|o| regions.get(o as usize)).copied()
+        };
+        if let Some(fines) = outlet_fines {
             if (fines as f64) < cfg.fines_band[0].to_f64() {
                 alarms |= alarm::FINES_LOW;
             }
@@ -645,6 +741,9 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             health: h,
             substeps: self.substeps,
             lag: f(self.lag),
+            outflow: f(self.tick_out[0]),
+            outflow_fines: f(fraction(self.tick_out)),
+            outflow_fines_window: f(window_fines),
         };
         (e, excursions)
     }
@@ -662,6 +761,9 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         h.write_u32(self.covered);
         h.write_u32(self.stale);
         self.lag.hash_into(&mut h);
+        for v in self.out_total {
+            v.hash_into(&mut h);
+        }
         h.finish()
     }
 
@@ -680,6 +782,11 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
     /// Accumulated simulated-time shortfall [s].
     pub fn lag(&self) -> R {
         self.lag
+    }
+    /// What left the box since configuration through outlets and open sides: grain volume
+    /// and small-grain volume (per unit depth in 2D).
+    pub fn outflow_total(&self) -> [R; 2] {
+        self.out_total
     }
     /// phihat of estimator cell `i` (0 in empty cells).
     pub fn phihat(&self, i: usize) -> R {

@@ -82,10 +82,18 @@ pub struct Estimate {
     pub substeps: u16,
     /// Accumulated simulated-time shortfall (budget limits, frozen or lost periods) [s].
     pub lag: f32,
+    /// Grain volume that left the box this tick (per unit depth, m^2 in 2D): the
+    /// estimator's own outlet, outflow and inflow face fluxes (negative if more came in).
+    pub outflow: f32,
+    /// Fines fraction of what left this tick (small-grain volume over grain volume of the
+    /// outflow); 0 if nothing left.
+    pub outflow_fines: f32,
+    /// Fines fraction of what left over the last `outflow_window` ticks; 0 if nothing left.
+    pub outflow_fines_window: f32,
 }
 
 impl MaxSize for Estimate {
-    const POSTCARD_MAX_SIZE: usize = 5 + 5 + 4 * 4 + 1 + 4 * MAX_REGIONS + 2 + 3 + 4;
+    const POSTCARD_MAX_SIZE: usize = 5 + 5 + 4 * 4 + 1 + 4 * MAX_REGIONS + 2 + 3 + 4 + 3 * 4;
 }
 
 /// The CRC envelope inside the COBS frame.

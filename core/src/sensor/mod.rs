@@ -28,7 +28,9 @@ pub mod frame;
 pub mod recording;
 pub mod snapshot;
 
-pub use config::{ConfigError, Region, SensorConfig};
+pub use config::{
+    ConfigError, Region, SensorConfig, SensorOpening, MAX_OPENINGS, MAX_OUTFLOW_WINDOW,
+};
 pub use estimator::{seq_after, Counters, SoftSensor, TickProfile};
 pub use frame::{Estimate, FrameDecoder, Reject, VelocityFrame, WireCounters};
 

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 /// File magic.
 pub const RECORDING_MAGIC: [u8; 8] = *b"SIEVEREC";
 /// Current format version.
-pub const RECORDING_VERSION: u32 = 2;
+pub const RECORDING_VERSION: u32 = 3;
 
 /// What the recording says about itself.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -53,13 +53,19 @@ pub struct TruthRecord {
     pub psi: f32,
     /// phihat of the truth averaged onto the coarse grid (x fastest).
     pub phihat: heapless::Vec<f32, MAX_SENSOR_POINTS>,
+    /// c of the truth averaged onto the coarse grid (x fastest): what the estimator's
+    /// carried c is compared with (format 3).
+    pub c: heapless::Vec<f32, MAX_SENSOR_POINTS>,
+    /// Grain volume and small-grain volume that had left the truth's box by this time (per
+    /// unit depth; 0 for a closed box), for the outflow fines fraction (format 3).
+    pub discharged: [f32; 2],
 }
 
 impl TruthRecord {
     /// Appends the postcard encoding of this record to `out` (a writer callback); returns
     /// false if the record does not fit the 2 KiB scratch.
     pub fn encode_into(&self, mut out: impl FnMut(&[u8])) -> bool {
-        let mut buf = [0u8; 8 + 5 + 4 * super::MAX_SENSOR_POINTS + 8];
+        let mut buf = [0u8; 8 + 5 + 2 * (2 + 4 * super::MAX_SENSOR_POINTS) + 8 + 8];
         match postcard::to_slice(self, &mut buf) {
             Ok(b) => {
                 out(b);

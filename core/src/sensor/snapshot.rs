@@ -1,35 +1,39 @@
 //! Snapshots: the estimator state as postcard items plus a CRC-32, restored bit-identically.
 //!
-//! Layout: `postcard(SnapshotHeader)`, then `cells` values of the tracked phase fraction `q`
-//! (phi for `Phase::Small`, c - phi for `Phase::Large`: the solver's own state, written and
-//! restored with `set_tracked`, so either phase round-trips bit-exactly), `cells` values of the
-//! rounding error the compensated updates carry per cell, and `2 * sensor points` values of the smoothed sensor velocity (each a postcard `R`: fixed-width IEEE bits), then
-//! the CRC-32 of everything before it (4 bytes little endian). Items are written and read one
-//! by one, so no buffer of the size of the state is needed besides the output itself.
+//! Layout (format 4): `postcard(SnapshotHeader)`, then `cells` values of the carried volume
+//! fraction `c`, `cells` values of the tracked phase fraction `q` (phi for `Phase::Small`,
+//! c - phi for `Phase::Large`: the solver's own state, written and restored with
+//! `set_tracked`, so either phase round-trips bit-exactly), `cells` values of the rounding
+//! error the compensated updates carry per cell, `2 cells` face coefficients `k` (x, then z),
+//! `2 * sensor points` values of the smoothed sensor velocity and `2 * outflow_window`
+//! values of the outflow window (each a postcard `R`: fixed-width IEEE bits), then the CRC-32
+//! of everything before it (4 bytes little endian). Items are written and read one by one,
+//! so no buffer of the size of the state is needed besides the output itself.
 //!
-//! Derived quantities (u on the estimator grid, T, the segregation coefficients) are not
-//! stored: restore maps the stored sensor field again and calls `prepare_velocity`, which
-//! computes them with the same operations in the same order, so they come out bit-identical.
-//! Nothing is clamped: q is restored as stored.
+//! c is state since the estimator carries it (issue 9). The face coefficients `k = S/c` are
+//! stored because the carried transport rescales them to each new c, which a fresh `prepare`
+//! would round differently. u on the estimator grid and T are not stored: restore maps the
+//! stored sensor field again and calls `prepare_velocity`, which computes them with the same
+//! operations in the same order, so they come out bit-identical. Nothing is clamped: q is
+//! restored as stored.
 
 use super::estimator::{Counters, SoftSensor};
-use super::{crc32, SensorReal, MAX_FRAME_VALUES};
+use super::{crc32, SensorReal, MAX_FRAME_VALUES, MAX_OUTFLOW_WINDOW};
 use crate::hash::Fnv64;
 use postcard::ser_flavors::Flavor;
 use serde::{Deserialize, Serialize};
 
 /// Snapshot format version.
-pub const SNAPSHOT_VERSION: u16 = 3;
+pub const SNAPSHOT_VERSION: u16 = 4;
 
-/// How far outside [0, c] a stored tracked fraction may be. The estimator never clamps, so
-/// phi may leave [0, c] by round-off and by the compression of a noisy measured velocity (of
-/// the order of 1e-4 in the shear cell at 10 % noise); anything beyond this is not a state it
-/// produces, and is refused.
+/// How far outside [0, c] a stored tracked fraction may be. The estimator carries c with the
+/// same face fluxes as phi, so phi stays in [0, c] up to the sub-ulp carry of its compensated
+/// updates; anything beyond this is not a state it produces, and is refused.
 pub const SNAPSHOT_PHI_SLACK: f64 = 0.05;
 
 /// Upper bound of a snapshot's size for capacity `N` (f64 values, generous header).
 pub const fn snapshot_capacity(n: usize) -> usize {
-    256 + 8 * (2 * n + MAX_FRAME_VALUES)
+    256 + 8 * (5 * n + MAX_FRAME_VALUES + 2 * MAX_OUTFLOW_WINDOW)
 }
 
 #[derive(Serialize, Deserialize)]
@@ -49,6 +53,8 @@ struct SnapshotHeader<R> {
     lag: R,
     tick: u32,
     counters: Counters,
+    out_head: u16,
+    out_total: [R; 2],
 }
 
 /// Why a snapshot was refused (the state is then unchanged).
@@ -84,14 +90,12 @@ impl Flavor for HashFlavor {
 }
 
 impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
-    /// FNV-1a of the postcard encoding of the configuration and of the c field.
+    /// FNV-1a of the postcard encoding of the configuration (c is carried state since issue
+    /// 9: the snapshot stores it).
     pub fn config_hash(&self) -> u64 {
         let mut h = Fnv64::new();
         let cfg = postcard::serialize_with_flavor(&self.cfg, HashFlavor(Fnv64::new())).unwrap_or(0);
         h.write(&cfg.to_le_bytes());
-        for i in 0..self.seg.len() {
-            self.seg.c(i).hash_into(&mut h);
-        }
         h.finish()
     }
 
@@ -111,6 +115,8 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             lag: self.lag,
             tick: self.tick,
             counters: self.counters,
+            out_head: self.out_head,
+            out_total: self.out_total,
         }
     }
 
@@ -126,14 +132,27 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             Ok::<(), SnapshotError>(())
         };
         put(out, &mut at, &self.header())?;
-        for i in 0..self.seg.len() {
+        let n = self.seg.len();
+        for i in 0..n {
+            put(out, &mut at, &self.seg.c(i))?;
+        }
+        for i in 0..n {
             put(out, &mut at, &self.seg.tracked_fraction(i))?;
         }
-        for i in 0..self.seg.len() {
+        for i in 0..n {
             put(out, &mut at, &self.seg.carry(i))?;
+        }
+        for a in 0..2 {
+            for i in 0..n {
+                put(out, &mut at, &self.seg.face_coefficient(a, i))?;
+            }
         }
         for v in &self.vel[..2 * self.cfg.sensor_points()] {
             put(out, &mut at, v)?;
+        }
+        for o in &self.out_ring[..self.cfg.outflow_window as usize] {
+            put(out, &mut at, &o[0])?;
+            put(out, &mut at, &o[1])?;
         }
         let crc = crc32(&out[..at]);
         let end = at + 4;
@@ -168,19 +187,27 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         {
             return Err(SnapshotError::Config);
         }
-        if !h.time.is_finite() || !h.lag.is_finite() {
+        let window = self.cfg.outflow_window as usize;
+        let sane = h.time.is_finite()
+            && h.lag.is_finite()
+            && h.out_total[0].is_finite()
+            && h.out_total[1].is_finite()
+            && (h.out_head as usize) < window;
+        if !sane {
             return Err(SnapshotError::Value);
         }
-        // Pass 1: validate every value without writing.
+        // Pass 1: validate every value without writing (c in [0, 1], q within the slack of
+        // [0, 1], carries below an ulp, everything finite).
         let tol = R::from_f64(SNAPSHOT_PHI_SLACK);
         let mut r = rest;
-        for i in 0..2 * n + nv {
+        for i in 0..5 * n + nv + 2 * window {
             let (v, next): (R, _) =
                 postcard::take_from_bytes(r).map_err(|_| SnapshotError::Decode)?;
-            let bad_q = i < n && (v < -tol || v > self.seg.c(i) + tol);
-            // a carry is below half an ulp of q <= 1
-            let bad_carry = (n..2 * n).contains(&i) && v.abs() > R::EPSILON;
-            if !v.is_finite() || bad_q || bad_carry {
+            let bad_c = i < n && !(v >= R::ZERO && v <= R::ONE);
+            let bad_q = (n..2 * n).contains(&i) && (v < -tol || v > R::ONE + tol);
+            // a carry is below half an ulp of q <= 1 (plus an ulp moved back into [0, c])
+            let bad_carry = (2 * n..3 * n).contains(&i) && v.abs() > R::TWO * R::EPSILON;
+            if !v.is_finite() || bad_c || bad_q || bad_carry {
                 return Err(SnapshotError::Value);
             }
             r = next;
@@ -188,25 +215,31 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         if !r.is_empty() {
             return Err(SnapshotError::Decode);
         }
-        // Pass 2: write (cannot fail any more): the tracked fractions exactly as stored.
+        // Pass 2: write (cannot fail any more): every value exactly as stored.
         let mut r = rest;
         for i in 0..n {
-            if let Ok((v, next)) = postcard::take_from_bytes::<R>(r) {
-                self.seg.set_tracked(i, v);
-                r = next;
-            }
+            let c = next_value(&mut r);
+            self.seg.set_volume_fraction(i, c);
         }
         for i in 0..n {
-            if let Ok((v, next)) = postcard::take_from_bytes::<R>(r) {
-                self.seg.set_carry(i, v);
-                r = next;
-            }
+            let q = next_value(&mut r);
+            self.seg.set_tracked(i, q);
+        }
+        for i in 0..n {
+            let e = next_value(&mut r);
+            self.seg.set_carry(i, e);
+        }
+        // The face coefficients are restored after prepare_velocity (below), which would
+        // overwrite them: keep where they start.
+        let k_bytes = r;
+        for _ in 0..2 * n {
+            let _: R = next_value(&mut r);
         }
         for k in 0..nv {
-            if let Ok((v, next)) = postcard::take_from_bytes::<R>(r) {
-                self.vel[k] = v;
-                r = next;
-            }
+            self.vel[k] = next_value(&mut r);
+        }
+        for k in 0..window {
+            self.out_ring[k] = [next_value(&mut r), next_value(&mut r)];
         }
         self.have_velocity = h.have_velocity;
         self.last_seq = h.last_seq;
@@ -224,9 +257,29 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         }
         let ok = self.seg.prepare_velocity().is_ok();
         debug_assert!(ok, "validated velocities must prepare");
+        let mut r = k_bytes;
+        for a in 0..2 {
+            for i in 0..n {
+                let k = next_value(&mut r);
+                self.seg.set_face_coefficient(a, i, k);
+            }
+        }
+        self.out_head = h.out_head;
+        self.out_total = h.out_total;
         self.counters = h.counters;
         self.seg.set_clock(h.time, h.steps);
         Ok(())
+    }
+}
+
+/// The next value of a validated item stream (0 if it ended: cannot happen after pass 1).
+fn next_value<R: SensorReal>(r: &mut &[u8]) -> R {
+    match postcard::take_from_bytes::<R>(r) {
+        Ok((v, next)) => {
+            *r = next;
+            v
+        }
+        Err(_) => R::ZERO,
     }
 }
 

@@ -27,8 +27,8 @@
 //!   clean velocity, rounded down to two significant digits) and the frames cover `run.t_end`
 //!   (at most [`MAX_DEFAULT_FRAMES`]).
 //!
-//! A "coupled" scene is rejected: its velocity evolves with the segregation, so there is no
-//! fixed field to sample (sampling the coupled run at frame times would be the extension).
+//! A "coupled" scene (issue 9, e.g. `silo`) is recorded by [`record_coupled`]: the truth is
+//! the coupled run itself, sampled at every frame time; see there.
 
 use super::record::{RecordReport, Writer};
 use super::scene::coarsen;
@@ -121,15 +121,13 @@ pub fn check(scene: &Scene) -> Result<()> {
             "2 (the soft sensor estimates a 2D x-z field)",
         ));
     }
-    if let Some(fm) = &scene.flow {
-        if fm.equations == Equations::Coupled {
-            return Err(Error::range(
-                &scene.label,
-                "model.equations",
-                "\"coupled\"",
-                "\"prescribed\" or \"frozen-flow\" (the recorder samples a fixed velocity field; a coupled flow changes with the segregation)",
-            ));
-        }
+    if scene.geometry.is_some() || scene.frame.is_some() {
+        return Err(Error::range(
+            &scene.label,
+            "geometry",
+            "a container or a rotating frame",
+            "a box scene without [geometry] and [frame] (the soft sensor's estimator is a box in the lab frame)",
+        ));
     }
     if scene.cells.iter().any(|&n| n > u16::MAX as usize) {
         return Err(Error::range(
@@ -187,6 +185,9 @@ impl FlowJob for RecordJob<'_> {
         f: &mut Flow<R, D, N>,
     ) -> Result<Self::Output> {
         crate::run::load(s, self.scene, self.fields)?;
+        if self.scene.flow.as_ref().map(|m| m.equations) == Some(Equations::Coupled) {
+            return record_coupled(s, f, self.scene, self.fields, self.opts);
+        }
         let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
         crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
         record_loop(s, self.scene, self.fields, self.opts, Some(frozen.summary))
@@ -413,6 +414,7 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
         heating: f(heating),
         gravity: [f(scene.gravity[0]), f(scene.gravity[1])],
         c: f(c_sensor),
+        fill_level: f(extent[1]),
         initial_phihat: f(initial),
         inflow_phihat: f(inflow_phihat),
         diffusion: f(scene.diffusion),
@@ -432,6 +434,8 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
         outlet: None,
         psi_alarm: 0.3,
         fines_band: [0.4, 0.8],
+        openings: Default::default(),
+        outflow_window: 10,
     };
     if ne0 == 0 || ne1 == 0 {
         return Err(Error::range(
@@ -515,8 +519,16 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
             nf,
             ns,
         );
+        let coarse_c = coarsen(|i| s.c(i).to_f64(), nf, ns);
         writer
-            .truth(k, s.time().to_f64(), final_psi, &coarse)
+            .truth(
+                k,
+                s.time().to_f64(),
+                final_psi,
+                &coarse,
+                &coarse_c,
+                [0.0, 0.0],
+            )
             .map_err(fail)?;
     }
     let (bytes, stream_bytes) = writer
@@ -542,6 +554,340 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
         c: c_sensor,
         notes,
         flow,
+    };
+    Ok((bytes, report))
+}
+
+/// The initial c of a coupled scene as the soft sensor's configuration: a bed of one c below
+/// a free surface (every cell either within 0.1 % of the largest c or below 1e-6 of it, the
+/// full cells below the empty ones) gives that c and the fill level (the bed's volume over the
+/// box width); anything else its mean c over the whole box (noted).
+fn bed_of(c: &[f64], nf: [usize; 2], extent: [f64; 2], notes: &mut Vec<String>) -> (f64, f64) {
+    let (lo, hi) = spread(c);
+    if hi - lo <= 1e-12 * hi {
+        return (hi, extent[1]);
+    }
+    let full = |v: f64| v >= 0.999 * hi;
+    let empty = |v: f64| v <= 1e-6 * hi;
+    let layered = (0..nf[0]).all(|ix| {
+        let mut seen_empty = false;
+        (0..nf[1]).all(|iz| {
+            let v = c[ix + nf[0] * iz];
+            if empty(v) {
+                seen_empty = true;
+                true
+            } else {
+                full(v) && !seen_empty
+            }
+        })
+    });
+    if layered {
+        let dx = extent[0] / nf[0] as f64;
+        let dz = extent[1] / nf[1] as f64;
+        let volume: f64 = c.iter().filter(|v| full(**v)).map(|v| v * dx * dz).sum();
+        let level = volume / (hi * extent[0]);
+        notes.push(format!(
+            "c is a bed of {hi:.4} filled to {level:.4} m: the sensor configuration starts from that fill level (then carries c with the measured flow)"
+        ));
+        (hi, level)
+    } else {
+        let m = mean(c);
+        notes.push(format!(
+            "c is not uniform ({lo:.4}..{hi:.4}) and not a bed below a free surface: the sensor configuration takes its mean {m:.4}"
+        ));
+        (m, extent[1])
+    }
+}
+
+/// Records a coupled scene (issue 9). The truth is the coupled run, as `sieve run` runs it
+/// ([`crate::flow::coupled_loop`]), with its output times at the frame times: at each frame
+/// time it stores the truth's psi, phihat and c on the sensor grid and the grains and small
+/// grains that had left the box (initial minus present amounts: the coupled run conserves
+/// both to round-off, docs/silo.md), and frame `k + 1` is the truth's velocity at the time of
+/// frame `k` (the measurement at the start of the period it covers), averaged c-weighted over
+/// each sensor cell (a PIV window sees grains only; 0 where there are none) plus Gaussian
+/// noise of `noise` times that frame's largest sensor speed. The sensor configuration: the
+/// scene's box, wall kinds and openings (the flow's outlets, through which the estimator's
+/// grains leave), the material's a, eta0, eps0 and S0, the initial bed ([`bed_of`]), mixed
+/// start, a temporal smoothing of a few frames (the flow changes), and a substep budget that
+/// fits the fastest frame (the cap of 4 would hold back a discharge at 10 Hz). Default frame
+/// period: the scene's output interval.
+fn record_coupled<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    f: &mut Flow<R, D, N>,
+    scene: &Scene,
+    fields: &Fields,
+    opts: &SceneRecordOptions,
+) -> Result<(Vec<u8>, SceneRecordReport)> {
+    let label = &scene.label;
+    let fail = |e: String| Error::failure(format!("{label}: {e}"));
+    let fm = scene
+        .flow
+        .as_ref()
+        .ok_or_else(|| Error::failure("no flow in scene"))?;
+    let nf = [scene.cells[0], scene.cells[1]];
+    let n = nf[0] * nf[1];
+    let ns = [opts.sensor[0] as usize, opts.sensor[1] as usize];
+    let extent = [
+        scene.upper[0] - scene.lower[0],
+        scene.upper[1] - scene.lower[1],
+    ];
+    let mut notes = Vec::new();
+    let c0: Vec<f64> = (0..n).map(|i| s.c(i).to_f64()).collect();
+    let (c_sensor, fill) = bed_of(&c0, nf, extent, &mut notes);
+    let phi0: f64 = (0..n).map(|i| s.phi(i).to_f64()).sum();
+    let initial = (phi0 / c0.iter().sum::<f64>()).clamp(0.0, 1.0);
+    let period = opts.period.unwrap_or(scene.output_interval);
+    let frames = match opts.frames {
+        Some(k) => k,
+        None => (scene.t_end / period)
+            .ceil()
+            .clamp(1.0, MAX_DEFAULT_FRAMES as f64) as u32,
+    };
+    let (ne0, ne1) = (opts.estimator_cells[0], opts.estimator_cells[1]);
+    if ne0 == 0 || ne1 == 0 {
+        return Err(Error::range(
+            "command line",
+            "--estimator-grid",
+            format!("{ne0}x{ne1}"),
+            "at least 1 cell per axis, at most 1024 cells (32x32)",
+        ));
+    }
+    let f32_ = |x: f64| x as f32;
+    let bc = [scene.boundaries[0], scene.boundaries[1]];
+    let mut cfg = SensorConfig {
+        cells: opts.estimator_cells,
+        extent: [f32_(extent[0]), f32_(extent[1])],
+        bc,
+        sensor: opts.sensor,
+        s0: f32_(scene.s0),
+        eta0: f32_(fm.eta0),
+        eps0: f32_(fm.eps0),
+        heating: f32_(fm.heating),
+        gravity: [f32_(scene.gravity[0]), f32_(scene.gravity[1])],
+        c: f32_(c_sensor),
+        fill_level: f32_(fill),
+        initial_phihat: f32_(initial),
+        inflow_phihat: f32_(initial),
+        diffusion: f32_(scene.diffusion),
+        courant: 0.5,
+        tick_period: f32_(period),
+        max_period_factor: 2.0,
+        max_substeps: opts.max_substeps,
+        hold_ticks: 5,
+        reject_speed: 1.0,
+        outlier_tol: 1.0,
+        // The flow changes over a discharge: an EMA over a few frames, one 1-2-1 pass.
+        smoothing: if opts.noise > 0.0 { 0.3 } else { 1.0 },
+        spatial_passes: if opts.noise > 0.0 { 1 } else { 0 },
+        track_large: false,
+        regions: Default::default(),
+        outlet: None,
+        psi_alarm: 0.3,
+        fines_band: [0.4, 0.8],
+        openings: Default::default(),
+        outflow_window: 10,
+    };
+    // The flow's outlets as openings of the estimator's walls; the estimator cells just
+    // inside the first one are the "outlet" region.
+    let mut outlet_region = None;
+    for (a, sides) in fm.walls.iter().enumerate().take(2) {
+        for (side, w) in sides.iter().enumerate() {
+            if let Some(o) = &w.outlet {
+                let t = 1 - a;
+                let (lo, hi) = (o.lower[t] - scene.lower[t], o.upper[t] - scene.lower[t]);
+                cfg.openings
+                    .push(sieve_core::sensor::SensorOpening {
+                        axis: a as u8,
+                        high: side == 1,
+                        lower: f32_(lo.max(0.0)),
+                        upper: f32_(hi.min(extent[t])),
+                    })
+                    .map_err(|_| {
+                        Error::at(
+                            label,
+                            "boundary.flow",
+                            "more than 2 outlets: the soft sensor takes at most 2",
+                        )
+                    })?;
+                if outlet_region.is_none() {
+                    let ne = [ne0 as f64, ne1 as f64];
+                    let k0 = ((lo / extent[t] * ne[t]).floor().max(0.0) as u16)
+                        .min(opts.estimator_cells[t] - 1);
+                    let k1 = ((hi / extent[t] * ne[t]).ceil() as u16)
+                        .clamp(k0 + 1, opts.estimator_cells[t]);
+                    let at = if side == 1 {
+                        opts.estimator_cells[a] - 1
+                    } else {
+                        0
+                    };
+                    let mut lo_c = [0u16; 2];
+                    let mut hi_c = [0u16; 2];
+                    lo_c[t] = k0;
+                    hi_c[t] = k1;
+                    lo_c[a] = at;
+                    hi_c[a] = at + 1;
+                    outlet_region = Some(Region::new("outlet", lo_c, hi_c));
+                }
+            }
+        }
+    }
+    let q = (ne1 / 4).max(1);
+    if let Some(r) = outlet_region {
+        let _ = cfg.regions.push(r);
+        cfg.outlet = Some(0);
+    }
+    let _ = cfg.regions.push(Region::new("bottom", [0, 0], [ne0, q]));
+    let _ = cfg
+        .regions
+        .push(Region::new("top", [0, ne1 - q], [ne0, ne1]));
+    // The truth: the coupled run with its outputs at the frame times.
+    let mut truth_scene = scene.clone();
+    truth_scene.t_end = frames as f64 * period;
+    truth_scene.output_interval = period;
+    let vol = s.grid().cell_volume().to_f64();
+    let mass = |s: &Segregation<R, D, N>| -> [f64; 2] {
+        let mut m = [0.0; 2];
+        for i in 0..s.len() {
+            m[0] += s.c(i).to_f64() * vol;
+            m[1] += s.phi(i).to_f64() * vol;
+        }
+        m
+    };
+    let m0 = mass(s);
+    let mut writer = Writer::new(opts.sensor, period, 0.0, opts.seed).map_err(fail)?;
+    let mut written = 0u32;
+    let mut final_psi = 0.0;
+    let (mut umax, mut step_max) = (0.0f64, 0.0f64);
+    let mut fastest: Vec<f32> = Vec::new();
+    let periodic = [
+        bc[0][0] == Boundary::Periodic,
+        bc[1][0] == Boundary::Periodic,
+    ];
+    let bar = crate::progress::Progress::hidden();
+    crate::flow::coupled_loop(f, s, &truth_scene, fields, None, &bar, |k, t, seg, _| {
+        crate::interrupt::check("sieve record")?;
+        if k >= 1 {
+            let d = diagnose(seg);
+            final_psi = d.psi.to_f64();
+            let coarse = coarsen(
+                |i| {
+                    let ci = seg.c(i).to_f64();
+                    if ci > 0.0 {
+                        seg.phi(i).to_f64() / ci
+                    } else {
+                        0.0
+                    }
+                },
+                nf,
+                ns,
+            );
+            let coarse_c = coarsen(|i| seg.c(i).to_f64(), nf, ns);
+            let m = mass(seg);
+            writer
+                .truth(
+                    k as u32,
+                    t,
+                    final_psi,
+                    &coarse,
+                    &coarse_c,
+                    [m0[0] - m[0], m0[1] - m[1]],
+                )
+                .map_err(fail)?;
+            written = k as u32;
+        }
+        if (k as u32) < frames {
+            // c-weighted mean velocity per sensor cell: momentum over grains.
+            let cu =
+                |a: usize| coarsen(|i| seg.c(i).to_f64() * seg.velocity(i)[a].to_f64(), nf, ns);
+            let cc = coarsen(|i| seg.c(i).to_f64(), nf, ns);
+            let (mx, mz) = (cu(0), cu(D - 1));
+            let mean_u = |m: &[f64]| -> Vec<f64> {
+                m.iter()
+                    .zip(&cc)
+                    .map(|(m, c)| if *c > 1e-6 { m / c } else { 0.0 })
+                    .collect()
+            };
+            let (sx, sz) = (mean_u(&mx), mean_u(&mz));
+            let top = sx
+                .iter()
+                .zip(&sz)
+                .map(|(a, b)| a.hypot(*b))
+                .fold(0.0, f64::max);
+            if top > umax {
+                umax = top;
+                fastest = (0..ns[0] * ns[1])
+                    .flat_map(|i| [sx[i] as f32, sz[i] as f32])
+                    .collect();
+            }
+            step_max = step_max.max(profile_step([&sx, &sz], ns, periodic));
+            writer.set_sigma(opts.noise * top);
+            writer
+                .frame(k as u32 + 1, |ix, iz| {
+                    [sx[ix + ns[0] * iz], sz[ix + ns[0] * iz]]
+                })
+                .map_err(fail)?;
+        }
+        Ok(())
+    })?;
+    if written < frames {
+        notes.push(format!(
+            "the discharge ended at t = {} s: {written} of {frames} frames recorded",
+            written as f64 * period
+        ));
+    }
+    // Input limits and the budget from the fastest frame.
+    let sigma = opts.noise * umax;
+    cfg.reject_speed = f32_(3.0 * umax + 6.0 * sigma).max(1e-6);
+    cfg.outlier_tol = f32_(6.0 * sigma + step_max + 1e-3 * umax).max(1e-9);
+    cfg.validate(ESTIMATOR_CAPACITY).map_err(|e| {
+        Error::at(
+            label,
+            "",
+            format!(
+                "cannot make a sensor configuration from this scene ({e}; the estimator holds at most {ESTIMATOR_CAPACITY} cells)"
+            ),
+        )
+    })?;
+    let dt = if fastest.is_empty() {
+        f64::INFINITY
+    } else {
+        estimator_dt(&cfg, &fastest)?
+    };
+    if dt.is_finite() && dt > 0.0 {
+        // Room for the noise, which raises the measured speeds and shear.
+        let need = (1.5 * period / dt).ceil().clamp(1.0, 1024.0) as u16;
+        if need > cfg.max_substeps {
+            notes.push(format!(
+                "the fastest frame needs {need} substeps of {dt:.3e} s per {period} s tick: the sensor configuration's budget is {need} (not {})",
+                cfg.max_substeps
+            ));
+            cfg.max_substeps = need;
+        }
+    }
+    let (bytes, stream_bytes) = writer
+        .finish(
+            cfg,
+            &scene.name,
+            opts.noise,
+            opts.seed,
+            [nf[0] as u16, nf[1] as u16],
+        )
+        .map_err(fail)?;
+    let report = SceneRecordReport {
+        record: RecordReport {
+            frames: written.min(frames),
+            stream_bytes,
+            file_bytes: bytes.len(),
+            final_truth_psi: final_psi,
+        },
+        period,
+        truth_cells: nf,
+        estimator_dt: dt,
+        sensor_s0: scene.s0,
+        c: c_sensor,
+        notes,
+        flow: None,
     };
     Ok((bytes, report))
 }

@@ -172,6 +172,7 @@ pub fn config(c: &SensorConfig<f32>) -> Result<(), String> {
     within("gravity[0]", c.gravity[0], -1e3, 1e3, " m/s^2")?;
     within("gravity[1]", c.gravity[1], -1e3, 1e3, " m/s^2")?;
     within("c", c.c, 1e-3, 1.0, "")?;
+    within("fill_level", c.fill_level, 1e-9, 1e6, " m")?;
     within("initial_phihat", c.initial_phihat, 0.0, 1.0, "")?;
     within("inflow_phihat", c.inflow_phihat, 0.0, 1.0, "")?;
     within("diffusion", c.diffusion, 0.0, 1e3, " m^2/s")?;
@@ -242,6 +243,28 @@ pub fn truth(rec: &Recording<'_>) -> Result<Vec<TruthRecord>, String> {
         if let Some((i, v)) = t.phihat.iter().enumerate().find(|(_, &v)| !unit(v)) {
             return Err(format!(
                 "truth record {k} has phihat[{i}] = {v} (allowed 0 to 1); {DAMAGED}"
+            ));
+        }
+        if t.c.len() != cells {
+            return Err(format!(
+                "truth record {k} has {} c values, the header's truth_coarse = [{}, {}] needs {cells}; {DAMAGED}",
+                t.c.len(),
+                h.truth_coarse[0],
+                h.truth_coarse[1]
+            ));
+        }
+        if let Some((i, v)) = t.c.iter().enumerate().find(|(_, &v)| !unit(v)) {
+            return Err(format!(
+                "truth record {k} has c[{i}] = {v} (allowed 0 to 1); {DAMAGED}"
+            ));
+        }
+        if let Some(v) = t
+            .discharged
+            .iter()
+            .find(|v| !(v.is_finite() && v.abs() <= 1e6))
+        {
+            return Err(format!(
+                "truth record {k} has discharged = {v} (allowed: finite, at most 1e6 m^2); {DAMAGED}"
             ));
         }
         out.push(t);

@@ -33,7 +33,9 @@ mod scene;
 
 pub use catalogue::{record_scene, SceneRecordOptions, SceneRecordReport};
 pub use record::{record, record_to_bytes, RecordOptions, RecordReport};
-pub use replay::{print_report, replay, replay_bytes, ReplayOptions, ReplayReport, ReplayRow};
+pub use replay::{
+    print_report, replay, replay_bytes, OutflowAccuracy, ReplayOptions, ReplayReport, ReplayRow,
+};
 pub use scene::{coarsen, Scene, Truth, TRUTH_CAPACITY};
 pub use sieve_core::sensor::feeder::Faults;
 

@@ -134,6 +134,12 @@ impl Writer {
         })
     }
 
+    /// Sets the noise standard deviation [m/s] of the following frames (a coupled truth's
+    /// speeds change over the run).
+    pub(super) fn set_sigma(&mut self, sigma: f64) {
+        self.sigma = sigma.max(0.0);
+    }
+
     /// Frame `k` (1-based): the clean velocity `clean(ix, iz)` at each sensor point (x
     /// fastest) plus Gaussian noise on each component.
     pub(super) fn frame(
@@ -163,22 +169,30 @@ impl Writer {
         Ok(())
     }
 
-    /// The truth at the end of period `k`: its time, psi and phihat on the sensor grid.
+    /// The truth at the end of period `k`: its time, psi, phihat and c on the sensor grid,
+    /// and what had left its box (grains, small grains).
     pub(super) fn truth(
         &mut self,
         k: u32,
         time: f64,
         psi: f64,
         coarse: &[f64],
+        coarse_c: &[f64],
+        discharged: [f64; 2],
     ) -> Result<(), String> {
         let mut rec = TruthRecord {
             seq: k,
             time: time as f32,
             psi: psi as f32,
             phihat: Default::default(),
+            c: Default::default(),
+            discharged: [discharged[0] as f32, discharged[1] as f32],
         };
         for &v in coarse {
             rec.phihat.push(v as f32).map_err(|_| "truth capacity")?;
+        }
+        for &v in coarse_c {
+            rec.c.push(v as f32).map_err(|_| "truth capacity")?;
         }
         if !rec.encode_into(|b| self.truth_bytes.extend_from_slice(b)) {
             return Err("truth encoding".into());
@@ -267,7 +281,10 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
         let d = diagnose(&*truth);
         final_psi = d.psi;
         let coarse = coarsen(|i| truth.phi(i) / truth.c(i), nf, ns);
-        writer.truth(k, truth.time(), d.psi, &coarse)?;
+        let coarse_c = coarsen(|i| truth.c(i), nf, ns);
+        // The legacy scenes' truth has no discharge accounting: closed or periodic boxes,
+        // except Gray-Thornton, whose outflow the replay does not compare.
+        writer.truth(k, truth.time(), d.psi, &coarse, &coarse_c, [0.0, 0.0])?;
     }
     let (out, stream_bytes) = writer.finish(
         config,

@@ -41,6 +41,19 @@ pub struct ReplayRow {
     pub substeps: u16,
     /// Region means.
     pub regions: Vec<f32>,
+    /// Largest |c_est - c_truth| over the coarse truth grid (the estimator's carried c
+    /// against the truth's c, both averaged onto the coarse grid).
+    pub c_err: f64,
+    /// Mean |c_est - c_truth| over the coarse truth grid.
+    pub c_l1: f64,
+    /// What had left the estimator's box (grains, small grains; per unit depth).
+    pub out_est: [f64; 2],
+    /// What had left the truth's box (grains, small grains; per unit depth).
+    pub out_truth: [f64; 2],
+    /// Fines fraction of the estimator's outflow this tick (0 if none).
+    pub outflow_fines: f32,
+    /// Fines fraction of the estimator's outflow over its window (0 if none).
+    pub outflow_fines_window: f32,
 }
 
 /// Result of a replay.
@@ -73,6 +86,74 @@ pub struct ReplayReport {
     pub mass_drift: f64,
     /// Final state hash (as printed by firmware-sim).
     pub final_state_hash: u64,
+    /// Largest |c_est - c_truth| on the coarse grid over the run.
+    pub max_c_error: f64,
+    /// Mean over the run of the mean |c_est - c_truth| on the coarse grid.
+    pub mean_c_error: f64,
+    /// The outflow against the truth's discharge, if the truth's box discharged.
+    pub outflow: Option<OutflowAccuracy>,
+}
+
+/// The outlet fines fraction of the estimator against the truth's discharge (issue 9).
+#[derive(Clone, Debug, PartialEq)]
+pub struct OutflowAccuracy {
+    /// Window [ticks] of the compared fines fractions (the configuration's `outflow_window`).
+    pub window: usize,
+    /// Largest |fines fraction of what left in a window, estimator - truth| over the windows
+    /// ending at each tick in which the truth discharged at least 1 % of its largest window.
+    pub max_window_error: f64,
+    /// Mean of the same over those windows.
+    pub mean_window_error: f64,
+    /// Windows compared.
+    pub windows: usize,
+    /// Fines fraction of everything that left, estimator and truth.
+    pub total_fines: [f64; 2],
+    /// Grain volume that left, estimator and truth (per unit depth).
+    pub total_out: [f64; 2],
+}
+
+/// Fines fractions of the windows ending at each row (cumulative differences over `w`
+/// rows), compared where the truth discharged at least 1 % of its largest window.
+fn outflow_accuracy(rows: &[ReplayRow], w: usize) -> Option<OutflowAccuracy> {
+    let last = rows.last()?;
+    if !(last.out_truth[0] > 0.0) {
+        return None;
+    }
+    let w = w.max(1);
+    let diff = |k: usize, f: fn(&ReplayRow) -> [f64; 2]| -> [f64; 2] {
+        let a = f(&rows[k]);
+        let b = if k >= w { f(&rows[k - w]) } else { [0.0, 0.0] };
+        [a[0] - b[0], a[1] - b[1]]
+    };
+    let largest = (0..rows.len())
+        .map(|k| diff(k, |r| r.out_truth)[0])
+        .fold(0.0, f64::max);
+    let frac = |d: [f64; 2]| {
+        if d[0] > 0.0 {
+            (d[1] / d[0]).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    };
+    let (mut max, mut sum, mut count) = (0.0f64, 0.0, 0usize);
+    for k in 0..rows.len() {
+        let t = diff(k, |r| r.out_truth);
+        if t[0] < 0.01 * largest {
+            continue;
+        }
+        let e = (frac(diff(k, |r| r.out_est)) - frac(t)).abs();
+        max = max.max(e);
+        sum += e;
+        count += 1;
+    }
+    Some(OutflowAccuracy {
+        window: w,
+        max_window_error: max,
+        mean_window_error: sum / count.max(1) as f64,
+        windows: count,
+        total_fines: [frac(last.out_est), frac(last.out_truth)],
+        total_out: [last.out_est[0], last.out_truth[0]],
+    })
 }
 
 /// Replays recording bytes.
@@ -118,6 +199,16 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
                 .map(|(a, &b)| (a - b as f64).abs())
                 .sum::<f64>()
                 / est.len().max(1) as f64;
+            let seg = sensor.segregation();
+            let est_c = coarsen(|i| seg.c(i) as f64, nf, nc);
+            let (mut c_err, mut c_l1) = (0.0f64, 0.0f64);
+            for (a, &b) in est_c.iter().zip(&t.c) {
+                let d = (a - b as f64).abs();
+                c_err = c_err.max(d);
+                c_l1 += d;
+            }
+            c_l1 /= est_c.len().max(1) as f64;
+            let out = sensor.outflow_total();
             rows.push(ReplayRow {
                 tick,
                 seq: e.seq,
@@ -129,6 +220,12 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
                 alarms: e.alarms,
                 substeps: e.substeps,
                 regions: e.regions.to_vec(),
+                c_err,
+                c_l1,
+                out_est: [out[0] as f64, out[1] as f64],
+                out_truth: [t.discharged[0] as f64, t.discharged[1] as f64],
+                outflow_fines: e.outflow_fines,
+                outflow_fines_window: e.outflow_fines_window,
             });
         }
         if !e.psi.is_finite() {
@@ -153,6 +250,9 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
         .fold(0.0, nan_max);
     let max_l1 = rows.iter().map(|r| r.l1).fold(0.0, nan_max);
     let mean_l1 = rows.iter().map(|r| r.l1).sum::<f64>() / rows.len().max(1) as f64;
+    let max_c_error = rows.iter().map(|r| r.c_err).fold(0.0, nan_max);
+    let mean_c_error = rows.iter().map(|r| r.c_l1).sum::<f64>() / rows.len().max(1) as f64;
+    let outflow = outflow_accuracy(&rows, cfg.outflow_window as usize);
     let mass1 = mass(&sensor);
     if !(mass1.is_finite() && max_psi_error.is_finite() && max_l1.is_finite()) {
         return Err(format!(
@@ -184,6 +284,9 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
         lag: sensor.lag(),
         mass_drift: (mass1 - mass0) / scale,
         final_state_hash: sensor.state_hash(),
+        max_c_error,
+        mean_c_error,
+        outflow,
     })
 }
 
@@ -199,15 +302,26 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
     writeln!(out, "scene={}", r.scene)?;
     writeln!(
         out,
-        "{:>6} {:>6} {:>8} {:>8} {:>8} {:>9} {:>8} {:>6} {:>5}",
-        "tick", "seq", "time", "psi", "truth", "psi_err", "L1", "health", "subst"
+        "{:>6} {:>6} {:>8} {:>8} {:>8} {:>9} {:>8} {:>6} {:>5} {:>8} {:>8} {:>8}",
+        "tick",
+        "seq",
+        "time",
+        "psi",
+        "truth",
+        "psi_err",
+        "L1",
+        "health",
+        "subst",
+        "c_err",
+        "out_fin",
+        "out_win"
     )?;
     let n = r.rows.len();
     for (k, row) in r.rows.iter().enumerate() {
         if k % every.max(1) == 0 || k + 1 == n {
             writeln!(
                 out,
-                "{:>6} {:>6} {:>8.3} {:>8.4} {:>8.4} {:>9.5} {:>8.5} {:>#6x} {:>5}",
+                "{:>6} {:>6} {:>8.3} {:>8.4} {:>8.4} {:>9.5} {:>8.5} {:>#6x} {:>5} {:>8.5} {:>8.5} {:>8.5}",
                 row.tick,
                 row.seq,
                 row.time,
@@ -216,12 +330,34 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
                 row.psi - row.psi_truth,
                 row.l1,
                 row.health,
-                row.substeps
+                row.substeps,
+                row.c_err,
+                row.outflow_fines,
+                row.outflow_fines_window
             )?;
         }
     }
     writeln!(out, "max_psi_error={:.5}", r.max_psi_error)?;
     writeln!(out, "max_l1={:.5} mean_l1={:.5}", r.max_l1, r.mean_l1)?;
+    writeln!(
+        out,
+        "max_c_error={:.5} mean_c_error={:.5}",
+        r.max_c_error, r.mean_c_error
+    )?;
+    if let Some(o) = &r.outflow {
+        writeln!(
+            out,
+            "outflow_fines_error: window={} ticks max={:.5} mean={:.5} windows={} total_fines est={:.5} truth={:.5} out est={:.5e} truth={:.5e}",
+            o.window,
+            o.max_window_error,
+            o.mean_window_error,
+            o.windows,
+            o.total_fines[0],
+            o.total_fines[1],
+            o.total_out[0],
+            o.total_out[1]
+        )?;
+    }
     let c = &r.counters;
     let w = &r.wire;
     writeln!(

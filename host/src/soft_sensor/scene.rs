@@ -192,6 +192,7 @@ impl Scene {
             heating: f(HEATING),
             gravity: [0.0, f(-G)],
             c: 0.64,
+            fill_level: f(e[1]),
             initial_phihat: f(self.initial_phihat()),
             inflow_phihat: f(self.initial_phihat()),
             diffusion: 0.0,
@@ -213,6 +214,8 @@ impl Scene {
             outlet,
             psi_alarm: 0.3,
             fines_band: [0.4, 0.8],
+            openings: Default::default(),
+            outflow_window: 10,
         };
         for r in regions {
             // At most MAX_REGIONS (4) are defined above.
