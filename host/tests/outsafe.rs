@@ -309,7 +309,15 @@ fn sigint_and_sigterm_keep_the_partial_run() {
                 .count(),
             2001
         );
-        assert!(s["mass_rel_drift"].as_f64().unwrap() < 1e-12, "{s}");
+        // Round-off: each step changes the total by at most about one ulp of it (the update
+        // of every cell rounds by half an ulp of its own content), so the bound grows with the
+        // steps taken before the signal (18,003 steps: 1.2e-12 seen, bound 4.0e-12).
+        let steps = s["steps"].as_f64().unwrap();
+        let drift = s["mass_rel_drift"].as_f64().unwrap();
+        assert!(
+            drift < f64::EPSILON * steps.max(1000.0),
+            "{drift} after {steps} steps: {s}"
+        );
         assert_no_debris(p);
     }
 }
