@@ -306,6 +306,58 @@ fn plot_refuses_lying_vti_files() {
     assert_eq!(code, 0, "restored: {err}");
 }
 
+/// `sieve plot` on a drum run whose radial.csv (drum readouts) is damaged: a value past f64
+/// once made the chart's mesh loop without end (found by hand: 10 CPU minutes and counting).
+/// Each case ends at once: drawn (values that can be drawn, non-finite rings left out) or
+/// refused in one line, and the run's files stay.
+#[test]
+fn plot_neither_hangs_nor_loses_files_on_a_damaged_radial_csv() {
+    let dir = std::env::temp_dir().join(format!("sieve-hostile-{}-radial", std::process::id()));
+    let out = dir.to_str().expect("utf-8").to_owned();
+    let (code, _, err) = sieve(&[
+        "run",
+        "tumbler",
+        "--grid",
+        "18x18",
+        "--t-end",
+        "0.4",
+        "--set",
+        "frame.rev_per_s=1.5",
+        "--quiet",
+        "--out",
+        &out,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let csv = dir.join("radial.csv");
+    let good = std::fs::read(&csv).expect("radial.csv of a drum run");
+    let head = "about,r_lo,r_hi,cells,phihat,c\n";
+    for (row, refused) in [
+        ("centre,1e308,1e308,3,0.5,0.6", true),
+        ("centre,-1e308,1e308,3,0.5,0.6", false), // its midpoint is 0
+        ("centre,1e306,1e306,3,0.5,0.6", true),
+        ("centre,0,1,3,0.5,1e308", false),
+        ("centre,0,1,3,inf,0.6", false),
+        ("centre,NaN,NaN,3,NaN,NaN", false),
+        ("centre,x,1,2,3,4", true),
+        ("", true),
+    ] {
+        std::fs::write(&csv, format!("{head}{row}\n")).expect("write");
+        let (code, _, err) = sieve(&["plot", &out]);
+        if refused {
+            assert_eq!(code, 1, "[{row}]: {err}");
+            assert_eq!(err.lines().count(), 1, "[{row}]: {err}");
+            assert!(err.contains("radial"), "[{row}]: {err}");
+        } else {
+            assert_eq!(code, 0, "[{row}]: {err}");
+        }
+        assert!(dir.join("summary.json").is_file() && dir.join("fields/series.pvd").is_file());
+    }
+    std::fs::write(&csv, &good).expect("restore");
+    let (code, _, err) = sieve(&["plot", &out]);
+    assert_eq!(code, 0, "restored: {err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 proptest::proptest! {
     #![proptest_config(proptest::test_runner::Config {
         cases: std::env::var("SIEVE_FUZZ_CASES_PLOT").ok().and_then(|v| v.parse().ok()).unwrap_or(12),

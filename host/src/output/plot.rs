@@ -810,6 +810,17 @@ pub fn xy_curves(
     };
     let (x0, x1) = pad(x0, x1);
     let (y0, y1) = pad(y0, y1);
+    // A non-finite value or a span past f64 (read from a damaged file) would make the mesh
+    // loop without end: refuse it instead of hanging.
+    if ![x0, x1, y0, y1, x1 - x0, y1 - y0]
+        .iter()
+        .all(|v| v.is_finite())
+    {
+        return Err(crate::error::Error::failure(format!(
+            "{}: values out of the plottable range ({x0:e} .. {x1:e}, {y0:e} .. {y1:e}); not drawn",
+            path.display()
+        )));
+    }
     let mut chart = ChartBuilder::on(&root)
         .caption(title, (FONT_NAME, 20))
         .margin(15)
