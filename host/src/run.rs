@@ -241,6 +241,33 @@ pub fn time_loop_with<R: Real, const D: usize, const N: usize>(
 pub type Stepper<'a, R, const D: usize, const N: usize> =
     &'a dyn Fn(&mut Segregation<R, D, N>, R, u64) -> u64;
 
+/// [`time_loop_driven`] on the threads `sieve run --threads` asks for
+/// ([`crate::parallel::driver_for`]; one thread, or a scene the threads do not run, steps
+/// serially).
+fn threaded_time_loop<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    progress: &crate::progress::Progress,
+    geo: Option<&CutCells<R, D, N>>,
+    ckpt: Option<Checkpoints<'_>>,
+    quiet: bool,
+    on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
+) -> Result<LoopStats> {
+    let driver = crate::parallel::driver_for(s, scene, quiet)?;
+    let step = driver
+        .as_ref()
+        .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));
+    time_loop_driven(
+        s,
+        scene,
+        progress,
+        geo,
+        ckpt,
+        step.as_ref().map(|f| f as Stepper<'_, R, D, N>),
+        on_output,
+    )
+}
+
 /// [`time_loop_with`] whose steps are taken by `stepper` (`--threads`) instead of
 /// `advance_to`: the same steps and bits, so nothing else in the loop changes.
 pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
@@ -577,17 +604,13 @@ impl SolverJob for RunJob<'_> {
         let bar = progress_bar(self.quiet, &scene.name, scene.t_end);
         let mut pvd = kept_pvd(scene, ckpt.as_ref(), self.outputs)?;
         let nothing = |_: &mut crate::checkpoint::Entries| {};
-        let driver = crate::parallel::driver_for(s, scene, self.quiet)?;
-        let step = driver
-            .as_ref()
-            .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));
-        let stats = time_loop_driven(
+        let stats = threaded_time_loop(
             s,
             scene,
             &bar,
             geo,
             ckpt.as_mut().map(|c| (c, &nothing as &dyn Fn(&mut _))),
-            step.as_ref().map(|f| f as Stepper<'_, R, D, N>),
+            self.quiet,
             |k, t, s| {
                 let mut snap = Snapshot::of(s, scene);
                 snap.volume = volume.clone();
@@ -683,17 +706,13 @@ impl FlowJob for RunJob<'_> {
                 }
             }
             let keep = |e: &mut cp::Entries| cp::put_frozen(e, &kept);
-            let driver = crate::parallel::driver_for(s, scene, self.quiet)?;
-            let step = driver
-                .as_ref()
-                .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));
-            let stats = time_loop_driven(
+            let stats = threaded_time_loop(
                 s,
                 scene,
                 &bar,
                 None,
                 ckpt.as_mut().map(|c| (c, &keep as &dyn Fn(&mut _))),
-                step.as_ref().map(|f| f as Stepper<'_, R, D, N>),
+                self.quiet,
                 |k, t, s| {
                     let mut snap = Snapshot::of(s, scene);
                     snap.p = Some(frozen.p.clone());

@@ -549,7 +549,7 @@ fn draw(opts: &SweepOptions, rows: &Rows) -> Result<()> {
         .filter(|&(j, _)| j != ax)
         .map(|(_, a)| a.clone())
         .collect();
-    let mut curves: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    let mut curves: Vec<plot::Curve> = Vec::new();
     for j in 0..combinations(&others) {
         let fixed = combination(&others, j);
         let label = fixed

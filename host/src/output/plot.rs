@@ -593,7 +593,7 @@ pub fn vertical_curves(
     path: &Path,
     title: &str,
     xlabel: &str,
-    curves: &[(String, Vec<(f64, f64)>)],
+    curves: &[Curve],
     log_x: bool,
 ) -> Result<()> {
     ensure_font()?;
@@ -685,7 +685,7 @@ fn tick(x: f64, log: bool) -> String {
 /// The titles say which time they show (the end of the run; for a frozen flow, the flow
 /// frozen after its spin-up).
 pub fn flow_profiles(dir: &Path, name: &str, when: &str, p: &Profiles) -> Result<()> {
-    let one = |v: &[f64]| -> Vec<(String, Vec<(f64, f64)>)> {
+    let one = |v: &[f64]| -> Vec<Curve> {
         vec![(
             name.to_string(),
             v.iter().copied().zip(p.z.iter().copied()).collect(),
@@ -729,12 +729,7 @@ pub fn shear_ratio(p: &Profiles) -> Vec<f64> {
 }
 
 /// Psi(t) curves (one per label) with the threshold line.
-pub fn time_curves(
-    path: &Path,
-    title: &str,
-    curves: &[(String, Vec<(f64, f64)>)],
-    threshold: f64,
-) -> Result<()> {
+pub fn time_curves(path: &Path, title: &str, curves: &[Curve], threshold: f64) -> Result<()> {
     ensure_font()?;
     let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(fail(path))?;
@@ -786,13 +781,16 @@ pub fn time_curves(
     root.present().map_err(fail(path))
 }
 
+/// A labelled curve: its label and its (x, y) points.
+pub type Curve = (String, Vec<(f64, f64)>);
+
 /// Curves y(x) (one per label), e.g. a summary value against a swept key (`sieve sweep`).
 pub fn xy_curves(
     path: &Path,
     title: &str,
     x_desc: &str,
     y_desc: &str,
-    curves: &[(String, Vec<(f64, f64)>)],
+    curves: &[Curve],
 ) -> Result<()> {
     ensure_font()?;
     let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();

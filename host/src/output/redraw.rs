@@ -295,12 +295,9 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
     Ok(written)
 }
 
-/// A labelled curve of (x, y) points.
-type Curve = (String, Vec<(f64, f64)>);
-
 /// The two radial profiles of `radial.csv` (drum.rs) as curves (r in mm, phihat), empty
 /// rings left out.
-fn read_radial(path: &Path) -> Result<Vec<Curve>> {
+fn read_radial(path: &Path) -> Result<Vec<plot::Curve>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let bad = |line: usize| {
         Error::failure(format!(
@@ -308,7 +305,7 @@ fn read_radial(path: &Path) -> Result<Vec<Curve>> {
             path.display()
         ))
     };
-    let mut curves: Vec<Curve> = Vec::new();
+    let mut curves: Vec<plot::Curve> = Vec::new();
     for (k, line) in text.lines().enumerate().skip(1) {
         let f: Vec<&str> = line.split(',').collect();
         if f.len() != 6 {
