@@ -14,8 +14,9 @@
 //! The grid turns with the drum (rotating frame, model.md 2.5), so every snapshot is first
 //! mapped into the lab: position `o + Rot(omega t)(x - o)`, velocity
 //! `Rot(omega t)(u + omega e_y x (x - o))`, and binned on a lab grid of the solver's cells.
-//! A lab-frame drum is the same map with a zero angle. 2D drums only (a 3D drum's mid-plane
-//! would be the next step); scenes without a circular drum get nothing.
+//! A lab-frame drum is the same map with a zero angle. A 3D drum (a prism along y, periodic or
+//! between end walls) is read as its axial mean cross-section first ([`axial_mean`]); scenes
+//! without a circular drum get nothing.
 
 pub use crate::data::{DrumSummary, RadialBin};
 use crate::error::Result;
@@ -69,7 +70,8 @@ impl LabGrid {
     }
 }
 
-/// The drum a scene describes, if it is a 2D circular drum: axis, radius, omega.
+/// The drum a scene describes, if it is a circular drum (2D, or 3D along y): axis in the
+/// x-z plane, radius, omega.
 struct Drum {
     axis: [f64; 2],
     radius: f64,
@@ -78,17 +80,89 @@ struct Drum {
 
 fn drum_of(scene: &Scene) -> Option<Drum> {
     let g = scene.geometry.as_ref()?;
-    if scene.dim != 2 || !matches!(g.shape, ShapeKind::Drum) {
+    if !matches!(g.shape, ShapeKind::Drum) || g.center.len() != scene.dim {
         return None;
     }
+    let axis = match scene.dim {
+        2 => [g.center[0], g.center[1]],
+        3 => [g.center[0], g.center[2]],
+        _ => return None,
+    };
     let rotating = scene
         .frame
         .as_ref()
         .filter(|f| f.kind == crate::scene::FrameKind::Rotating);
     Some(Drum {
-        axis: [g.center[0], g.center[1]],
+        axis,
         radius: g.size,
         omega: rotating.map_or(0.0, |f| std::f64::consts::TAU * f.rev_per_s),
+    })
+}
+
+/// The axial mean of a 3D snapshot (cells `nx x ny x nz`, y along the drum's axis) as a
+/// one-cell-deep snapshot: per (x, z) column, c is the mean over the open volume, phihat and u
+/// the means weighted by the grains (c times open volume), so a slice that holds few grains
+/// (beside an end wall the bed is thinner) counts in proportion to them. A 2D snapshot is
+/// returned as it is. `None` if an array is missing or has the wrong length.
+pub fn axial_mean(v: Vti) -> Option<Vti> {
+    let [nx, ny, nz] = v.cells;
+    if ny <= 1 {
+        return Some(v);
+    }
+    let n = nx * ny * nz;
+    let (c, phihat, u) = (v.array("c")?, v.array("phihat")?, v.array("u")?);
+    if c.len() != n || phihat.len() != n || u.len() != 3 * n {
+        return None;
+    }
+    let volume = v.array("volume").filter(|vol| vol.len() == n);
+    let m = nx * nz;
+    let (mut cm, mut ph, mut um, mut vm) = (
+        vec![0.0; m],
+        vec![0.0; m],
+        vec![0.0; 3 * m],
+        vec![0.0; m],
+    );
+    for iz in 0..nz {
+        for ix in 0..nx {
+            let j = ix + nx * iz;
+            let (mut vol_sum, mut cv, mut pv, mut uv) = (0.0, 0.0, 0.0, [0.0; 3]);
+            for iy in 0..ny {
+                let i = ix + nx * (iy + ny * iz);
+                let vol = volume.map_or(1.0, |vol| vol[i]);
+                let w = c[i] * vol;
+                vol_sum += vol;
+                cv += w;
+                pv += w * phihat[i];
+                for k in 0..3 {
+                    uv[k] += w * u[3 * i + k];
+                }
+            }
+            vm[j] = vol_sum / ny as f64;
+            if vol_sum > 0.0 {
+                cm[j] = cv / vol_sum;
+            }
+            if cv > 0.0 {
+                ph[j] = pv / cv;
+                for k in 0..3 {
+                    um[3 * j + k] = uv[k] / cv;
+                }
+            }
+        }
+    }
+    let mut arrays = vec![
+        ("c".to_string(), 1, cm),
+        ("phihat".to_string(), 1, ph),
+        ("u".to_string(), 3, um),
+    ];
+    if volume.is_some() {
+        arrays.push(("volume".to_string(), 1, vm));
+    }
+    Some(Vti {
+        cells: [nx, 1, nz],
+        origin: v.origin,
+        spacing: [v.spacing[0], v.spacing[1] * ny as f64, v.spacing[2]],
+        t: v.t,
+        arrays,
     })
 }
 
@@ -193,7 +267,7 @@ fn radial(grid: LabGrid, f: &LabField, about: [f64; 2], width: f64, r_max: f64) 
 }
 
 /// The drum readouts of a finished run from its snapshots `entries` (time, file in `fields`);
-/// `None` for scenes that are not 2D circular drums or whose snapshots lack c, phihat or u.
+/// `None` for scenes that are not circular drums or whose snapshots lack c, phihat or u.
 pub fn analyse(
     scene: &Scene,
     fields: &Path,
@@ -219,7 +293,9 @@ pub fn analyse(
     let mut grid = None;
     let mut fields_in = Vec::with_capacity(window.len());
     for (_, file) in &window {
-        let v = read_vti(&fields.join(file))?;
+        let Some(v) = axial_mean(read_vti(&fields.join(file))?) else {
+            return Ok(None);
+        };
         let g = *grid.get_or_insert_with(|| LabGrid::of(&v));
         let Some(f) = lab_field(&v, g, &drum) else {
             return Ok(None);
