@@ -237,8 +237,14 @@ pub struct RunArgs {
     pub resume: Option<PathBuf>,
     /// Threads for the segregation step of box scenes, 1 to 1024, with the same bits as one
     /// [default: all cores on grids of 65,536 cells or more, else 1; docs/parallel.md].
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..=1024))]
-    pub threads: Option<u16>,
+    /// (Parsed as a signed number so that `-1` gets the range message, not "unexpected argument".)
+    #[arg(
+        long,
+        value_name = "N",
+        allow_negative_numbers = true,
+        value_parser = clap::value_parser!(i64).range(1..=1024)
+    )]
+    pub threads: Option<i64>,
 }
 
 /// Arguments of `sieve converge`.
@@ -507,7 +513,7 @@ pub fn execute(cli: Cli) -> Result<()> {
                 max_cell_steps: a.max_cell_steps,
                 max_output: a.max_output,
             };
-            crate::parallel::request_threads(a.threads.map(usize::from));
+            crate::parallel::request_threads(a.threads.and_then(|n| usize::try_from(n).ok()));
             let summary = run::run_scene_with(
                 &scene,
                 &fields,

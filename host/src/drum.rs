@@ -116,12 +116,8 @@ pub fn axial_mean(v: Vti) -> Option<Vti> {
     }
     let volume = v.array("volume").filter(|vol| vol.len() == n);
     let m = nx * nz;
-    let (mut cm, mut ph, mut um, mut vm) = (
-        vec![0.0; m],
-        vec![0.0; m],
-        vec![0.0; 3 * m],
-        vec![0.0; m],
-    );
+    let (mut cm, mut ph, mut um, mut vm) =
+        (vec![0.0; m], vec![0.0; m], vec![0.0; 3 * m], vec![0.0; m]);
     for iz in 0..nz {
         for ix in 0..nx {
             let j = ix + nx * iz;

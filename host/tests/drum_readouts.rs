@@ -10,7 +10,6 @@ use sieve::data::Snapshot;
 use sieve::output::vtk::write_vti;
 use std::f64::consts::{PI, TAU};
 
-
 const ANGLE: f64 = 30.0;
 const LAYER: f64 = 0.008;
 /// The eye: 5 mm right of the axis, one layer thickness below the surface, in the lab.

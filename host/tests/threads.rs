@@ -353,9 +353,12 @@ fn cli_threads_frozen_flow() {
 #[test]
 fn cli_threads_refusals_and_notes() {
     let d = tempfile::tempdir().unwrap();
-    let (code, err) = run_in(d.path(), &["run", "column-a", "--threads", "0", "-q"]);
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("--threads"), "{err}");
+    for bad in ["0", "-1", "1025", "1e9", "two"] {
+        let (code, err) = run_in(d.path(), &["run", "column-a", "--threads", bad, "-q"]);
+        assert_eq!(code, 2, "--threads {bad}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "--threads {bad}: {err}");
+        assert!(err.contains("--threads"), "--threads {bad}: {err}");
+    }
     // a scene the split does not take (cut cells) runs on one thread, with a one-line note
     let (code, err) = run_in(
         d.path(),

@@ -224,6 +224,7 @@ proptest! {
         s0 in 0.0..2.0f64,
         courant in 0.05..0.95f64,
         phase in phase(),
+        diffusion in prop_oneof![Just(0.0), 0.0..0.05f64],
     ) {
         const N: usize = 64;
         let n = c.len();
@@ -232,6 +233,7 @@ proptest! {
         let mut cfg = config(Scheme::Modified, phase, [gravity], DirectionMode::Gravity);
         cfg.s0 = s0;
         cfg.courant = courant;
+        cfg.diffusion = diffusion;
         s.setup(grid, [bc], cfg).unwrap();
         for i in 0..n {
             s.set_cell(i, c[i], t[i], [0.0], c[i] * ph[i]);
@@ -266,6 +268,7 @@ proptest! {
         from_shear in prop::bool::weighted(0.25),
         courant in 0.05..0.95f64,
         phase in phase(),
+        diffusion in prop_oneof![Just(0.0), 0.0..0.05f64],
     ) {
         const N: usize = 512;
         let nz = c.len();
@@ -278,6 +281,7 @@ proptest! {
         };
         let mut cfg = config(Scheme::Modified, phase, [gravity.0, gravity.1], direction);
         cfg.courant = courant;
+        cfg.diffusion = diffusion;
         if from_shear {
             cfg.temperature = TemperatureMode::FromShear { heating: 1.5, eta0: 0.01, eps0: 1.0 };
         }

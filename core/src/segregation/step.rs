@@ -113,7 +113,10 @@ pub(super) fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
         K::segregation(l, r, ax.vacuum)
     };
     if DIFFUSE && l.c > ax.vacuum && r.c > ax.vacuum {
-        let c_face = (l.c + r.c) * R::HALF;
+        // The smaller side's c (docs/model.md 5.2): then a face takes at most (D dt/h^2) of
+        // either phase of either cell, so the step limit 2D/h^2 keeps 0 <= phi <= c even across
+        // a free surface (the mean of c let a near-empty cell lose many times what it held).
+        let c_face = l.c.min(r.c);
         f -= ax.diffusion * c_face * (r.q / r.c - l.q / l.c);
     }
     f * ax.lambda
