@@ -33,6 +33,8 @@ builtins!(
     "shear-cell",
     "column-collapse",
     "silo",
+    "silo-3d",
+    "hopper",
     "drum-settling",
     "tumbler",
     "tumbler-75",
