@@ -35,6 +35,7 @@ builtins!(
     "silo",
     "silo-3d",
     "hopper",
+    "chute",
     "drum-settling",
     "tumbler",
     "tumbler-75",
