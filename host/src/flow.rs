@@ -546,7 +546,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
         stats.series.push(row);
         on_output(k, t, cpl.seg, cpl.flow)?;
         if let Some(d) = discharge.as_mut() {
-            d.sample(t, &cpl);
+            d.sample_in(t, &cpl, geo);
             if d.emptied {
                 break; // until empty (or t_end)
             }

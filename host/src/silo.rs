@@ -7,14 +7,18 @@
 //! interval), so they do not depend on the step. The fines fraction of the discharge is the
 //! small-grain share of what left in the interval.
 
+use crate::error::{Error, Result};
+use crate::output::plot::{self, Curve};
 use crate::scene::outlet::Outlet;
 use crate::scene::Scene;
 use serde::Serialize;
 use sieve_core::boundary::{Opening, Openings};
 use sieve_core::flow::coupled::Coupled;
 use sieve_core::flow::FlowSide;
+use sieve_core::geometry::CutCells;
 use sieve_core::Real;
 use std::fmt::Write as _;
+use std::path::Path;
 
 /// Opens `side` by the validated `outlet`.
 pub fn open<R: Real, const D: usize>(side: &mut FlowSide<R, D>, outlet: &Outlet) {
@@ -126,15 +130,33 @@ pub struct DischargeSeries {
 }
 
 impl DischargeSeries {
-    /// Samples the state of `cpl` at time `t`.
+    /// Samples the state of `cpl` at time `t` (a box scene).
     pub fn sample<R: Real, const D: usize, const N: usize>(
         &mut self,
         t: f64,
         cpl: &Coupled<'_, R, D, N>,
     ) {
+        self.sample_in(t, cpl, None);
+    }
+
+    /// Samples the state of `cpl` at time `t`; `geo` = the cut cells of a container (the
+    /// hopper): the small grains in the box are then weighed by the open volume of each cell,
+    /// as the flow's own mass is (model.md 6), else a cut cell's phi would count as if the
+    /// whole cell were open (1.6 % of the fines on the coarse hopper).
+    pub fn sample_in<R: Real, const D: usize, const N: usize>(
+        &mut self,
+        t: f64,
+        cpl: &Coupled<'_, R, D, N>,
+        geo: Option<&CutCells<R, D, N>>,
+    ) {
         let fd = cpl.flow.diagnostics();
         let mass = fd.mass.to_f64();
-        let mass_small = sieve_core::diagnose(cpl.seg).mass_small.to_f64();
+        let mass_small = match geo {
+            Some(g) => sieve_core::diagnose_embedded(cpl.seg, g),
+            None => sieve_core::diagnose(cpl.seg),
+        }
+        .mass_small
+        .to_f64();
         let sum = |s: [[R; 2]; D]| s.iter().flatten().map(|v| v.to_f64()).sum::<f64>();
         let out = sum(cpl.flow.discharged());
         let out_small = sum(cpl.discharged_small());
@@ -345,4 +367,102 @@ fn surface_height<R: Real, const D: usize, const N: usize>(cpl: &Coupled<'_, R, 
         total += h;
     }
     z0 + total / stride as f64
+}
+
+/// Reads `discharge.csv` (as [`DischargeSeries::csv`] writes it) back into rows, for the
+/// pictures, which are drawn from the run's files (`sieve plot DIR` redraws them).
+pub fn read_csv(path: &Path) -> Result<Vec<DischargeRow>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let bad = |line: usize| {
+        Error::failure(format!(
+            "{}: line {line}: not a discharge row (12 numbers)",
+            path.display()
+        ))
+    };
+    let mut rows = Vec::new();
+    for (k, line) in text.lines().enumerate().skip(1) {
+        let v = line
+            .split(',')
+            .map(|s| s.trim().parse::<f64>())
+            .collect::<core::result::Result<Vec<f64>, _>>()
+            .map_err(|_| bad(k + 1))?;
+        let [t, rate, rate_small, fines_fraction, mass, mass_small, out, out_small, surface, stagnant, band_phihat, core_phihat] =
+            v[..]
+        else {
+            return Err(bad(k + 1));
+        };
+        rows.push(DischargeRow {
+            t,
+            rate,
+            rate_small,
+            fines_fraction,
+            mass,
+            mass_small,
+            out,
+            out_small,
+            surface,
+            stagnant,
+            band_phihat,
+            core_phihat,
+        });
+    }
+    Ok(rows)
+}
+
+/// The discharge pictures of a run with an outlet: `discharge.png` (the rate of all grains
+/// and of the fines against time over the mass left in the silo) and `outflow_fines.png`
+/// (the fines fraction of what left in each output interval: the number a controller wants,
+/// issue 9). `dims` picks the unit (grain volume per unit depth in 2D). Rows before the
+/// first outflow have no fines fraction and are left out of that curve; a run where nothing
+/// has left yet draws only `discharge.png`. Returns the names of the files written.
+pub fn plots(rows: &[DischargeRow], dir: &Path, name: &str, dims: usize) -> Result<Vec<String>> {
+    let (q, m) = if dims == 3 {
+        ("m^3", "m^3")
+    } else {
+        ("m^2", "m^2 (per unit depth)")
+    };
+    let curve = |label: &str, f: fn(&DischargeRow) -> f64, skip_first: bool| -> Curve {
+        let pts = rows
+            .iter()
+            .skip(usize::from(skip_first))
+            .map(|r| (r.t, f(r)))
+            .filter(|p| p.1.is_finite())
+            .collect();
+        (label.to_string(), pts)
+    };
+    // a rate is the mean over the interval ending at its row: the first row has none
+    let rates = [
+        curve("all grains", |r| r.rate, true),
+        curve("fines", |r| r.rate_small, true),
+    ];
+    let left = [
+        curve("all grains", |r| r.mass, false),
+        curve("fines", |r| r.mass_small, false),
+    ];
+    let mut written = Vec::new();
+    plot::stacked_curves(
+        &dir.join("discharge.png"),
+        &format!("{name}: discharge rate and what is left in the silo"),
+        "t [s]",
+        &[
+            (&format!("discharge rate [{q}/s]"), &rates),
+            (&format!("left in the silo [{m}]"), &left),
+        ],
+    )?;
+    written.push("discharge.png".to_string());
+    let fines = [curve(
+        "fines fraction of the discharge",
+        |r| r.fines_fraction,
+        true,
+    )];
+    if !fines[0].1.is_empty() {
+        plot::stacked_curves(
+            &dir.join("outflow_fines.png"),
+            &format!("{name}: fines fraction of what leaves the outlet (per output interval)"),
+            "t [s]",
+            &[("fines fraction of the discharge", &fines)],
+        )?;
+        written.push("outflow_fines.png".to_string());
+    }
+    Ok(written)
 }

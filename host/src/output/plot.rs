@@ -861,3 +861,94 @@ pub fn xy_curves(
     }
     root.present().map_err(fail(path))
 }
+
+/// One panel of [`stacked_curves`]: its y-axis label and its curves.
+pub type Panel<'a> = (&'a str, &'a [Curve]);
+
+/// Panels of curves y(x) stacked one above the other on a common x axis (e.g. the discharge
+/// rates and the mass left in a silo against time: quantities of different units that are
+/// read together). Lines only, a legend per panel with more than one curve. Refuses
+/// non-finite points or spans, as [`xy_curves`] does (a damaged file must not hang the mesh);
+/// leave out undefined points (a fines fraction with nothing flowing out) before calling.
+pub fn stacked_curves(path: &Path, title: &str, x_desc: &str, panels: &[Panel<'_>]) -> Result<()> {
+    ensure_font()?;
+    let refuse = |what: String| {
+        Err(crate::error::Error::failure(format!(
+            "{}: {what}; not drawn",
+            path.display()
+        )))
+    };
+    if panels.is_empty() || panels.iter().all(|(_, c)| c.iter().all(|v| v.1.is_empty())) {
+        return refuse("nothing to draw".into());
+    }
+    let all = || {
+        panels
+            .iter()
+            .flat_map(|(_, c)| c.iter().flat_map(|v| v.1.iter()))
+    };
+    if let Some(p) = all().find(|p| !(p.0.is_finite() && p.1.is_finite())) {
+        return refuse(format!("a non-finite point ({:e}, {:e})", p.0, p.1));
+    }
+    let pad = |lo: f64, hi: f64| {
+        let w = (hi - lo)
+            .abs()
+            .max(1e-12 * lo.abs().max(hi.abs()))
+            .max(1e-300);
+        (lo - 0.05 * w, hi + 0.05 * w)
+    };
+    let (x0, x1) = all().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (x0, x1) = pad(x0, x1);
+    let height = 60 + 300 * panels.len() as u32;
+    let root = BitMapBackend::new(path, (800, height)).into_drawing_area();
+    root.fill(&WHITE).map_err(fail(path))?;
+    let root = root.titled(title, (FONT_NAME, 20)).map_err(fail(path))?;
+    let areas = root.split_evenly((panels.len(), 1));
+    for ((y_desc, curves), area) in panels.iter().zip(&areas) {
+        let pts = || curves.iter().flat_map(|(_, v)| v.iter().copied());
+        let (y0, y1) = pts().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        let (y0, y1) = if y0 <= y1 { pad(y0, y1) } else { (0.0, 1.0) };
+        if ![x0, x1, y0, y1, x1 - x0, y1 - y0]
+            .iter()
+            .all(|v| v.is_finite())
+        {
+            return refuse(format!(
+                "values out of the plottable range ({x0:e} .. {x1:e}, {y0:e} .. {y1:e})"
+            ));
+        }
+        let mut chart = ChartBuilder::on(area)
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(80)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(fail(path))?;
+        chart
+            .configure_mesh()
+            .x_desc(x_desc)
+            .y_desc(*y_desc)
+            .label_style((FONT_NAME, 14))
+            .axis_desc_style((FONT_NAME, 16))
+            .draw()
+            .map_err(fail(path))?;
+        for (j, (label, v)) in curves.iter().enumerate() {
+            let colour = PALETTE[j % PALETTE.len()];
+            chart
+                .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
+                .map_err(fail(path))?
+                .label(label.clone())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
+        }
+        if curves.len() > 1 {
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperRight)
+                .border_style(BLACK)
+                .background_style(WHITE.mix(0.9))
+                .label_font((FONT_NAME, 14))
+                .draw()
+                .map_err(fail(path))?;
+        }
+    }
+    root.present().map_err(fail(path))
+}

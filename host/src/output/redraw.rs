@@ -279,6 +279,13 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
         }
     }
 
+    // Scenes with an outlet (issue 9): the discharge curves.
+    let discharge = run.join("discharge.csv");
+    if discharge.exists() {
+        let rows = crate::silo::read_csv(&discharge)?;
+        written.extend(crate::silo::plots(&rows, plots, &name, dims)?);
+    }
+
     let profiles = run.join("profiles.csv");
     if profiles.exists() {
         let p = read_profiles(&profiles)?;
