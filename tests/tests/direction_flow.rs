@@ -9,6 +9,10 @@
 //!   percolate towards the base of the chute, not straight down. The velocity profile is the
 //!   flow model's (not a prescribed Bagnold profile); what it looks like is printed and compared
 //!   with Bagnold's shape `1 - (1 - z/H)^(3/2)`.
+//! - **Silo** (the coarse flat-bottomed silo of `flow_silo.rs`, coupled): where the bed flows
+//!   past the stagnant corners (the shear band, 1-10 % of the outlet speed, next to a stagnant
+//!   cell) the fines' percolation velocity `-S` must point into the dead zone: that is how the
+//!   V-shaped layer of fines of model.md 7.6 grows along the edge of the dead zones.
 //! - **3D shear cell with friction side walls**: the plates drive a shear along x, the side
 //!   walls (y) hold the bed back by Coulomb friction, so `u_x` depends on y near them, the shear
 //!   bands curve and the direction must tilt towards the side walls there, while it stays the
@@ -20,6 +24,8 @@ use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
 use sieve_core::segregation::direction::{segregation_direction, velocity_gradient};
 use sieve_core::{Boundary, Grid};
 use sieve_tests::run_big;
+
+mod silo_common;
 
 const N: usize = 1024;
 
@@ -240,5 +246,91 @@ fn shear_cell_3d_direction_tilts_near_the_friction_side_walls() {
                 );
             }
         }
+    });
+}
+
+/// model.md 7.7: in a discharging silo the segregation directions point into the dead zones.
+/// Coarse silo (15 x 50, W = 0.04 m), 2 s coupled: each band cell (1-10 % of the outlet speed,
+/// a neighbour stagnant, < 1 %) whose fines percolate at all (|S| > 0) is checked: the
+/// fines' velocity `-S` must have a positive component towards the stagnant neighbours
+/// (the sum of the unit vectors to them).
+#[test]
+fn silo_directions_point_into_the_dead_zones() {
+    run_big(|| {
+        let spec = silo_common::Spec::<2> {
+            cells: [15, 50],
+            height: 0.5,
+            depth: 0.0,
+            fill: 0.4,
+            orifice: 0.04,
+            hopper: None,
+            hopper_z: 0.0,
+            t_end: 2.0,
+            every: 0.5,
+        };
+        let mut checked = 0usize;
+        let mut into = 0usize;
+        let mut worst = f64::INFINITY;
+        silo_common::discharge_with(spec, |cpl| {
+            let grid = *cpl.flow.grid();
+            let [nx, nz] = grid.cells();
+            let speed = |i: usize| {
+                let u = cpl.flow.velocity(i);
+                u[0].hypot(u[1])
+            };
+            let bed = |i: usize| cpl.flow.c(i) >= 0.3;
+            // the outlet speed: the fastest bed cell of the bottom row above the orifice
+            let outlet = (0..nx)
+                .filter(|&ix| (grid.center(ix)[0] - 0.5 * silo_common::WIDTH).abs() < 0.02)
+                .filter(|&ix| bed(ix))
+                .map(speed)
+                .fold(0.0, f64::max);
+            assert!(outlet > 0.0, "the silo is not discharging");
+            let stagnant = |i: usize| bed(i) && speed(i) < 0.01 * outlet;
+            for iz in 0..nz {
+                for ix in 0..nx {
+                    let i = ix + nx * iz;
+                    let v = speed(i);
+                    if !bed(i) || !(0.01 * outlet..0.1 * outlet).contains(&v) {
+                        continue;
+                    }
+                    let mut towards = [0.0f64; 2];
+                    for (dx, dz) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
+                        let (jx, jz) = (ix as i64 + dx, iz as i64 + dz);
+                        if jx < 0 || jz < 0 || jx >= nx as i64 || jz >= nz as i64 {
+                            continue;
+                        }
+                        if stagnant(jx as usize + nx * jz as usize) {
+                            towards[0] += dx as f64;
+                            towards[1] += dz as f64;
+                        }
+                    }
+                    let s = cpl.seg.segregation_velocity(i);
+                    let norm_s = s[0].hypot(s[1]);
+                    let norm_t = towards[0].hypot(towards[1]);
+                    if norm_s == 0.0 || norm_t == 0.0 {
+                        continue;
+                    }
+                    // the fines move along -S
+                    let cos = -(s[0] * towards[0] + s[1] * towards[1]) / (norm_s * norm_t);
+                    checked += 1;
+                    if cos > 0.0 {
+                        into += 1;
+                    }
+                    worst = worst.min(cos);
+                }
+            }
+        });
+        println!(
+            "silo band cells beside a dead zone: {checked}, fines pointing into it: {into}, worst cos {worst:.3}"
+        );
+        assert!(
+            checked >= 4,
+            "too few band cells beside a dead zone: {checked}"
+        );
+        assert!(
+            into as f64 >= 0.9 * checked as f64,
+            "fines point into the dead zone in only {into} of {checked} band cells"
+        );
     });
 }

@@ -6,6 +6,7 @@
 //! the column collapse ends where the explicit one does; the coupled drum on cut cells keeps
 //! both phases; the silo keeps in + out and discharges at the explicit rate.
 
+mod silo_common;
 use sieve::silo::DischargeSeries;
 use sieve_core::boundary::{Opening, Openings};
 use sieve_core::closure::{Material, Packing};
@@ -17,6 +18,7 @@ use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
 use sieve_core::{Boundary, Grid};
 use sieve_tests::run_big;
+use silo_common::silo_material;
 use std::f64::consts::PI;
 
 const N: usize = 4096;
@@ -391,20 +393,6 @@ fn coupled_drum_on_cut_cells_keeps_both_phases_and_the_bounds() {
         let again = coupled_drum(300);
         assert_eq!(o.hash, again.hash, "implicit rerun not bit-identical");
     });
-}
-
-/// The silo material of model.md 7.6.
-fn silo_material() -> Material<f64> {
-    Material {
-        eta0: 0.00175,
-        lambda0: 3.4e-4,
-        eps0: 126.984,
-        t0: 1.5,
-        phi_rcp: 0.64,
-        phi_rlp: 0.4,
-        heating: 1.5,
-        s0: 0.2,
-    }
 }
 
 struct SiloOutcome {

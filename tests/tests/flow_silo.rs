@@ -9,6 +9,7 @@
 //! no NaN at the free surface or the orifice; a granular, not fluid, discharge: the rate is
 //! constant while the bed is high (a liquid would drain like sqrt(h)).
 
+mod silo_common;
 use sieve::silo::{DischargeRow, DischargeSeries};
 use sieve_core::boundary::{Opening, Openings};
 use sieve_core::closure::{Material, Packing};
@@ -17,22 +18,9 @@ use sieve_core::flow::{Flow, FlowConfig, FlowSide, OutletPressure, Slip};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
 use sieve_core::{diagnose, Boundary, Grid, Phase};
 use sieve_tests::run_big;
+use silo_common::silo_material;
 
 const N: usize = 8192;
-
-/// The silo material of model.md 7.6.
-pub fn silo_material() -> Material<f64> {
-    Material {
-        eta0: 0.00175,
-        lambda0: 3.4e-4,
-        eps0: 126.984,
-        t0: 1.5,
-        phi_rcp: 0.64,
-        phi_rlp: 0.4,
-        heating: 1.5,
-        s0: 0.2,
-    }
-}
 
 /// One discharge.
 #[derive(Clone, Copy, Debug)]

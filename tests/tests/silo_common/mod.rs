@@ -103,6 +103,14 @@ impl Outcome {
 
 /// Runs one discharge (call on a big-stack thread: `sieve_tests::run_big`).
 pub fn discharge<const D: usize>(s: Spec<D>) -> Outcome {
+    discharge_with(s, |_| {})
+}
+
+/// [`discharge`], handing the coupled state at `t_end` to `at_end` (a probe of the fields).
+pub fn discharge_with<const D: usize>(
+    s: Spec<D>,
+    at_end: impl FnOnce(&Coupled<'_, f64, D, N>),
+) -> Outcome {
     let z = D - 1;
     let mut upper = [0.0; D];
     upper[0] = WIDTH;
@@ -234,6 +242,7 @@ pub fn discharge<const D: usize>(s: Spec<D>) -> Outcome {
     }
     o.seconds = start.elapsed().as_secs_f64();
     o.steps = cpl.flow.steps();
+    at_end(&cpl);
     let sm = o.series.summary();
     println!(
         "{}D {:?} W = {} hopper {:?}: {} steps, {:.1} s wall; mass errors (flow, carried, fines) {:.1e} {:.1e} {:.1e}; max(phi - c) {:.1e}, max(-phi) {:.1e}",
