@@ -160,14 +160,14 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
         ))
         .map_err(fail(path))?
         .label("Psi")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[0].stroke_width(2)));
+        .legend(swatch(PALETTE[0].stroke_width(2)));
         c.draw_series(LineSeries::new(
             vec![(0.0, threshold), (t_max, threshold)],
             PALETTE[1].stroke_width(1),
         ))
         .map_err(fail(path))?
         .label(format!("threshold {threshold} (segregation time)"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[1].stroke_width(1)));
+        .legend(swatch(PALETTE[1].stroke_width(1)));
         legend(&mut c, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
     }
     // Mass drift.
@@ -212,21 +212,22 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
                 "max(phi - c): above c (largest {:.1e})",
                 series.iter().map(|r| r.overshoot_max).fold(0.0, f64::max)
             ))
-            .legend(|(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[3].stroke_width(2))
-            });
+            .legend(swatch(PALETTE[3].stroke_width(2)));
         c.draw_series(LineSeries::new(under, PALETTE[5].stroke_width(2)))
             .map_err(fail(path))?
             .label(format!(
                 "max(-phi): below 0 (largest {:.1e})",
                 series.iter().map(|r| r.undershoot_max).fold(0.0, f64::max)
             ))
-            .legend(|(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[5].stroke_width(2))
-            });
+            .legend(swatch(PALETTE[5].stroke_width(2)));
         legend(&mut c, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
     }
     root.present().map_err(fail(path))
+}
+
+/// The legend's sample of a line drawn in `style`.
+fn swatch(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style)
 }
 
 /// Draws the legend box of a chart.
@@ -286,9 +287,7 @@ pub fn profiles(
             .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
             .map_err(fail(path))?
             .label(format!("t = {}", crate::output::num(*t)))
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3))
-            });
+            .legend(swatch(colour.stroke_width(3)));
         // Markers of four shapes along each curve, staggered so that coinciding curves
         // (a steady state) still show each other.
         let m = marker_pts.into_iter();
@@ -563,9 +562,7 @@ pub fn work_precision(
         c.draw_series(LineSeries::new(line.clone(), PALETTE[0].stroke_width(2)))
             .map_err(fail(path))?
             .label("measured")
-            .legend(|(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[0].stroke_width(2))
-            });
+            .legend(swatch(PALETTE[0].stroke_width(2)));
         c.draw_series(line.iter().map(|&p| Circle::new(p, 4, PALETTE[0].filled())))
             .map_err(fail(path))?;
         if ix == 0 {
@@ -578,9 +575,7 @@ pub fn work_precision(
                 c.draw_series(LineSeries::new(guide, PALETTE[1].stroke_width(1)))
                     .map_err(fail(path))?
                     .label(format!("slope {p:.2}: observed order, finest pair"))
-                    .legend(|(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 20, y)], PALETTE[1].stroke_width(1))
-                    });
+                    .legend(swatch(PALETTE[1].stroke_width(1)));
             }
         }
         legend(&mut c, SeriesLabelPosition::LowerRight).map_err(fail(path))?;
@@ -646,9 +641,7 @@ pub fn vertical_curves(
                     .draw_series(LineSeries::new(line, colour.stroke_width(2)))
                     .map_err(fail(path))?
                     .label(label.clone())
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-                    });
+                    .legend(swatch(colour.stroke_width(2)));
             }
             // A legend with one entry only hides the curve: the title names it.
             if curves.len() > 1 {
@@ -758,9 +751,7 @@ pub fn time_curves(path: &Path, title: &str, curves: &[Curve], threshold: f64) -
             .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
             .map_err(fail(path))?
             .label(label.clone())
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-            });
+            .legend(swatch(colour.stroke_width(2)));
     }
     chart
         .draw_series(LineSeries::new(
@@ -769,15 +760,8 @@ pub fn time_curves(path: &Path, title: &str, curves: &[Curve], threshold: f64) -
         ))
         .map_err(fail(path))?
         .label(format!("threshold {threshold}"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(1)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.9))
-        .label_font((FONT_NAME, 15))
-        .draw()
-        .map_err(fail(path))?;
+        .legend(swatch(RED.stroke_width(1)));
+    legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
     root.present().map_err(fail(path))
 }
 
@@ -841,23 +825,16 @@ pub fn xy_curves(
             .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
             .map_err(fail(path))?;
         if labelled {
-            series.label(label.clone()).legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-            });
+            series
+                .label(label.clone())
+                .legend(swatch(colour.stroke_width(2)));
         }
         chart
             .draw_series(v.iter().map(|&p| Circle::new(p, 4, colour.filled())))
             .map_err(fail(path))?;
     }
     if labelled {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .border_style(BLACK)
-            .background_style(WHITE.mix(0.9))
-            .label_font((FONT_NAME, 15))
-            .draw()
-            .map_err(fail(path))?;
+        legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
     }
     root.present().map_err(fail(path))
 }
@@ -935,19 +912,10 @@ pub fn stacked_curves(path: &Path, title: &str, x_desc: &str, panels: &[Panel<'_
                 .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
                 .map_err(fail(path))?
                 .label(label.clone())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-                });
+                .legend(swatch(colour.stroke_width(2)));
         }
         if curves.len() > 1 {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .border_style(BLACK)
-                .background_style(WHITE.mix(0.9))
-                .label_font((FONT_NAME, 14))
-                .draw()
-                .map_err(fail(path))?;
+            legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
         }
     }
     root.present().map_err(fail(path))
