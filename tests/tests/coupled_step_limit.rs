@@ -39,13 +39,14 @@ struct Outcome {
     hash: u64,
 }
 
-fn setup(
-    dust: bool,
-) -> (
+/// The flow, the segregation solver and the drum's cut cells of one run.
+type Drum = (
     Box<Flow<f64, 2, N>>,
     Box<Segregation<f64, 2, N>>,
     Box<CutCells<f64, 2, N>>,
-) {
+);
+
+fn setup(dust: bool) -> Drum {
     let n = 24;
     let (r, h) = (0.05, 0.1 / (n as f64 - 2.0));
     let lo = 0.05 - r - h;
