@@ -421,13 +421,9 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
         }
         None => Coupled::new(flow, seg, cc).map_err(fail)?,
     };
-    let seg_dt = |s: &Segregation<R, D, N>| match geo {
-        Some(g) => s.stable_dt_embedded(g),
-        None => s.stable_dt(),
-    };
     let times = output_times(scene.t_end, scene.output_interval);
     let mut stats = LoopStats {
-        dt: cpl.flow.stable_dt().min(seg_dt(cpl.seg)).to_f64(),
+        dt: cpl.stable_dt().to_f64(),
         ..Default::default()
     };
     let mut flow_seconds = 0.0;
@@ -461,7 +457,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
         let target = R::from_f64(t);
         let start = Instant::now();
         while cpl.seg.time() < target {
-            let stable = cpl.flow.stable_dt().min(seg_dt(cpl.seg));
+            let stable = cpl.stable_dt();
             let dt = stable.min(target - cpl.seg.time());
             let t0 = Instant::now();
             let stepped = match crate::interrupt::bad_dt(dt.to_f64()) {

@@ -4,7 +4,7 @@
 //! Each coupled step hands `u, c, T` and the current `phi` of every cell to the segregation
 //! solver (`set_cell` + `prepare`, which also derives the segregation direction from the
 //! velocity gradient if its [`crate::DirectionMode`] is `Flow`), advances both with the same
-//! `dt = min(flow limit, segregation Courant limit)`, and, with back-coupling on, replaces the
+//! `dt = min(flow limit, percolation Courant limit)` ([`Coupled::stable_dt`]), and, with back-coupling on, replaces the
 //! packing constants of the flow by `c_rcp(phihat)`, `c_rlp(phihat)` of model.md 4.
 //!
 //! **Coupled step** (issue 10): phi rides on the flow's own mass fluxes. One step of length
@@ -33,6 +33,13 @@ use crate::closure::Packing;
 use crate::geometry::CutCells;
 use crate::real::Real;
 use crate::segregation::{Discharge, Segregation, SetupError};
+
+/// Most sub-steps of the percolation stage within one coupled step ([`Coupled::step_with`]).
+/// The percolation stage costs a few per cent of a flow step (no linear solve), and its limit
+/// is held by the hottest dilute cells (`S = S0 sqrt(T) g` with `T ~ 1e-2 m^2/s^2` over the
+/// tumbler's free surface: ~1 m/s), often below the flow's; sub-steps keep it from holding
+/// the flow. The cap keeps a coupled step from outrunning the segregation by much.
+pub const PERCOLATION_SUBSTEPS: usize = 8;
 
 /// How the flow is modelled in a scene.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -340,32 +347,53 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
                 Ok(dt)
             }
             Mode::Coupled => {
-                let seg_dt = match self.geo {
-                    Some(g) => self.seg.stable_dt_embedded(g),
-                    None => self.seg.stable_dt(),
-                };
-                let dt = self.flow.stable_dt().min(seg_dt);
+                let dt = self.stable_dt();
                 self.step_with(dt)?;
                 Ok(dt)
             }
         }
     }
 
-    /// One coupled step of length `dt` (at most the smaller stable step of the two solvers):
-    /// percolation, flow, carried transport, packing, hand-over of `T` and `u` (module docs).
+    /// The largest stable step of the chosen mode: the segregation's Courant limit
+    /// (prescribed, frozen), or in coupled mode the flow's limit, capped at
+    /// [`PERCOLATION_SUBSTEPS`] times the percolation stage's
+    /// ([`Segregation::stable_dt_percolation`]). The carried transport moves phi with the
+    /// flow's limited face mass fluxes and keeps `0 <= phi <= c` at any Courant number (proof
+    /// in `segregation/carried.rs`), so the segregation's transport term `|u| / h` does not
+    /// limit a coupled step; the percolation stage takes sub-steps within it
+    /// ([`Self::step_with`]).
+    pub fn stable_dt(&self) -> R {
+        match (self.cfg.mode, self.geo) {
+            (Mode::Coupled, _) => self
+                .flow
+                .stable_dt()
+                .min(R::from_usize(PERCOLATION_SUBSTEPS) * self.percolation_dt()),
+            (_, Some(g)) => self.seg.stable_dt_embedded(g),
+            (_, None) => self.seg.stable_dt(),
+        }
+    }
+
+    /// The percolation stage's own limit (coupled mode).
+    fn percolation_dt(&self) -> R {
+        match self.geo {
+            Some(g) => self.seg.stable_dt_percolation_embedded(g),
+            None => self.seg.stable_dt_percolation(),
+        }
+    }
+
+    /// One coupled step of length `dt` (at most [`Self::stable_dt`]): percolation (in as
+    /// many equal sub-steps as its own Courant limit needs, at most [`PERCOLATION_SUBSTEPS`]),
+    /// flow, carried transport, packing, hand-over of `T` and `u` (module docs).
     pub fn step_with(&mut self, dt: R) -> Result<(), CouplingError> {
+        let limit = self.percolation_dt();
+        self.seg
+            .step_percolation_substeps(dt, limit, PERCOLATION_SUBSTEPS, self.geo);
+        self.flow.step(dt);
         let d = match self.geo {
-            Some(g) => {
-                self.seg.step_percolation_embedded(dt, g);
-                self.flow.step(dt);
-                self.seg
-                    .carry_mass_fluxes_embedded(self.flow.mass_fluxes(), g)
-            }
-            None => {
-                self.seg.step_percolation(dt);
-                self.flow.step(dt);
-                self.seg.carry_mass_fluxes(self.flow.mass_fluxes())
-            }
+            Some(g) => self
+                .seg
+                .carry_mass_fluxes_embedded(self.flow.mass_fluxes(), g),
+            None => self.seg.carry_mass_fluxes(self.flow.mass_fluxes()),
         };
         for a in 0..D {
             for side in 0..2 {

@@ -28,6 +28,12 @@
 //! `phi_i (1 - s_i) = phihat_i O_i` and its receivers gain `sum F_f phihat_i`: the same amount
 //! up to round-off, so each phase's mass is conserved to round-off (plus what leaves the box,
 //! which is returned).
+//!
+//! **No Courant limit of its own.** Nothing above uses the length of the step or the
+//! velocity: the only condition is `O_i <= c_i`, which the flow's donor limiter enforces on
+//! its final fluxes at any Courant number. So a coupled step is limited by the flow and by
+//! the percolation stage alone ([`Segregation::stable_dt_percolation`],
+//! `Coupled::stable_dt`), not by the segregation's transport term `|u| / h`.
 
 use super::{Phase, Segregation};
 use crate::boundary::Boundary;

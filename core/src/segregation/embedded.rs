@@ -143,6 +143,20 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// The largest stable step on cut cells (`R::MAX` if nothing moves); see the module docs.
     pub fn stable_dt_embedded(&self, geo: &CutCells<R, D, N>) -> R {
+        self.embedded_dt(geo, true)
+    }
+
+    /// [`Self::stable_dt_percolation`] on cut cells: the limit of
+    /// [`Self::step_percolation_embedded`] alone (no transport term; the carried transport
+    /// [`Self::carry_mass_fluxes_embedded`] keeps the bounds with the flow's donor limiter
+    /// on groups, at any Courant number of the flow).
+    pub fn stable_dt_percolation_embedded(&self, geo: &CutCells<R, D, N>) -> R {
+        self.embedded_dt(geo, false)
+    }
+
+    /// The rate of the faces of every group over its volume, with or without the transport
+    /// term `|u_a|`.
+    fn embedded_dt(&self, geo: &CutCells<R, D, N>, transport: bool) -> R {
         let n = self.grid.len();
         let h = self.grid.spacing();
         let cells = self.grid.cells();
@@ -151,7 +165,12 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // the rate of one member's faces along a, given its open outer aperture sum
         let face_rate = |a: usize, j: usize, open: R| {
             let s = (self.k[a][j] * self.c[j]).abs();
-            open * R::HALF * (self.u[a][j].abs() + s) / h[a] + open * dcoef / (h[a] * h[a])
+            let u = if transport {
+                self.u[a][j].abs()
+            } else {
+                R::ZERO
+            };
+            open * R::HALF * (u + s) / h[a] + open * dcoef / (h[a] * h[a])
         };
         // integer coordinates advanced like an odometer (no division per cell)
         let mut coords = [0usize; D];

@@ -207,6 +207,9 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     flux: [R; N],
     /// `max_i sum_a (|u_a| + |S_a|)/h_a + 2 D sum_a 1/h_a^2`, so that `dt = C / rate`.
     rate: R,
+    /// The same without the transport term `|u_a| / h_a`: the rate of the percolation stage
+    /// alone ([`Self::stable_dt_percolation`]).
+    percolation_rate: R,
     /// Running maxima over cells and steps of `q - c` and `-q` (tracked phase), since setup.
     excess: [R; 2],
     /// Sum of the tracked fractions flushed to zero ([`SegregationConfig::flush_below`]),
@@ -246,6 +249,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             rhs: [R::ZERO; N],
             flux: [R::ZERO; N],
             rate: R::ZERO,
+            percolation_rate: R::ZERO,
             excess: [R::ZERO; 2],
             flushed: R::ZERO,
             prepared: false,
@@ -324,6 +328,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             self.k[a][..n].fill(R::ZERO);
         }
         self.rate = R::ZERO;
+        self.percolation_rate = R::ZERO;
         self.excess = [R::ZERO; 2];
         self.flushed = R::ZERO;
         self.prepared = false;
@@ -563,7 +568,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         for &ha in h.iter() {
             diffusion_rate += R::TWO * cfg.diffusion / (ha * ha);
         }
-        let mut rate = R::ZERO;
+        let (mut rate, mut percolation_rate) = (R::ZERO, R::ZERO);
         // The direction of the Fixed and Gravity modes: the same in every cell, normalised once.
         let const_dir = match cfg.direction {
             DirectionMode::Fixed(d) => {
@@ -615,17 +620,20 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             let g_dot_d = dot(&g, &d);
             let s_mag = -(cfg.s0 * self.temp[i].sqrt() * g_dot_d / dd) * sign;
             let ci = self.c[i];
-            let mut cell_rate = diffusion_rate;
+            let (mut cell_rate, mut cell_percolation) = (diffusion_rate, diffusion_rate);
             for a in 0..D {
                 let s_a = s_mag * d[a];
                 self.k[a][i] = if ci > cfg.vacuum { s_a / ci } else { R::ZERO };
                 cell_rate += (ui[a].abs() + s_a.abs()) / h[a];
+                cell_percolation += s_a.abs() / h[a];
             }
             if owned.contains(&i) {
                 rate = rate.max(cell_rate);
+                percolation_rate = percolation_rate.max(cell_percolation);
             }
         }
         self.rate = rate;
+        self.percolation_rate = percolation_rate;
     }
 
     /// The largest time step the Courant condition allows (`R::MAX` if nothing moves).
@@ -635,6 +643,51 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         } else {
             R::MAX
         }
+    }
+
+    /// The largest step of the percolation stage alone ([`Self::step_percolation`]): the
+    /// Courant condition of [`Self::stable_dt`] without the transport term `|u_a| / h_a`.
+    /// In a coupled run phi is transported by the flow's own limited face mass fluxes
+    /// ([`Self::carry_mass_fluxes`]), whose bounds proof needs no Courant limit of its own:
+    /// the flow's donor limiter alone keeps each cell's kept share in `[0, 1]` (see
+    /// `carried.rs`). So the coupled step's segregation limit is this one, and dust thrown
+    /// off a free surface at ~1 m/s (which the flow's limiters handle) does not hold it.
+    pub fn stable_dt_percolation(&self) -> R {
+        if self.percolation_rate > R::ZERO {
+            self.cfg.courant / self.percolation_rate
+        } else {
+            R::MAX
+        }
+    }
+
+    /// The percolation stage of one coupled step of length `dt` as `k` equal sub-steps, the
+    /// fewest (at most `max_substeps`) that each keep [`Self::stable_dt_percolation`]
+    /// (`stable_dt` is its value). Percolation moves phi only, so `c`, `T`, `u` and with them
+    /// the coefficients and the limit stay as [`Self::prepare`] left them through the
+    /// sub-steps, and each sub-step keeps `0 <= phi <= c` and the mass like a single one. The
+    /// clock advances by exactly `dt` and counts one step. Returns `k`.
+    pub fn step_percolation_substeps(
+        &mut self,
+        dt: R,
+        stable_dt: R,
+        max_substeps: usize,
+        geo: Option<&crate::geometry::CutCells<R, D, N>>,
+    ) -> usize {
+        let (time, steps) = (self.time, self.steps);
+        let mut k = 1;
+        while k < max_substeps && R::from_usize(k) * stable_dt < dt {
+            k += 1;
+        }
+        let sub = dt / R::from_usize(k);
+        for _ in 0..k {
+            match geo {
+                Some(g) => self.step_percolation_embedded(sub, g),
+                None => self.step_percolation(sub),
+            }
+        }
+        self.time = time + dt;
+        self.steps = steps + 1;
+        k
     }
 
     /// Advances to time `t_end` with the stable step (the last one shortened to land exactly),
