@@ -30,7 +30,8 @@ fn coarse_silo() -> Vec<u8> {
         seed: 1,
         period: Some(0.1),
         frames: None,
-        max_substeps: 4,
+        cpu_hz: sieve::soft_sensor::DEFAULT_CPU_HZ,
+        cpu_share: 1.0,
     };
     let (bytes, report) = record_scene(&scene, &fields, &opts).expect("record");
     assert_eq!(report.record.frames, 25);
