@@ -238,7 +238,7 @@ fn damaged_files_say_what_is_damaged_in_words() {
     // Another version.
     let mut v = good.clone();
     v[8] = 9;
-    refused(dir.path(), "v.rec", &v, &["version 9", "allowed 3"]);
+    refused(dir.path(), "v.rec", &v, &["version 9", "allowed 4"]);
     refused(dir.path(), "empty.rec", b"", &["not a sieve recording"]);
 }
 
