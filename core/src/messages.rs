@@ -63,7 +63,9 @@ fn rule(name: &str) -> Option<&'static str> {
         "inflow_phihat" => "the inflow phihat must be in [0, 1]",
         "tick_period" => "the tick period must be finite and > 0",
         "max_period_factor" => "the largest frame period factor must be finite and > 0",
-        "max_substeps" => "the substep limit must be at least 1",
+        "budget" => {
+            "the cycle budget must cover the fixed part of a tick and at least one substep"
+        }
         "reject_speed" => "the reject speed and the outlier tolerance must be finite and > 0",
         "smoothing" => "the smoothing factor must be in (0, 1]",
         "alarms" => "the alarm thresholds must be finite",

@@ -3,7 +3,7 @@
 
 use core::fmt::Arguments;
 use sieve_core::sensor::feeder::{feed_bytes, Faults, Feeder};
-use sieve_core::sensor::frame::{encode, ESTIMATE_WIRE_MAX, FRAME_WIRE_MAX};
+use sieve_core::sensor::frame::{encode, ESTIMATE_BODY_MAX, ESTIMATE_WIRE_MAX, FRAME_WIRE_MAX};
 use sieve_core::sensor::recording::Recording;
 use sieve_core::sensor::{Estimate, FrameDecoder, SoftSensor, TickProfile, WireCounters};
 
@@ -12,7 +12,7 @@ pub const CELLS: usize = 1024;
 /// Print every this many ticks' estimate frame (all of them would flood semihosting).
 const PRINT_EVERY: u32 = 25;
 /// Estimate body scratch: postcard bound of an [`Estimate`].
-const ESTIMATE_BODY: usize = 64;
+const ESTIMATE_BODY: usize = ESTIMATE_BODY_MAX;
 
 /// The recording embedded at build time (see build.rs).
 pub static RECORDING: &[u8] = include_bytes!(env!("SIEVE_RECORDING_PATH"));
@@ -60,6 +60,10 @@ struct Stats {
     phases: TickProfile,
     /// Ticks that mapped a new frame (ran `prepare_velocity`).
     mapped: u32,
+    /// Largest measured tick over the cost model's cycles for its substeps, in permille.
+    max_over_model: u64,
+    /// Ticks whose measured instructions exceeded the cost model.
+    ticks_over_model: u32,
 }
 
 macro_rules! out {
@@ -98,6 +102,7 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
         s.decoder.counters = WireCounters::default();
         s.feeder.reset(rec.stream, faults);
         let mut st = Stats::default();
+        let mut frames_before = 0u32;
         while !s.feeder.done() {
             let t0 = p.instructions();
             let (sensor, decoder) = (&mut s.sensor, &mut s.decoder);
@@ -114,6 +119,20 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
             st.ticks += 1;
             st.substeps += e.substeps as u64;
             st.instr += dt;
+            // The configuration's cost model of this tick (one cycle per instruction):
+            // the fixed part plus its substeps. It caps the substeps, so it must not be
+            // below what the tick really executed.
+            let b = &cfg.budget;
+            // Frames the tick decoded (good or not): what the estimator's cap counted.
+            let w = s.decoder.counters;
+            let seen = w.decoded + w.overflow + w.framing + w.crc + w.decode;
+            let frames = seen - frames_before;
+            frames_before = seen;
+            let model = b.fixed_frames(cells as usize, cfg.sensor_points(), frames)
+                + e.substeps as u64 * b.substep(cells as usize);
+            let permille = dt * 1000 / model.max(1);
+            st.max_over_model = st.max_over_model.max(permille);
+            st.ticks_over_model += (dt > model) as u32;
             if dt > st.max_instr {
                 st.max_instr = dt;
                 st.max_tick = e.tick;
@@ -156,6 +175,27 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
             per(st.phases.estimate, ticks),
             st.mapped,
             st.substeps
+        );
+        // The measured coefficients in the cost model's form (CycleBudget), next to the
+        // configured ones: per cell (map + prepare_velocity per mapped tick, estimate per
+        // tick), per sensor point (feed per tick), per cell and substep.
+        let points = cfg.sensor_points() as u64;
+        let b = &cfg.budget;
+        out!(
+            p,
+            "cost_model pass={} measured per_cell={} per_point={} per_cell_substep={} configured per_cell={} per_point={} per_cell_substep={} budget_cycles={} substep_cap={} max_tick_over_model={}.{:03} ticks_over_model={}",
+            label,
+            per(st.phases.map + st.phases.prepare, st.mapped as u64) + per(st.phases.estimate, ticks),
+            st.feed / (points * ticks.max(1)),
+            per(st.phases.substeps, st.substeps),
+            b.per_cell,
+            b.per_point,
+            b.per_cell_substep,
+            b.cycles,
+            cfg.substep_cap(),
+            st.max_over_model / 1000,
+            st.max_over_model % 1000,
+            st.ticks_over_model
         );
         let w = s.decoder.counters;
         let c = s.sensor.counters();

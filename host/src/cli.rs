@@ -138,6 +138,23 @@ pub struct RecordArgs {
     /// catalogue scenes only).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
+    /// Clock of the sensor's CPU [MHz]: with the frame period and --cpu-share it sets the
+    /// cycle budget of a tick, which caps its substeps (docs/soft-sensor.md "Cycle budget").
+    #[arg(
+        long = "cpu-mhz",
+        value_name = "MHZ",
+        default_value_t = 168.0,
+        allow_negative_numbers = true
+    )]
+    pub cpu_mhz: f64,
+    /// Share of every tick the CPU grants the sensor, in (0, 1].
+    #[arg(
+        long = "cpu-share",
+        value_name = "SHARE",
+        default_value_t = 1.0,
+        allow_negative_numbers = true
+    )]
+    pub cpu_share: f64,
     /// Recording file to write.
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
@@ -154,6 +171,19 @@ pub struct ReplayArgs {
     /// Print every N-th tick.
     #[arg(long, value_name = "N", default_value_t = 10)]
     pub every: usize,
+    /// The controller's band for the outlet fines fraction, LO,HI (0 <= LO <= HI <= 1)
+    /// [default: the recording's]; it changes the alarms and the off-spec prediction only.
+    #[arg(long = "fines-band", value_name = "LO,HI")]
+    pub fines_band: Option<String>,
+    /// Ticks the fines fraction must stay out of the band before an alarm (and back inside
+    /// before it clears) [default: the recording's].
+    #[arg(long = "alarm-persist", value_name = "N")]
+    pub alarm_persist: Option<u16>,
+    /// Replace the recorded velocity frames by the Nedderman-Tuzun kinematic velocity of a
+    /// flat-bottomed silo with kinematic constant B [m], scaled by the discharge rate alone
+    /// (a load cell; docs/soft-sensor.md). Silo recordings only.
+    #[arg(long, value_name = "B", allow_negative_numbers = true)]
+    pub kinematic: Option<f64>,
 }
 
 /// Face flux names on the command line.
@@ -583,9 +613,68 @@ pub fn execute(cli: Cli) -> Result<()> {
                     soft_sensor::Faults::NONE
                 },
             };
+            let band = match &a.fines_band {
+                None => None,
+                Some(s) => {
+                    let v: Vec<f32> = s
+                        .split(',')
+                        .map(|x| x.trim().parse::<f32>().unwrap_or(f32::NAN))
+                        .collect();
+                    if v.len() != 2 || !(0.0 <= v[0] && v[0] <= v[1] && v[1] <= 1.0) {
+                        return Err(Error::range(
+                            "command line",
+                            "--fines-band",
+                            s,
+                            "LO,HI with 0 <= LO <= HI <= 1",
+                        ));
+                    }
+                    Some([v[0], v[1]])
+                }
+            };
+            if let Some(b) = a.kinematic {
+                if !(b.is_finite() && b > 0.0 && b <= 1.0) {
+                    return Err(Error::range(
+                        "command line",
+                        "--kinematic",
+                        b,
+                        "0 < B <= 1 m",
+                    ));
+                }
+                if a.faults || a.fines_band.is_some() || a.alarm_persist.is_some() {
+                    return Err(Error::at(
+                        "command line",
+                        "--kinematic",
+                        "--kinematic replays the rate alone: it takes no --faults, --fines-band or --alarm-persist",
+                    ));
+                }
+                let bytes = std::fs::read(&a.file).map_err(|e| {
+                    Error::at(
+                        &a.file.display().to_string(),
+                        "",
+                        format!("cannot read the recording: {e}"),
+                    )
+                })?;
+                let report = soft_sensor::replay_kinematic(&bytes, b)
+                    .map_err(|e| Error::at(&a.file.display().to_string(), "", e))?;
+                return soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
+                    .map_err(|e| Error::failure(format!("stdout: {e}")));
+            }
+            if a.alarm_persist == Some(0) {
+                return Err(Error::range("command line", "--alarm-persist", 0, "N >= 1"));
+            }
             // The replay's messages say what is wrong with the file; the file goes in front.
-            let report = soft_sensor::replay(&a.file, &opts)
-                .map_err(|e| Error::at(&a.file.display().to_string(), "", e))?;
+            let report = soft_sensor::replay_with(&a.file, &opts, |c| {
+                if let Some(b) = band {
+                    c.fines_band = b;
+                    // The recorded hysteresis, narrowed to fit a narrow band.
+                    c.fines_hysteresis = c.fines_hysteresis.min(0.5 * (b[1] - b[0]));
+                }
+                if let Some(n) = a.alarm_persist {
+                    c.alarm_persist = n;
+                }
+                Ok(())
+            })
+            .map_err(|e| Error::at(&a.file.display().to_string(), "", e))?;
             soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
                 .map_err(|e| Error::failure(format!("stdout: {e}")))
         }
@@ -757,6 +846,22 @@ fn record(a: &RecordArgs) -> Result<()> {
         Some(hz) => Some(1.0 / hz),
         None => None,
     };
+    if !(a.cpu_mhz.is_finite() && (1.0..=10_000.0).contains(&a.cpu_mhz)) {
+        return Err(Error::range(
+            "command line",
+            "--cpu-mhz",
+            a.cpu_mhz,
+            "1 <= MHZ <= 10000",
+        ));
+    }
+    if !(a.cpu_share.is_finite() && a.cpu_share > 0.0 && a.cpu_share <= 1.0) {
+        return Err(Error::range(
+            "command line",
+            "--cpu-share",
+            a.cpu_share,
+            "0 < SHARE <= 1",
+        ));
+    }
     if let Some(n) = a.frames {
         if !(1..=100_000).contains(&n) {
             return Err(Error::range("command line", "--frames", n, "1..=100000"));
@@ -797,6 +902,8 @@ fn record_legacy(
     opts.estimator_cells = estimator_cells;
     opts.noise = a.noise;
     opts.seed = a.seed;
+    opts.cpu_hz = a.cpu_mhz * 1e6;
+    opts.cpu_share = a.cpu_share;
     if let Some(g) = &a.truth_grid {
         let t = two_axes("--truth-grid", g, 1, 64)?;
         opts.truth_cells = [t[0] as u16, t[1] as u16];
@@ -884,7 +991,8 @@ fn record_catalogue(
         seed: a.seed,
         period,
         frames: a.frames,
-        max_substeps: 4,
+        cpu_hz: a.cpu_mhz * 1e6,
+        cpu_share: a.cpu_share,
     };
     let (bytes, report) = soft_sensor::record_scene(&sc, &fields, &opts)?;
     crate::output::write_file_atomically(&a.out, &bytes)?;

@@ -93,8 +93,25 @@ fn header_sizes_are_bounded_before_anything_is_allocated() {
     refused(dir.path(), "other.rec", &other, &["truth record 1", "16"]);
     let cells = rewrite(&good, |h, _| h.config.cells = [64, 64]);
     refused(dir.path(), "cells.rec", &cells, &["config.cells", "1024"]);
-    let budget = rewrite(&good, |h, _| h.config.max_substeps = u16::MAX);
-    refused(dir.path(), "budget.rec", &budget, &["config.max_substeps"]);
+    // A budget of u32::MAX cycles at zero cost would ask for 65,535 substeps a tick.
+    let budget = rewrite(&good, |h, _| {
+        h.config.budget.cycles = u32::MAX;
+        h.config.budget.per_cell_substep = 0;
+    });
+    refused(
+        dir.path(),
+        "budget.rec",
+        &budget,
+        &["config.budget", "65535 substeps"],
+    );
+    // A budget that does not cover the fixed part of a tick.
+    let starved = rewrite(&good, |h, _| h.config.budget.cycles = 1);
+    refused(
+        dir.path(),
+        "starved.rec",
+        &starved,
+        &["config.budget", "0 substeps"],
+    );
 }
 
 #[test]
@@ -221,7 +238,7 @@ fn damaged_files_say_what_is_damaged_in_words() {
     // Another version.
     let mut v = good.clone();
     v[8] = 9;
-    refused(dir.path(), "v.rec", &v, &["version 9", "allowed 3"]);
+    refused(dir.path(), "v.rec", &v, &["version 9", "allowed 4"]);
     refused(dir.path(), "empty.rec", b"", &["not a sieve recording"]);
 }
 

@@ -182,7 +182,7 @@ fn apply(
                 _ => h.noise = v,
             }
         }
-        Mutation::Substeps(v) => c.max_substeps = *v,
+        Mutation::Substeps(v) => c.budget.cycles = *v as u32 * 1024,
         Mutation::Hold(v) => c.hold_ticks = *v,
         Mutation::Region(lo, hi, o) => {
             let _ = c

@@ -5,7 +5,9 @@
 use sieve::soft_sensor::Scene;
 use sieve_core::diagnose;
 use sieve_core::sensor::snapshot::{snapshot_capacity, SnapshotError};
-use sieve_core::sensor::{health, Reject, SensorConfig, SensorReal, SoftSensor, VelocityFrame};
+use sieve_core::sensor::{
+    health, CycleBudget, Reject, SensorConfig, SensorReal, SoftSensor, VelocityFrame,
+};
 
 const N: usize = 1024;
 
@@ -14,7 +16,13 @@ fn config<R: SensorReal>(max_substeps: u16, hold: u16) -> SensorConfig<R> {
 }
 
 fn config_phase<R: SensorReal>(max_substeps: u16, hold: u16, track_large: bool) -> SensorConfig<R> {
-    let c = Scene::ShearCell.sensor_config([32, 32], [8, 8], 0.05, 0.01, max_substeps);
+    let c = Scene::ShearCell.sensor_config(
+        [32, 32],
+        [8, 8],
+        0.05,
+        0.01,
+        CycleBudget::for_substeps(max_substeps, 1024),
+    );
     let r = |x: f32| R::from_f64(x as f64);
     SensorConfig {
         extent: [r(c.extent[0]), r(c.extent[1])],
@@ -36,13 +44,15 @@ fn config_phase<R: SensorReal>(max_substeps: u16, hold: u16, track_large: bool) 
         smoothing: r(c.smoothing),
         psi_alarm: r(c.psi_alarm),
         fines_band: [r(c.fines_band[0]), r(c.fines_band[1])],
+        fines_hysteresis: r(c.fines_hysteresis),
+        alarm_persist: c.alarm_persist,
         openings: Default::default(),
         outflow_window: c.outflow_window,
         hold_ticks: hold,
         cells: c.cells,
         bc: c.bc,
         sensor: c.sensor,
-        max_substeps: c.max_substeps,
+        budget: c.budget,
         spatial_passes: c.spatial_passes,
         track_large,
         regions: c.regions.clone(),

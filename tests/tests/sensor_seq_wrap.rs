@@ -34,7 +34,13 @@ fn frame(seq: u32, k: u32) -> VelocityFrame {
 }
 
 fn sensor() -> Box<SoftSensor<f32, N>> {
-    let cfg = Scene::ShearCell.sensor_config([32, 32], [8, 8], 0.05, 0.01, 4);
+    let cfg = Scene::ShearCell.sensor_config(
+        [32, 32],
+        [8, 8],
+        0.05,
+        0.01,
+        sieve_core::sensor::CycleBudget::for_substeps(4, 1024),
+    );
     let mut s: Box<SoftSensor<f32, N>> = Box::default();
     s.configure(&cfg).unwrap();
     s

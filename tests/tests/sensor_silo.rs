@@ -30,12 +30,13 @@ fn coarse_silo() -> Vec<u8> {
         seed: 1,
         period: Some(0.1),
         frames: None,
-        max_substeps: 4,
+        cpu_hz: sieve::soft_sensor::DEFAULT_CPU_HZ,
+        cpu_share: 1.0,
     };
     let (bytes, report) = record_scene(&scene, &fields, &opts).expect("record");
     assert_eq!(report.record.frames, 25);
-    // The recorder sized the budget for the fastest frame (the default cap of 4 would hold a
-    // 10 Hz discharge back), and started the estimator from the silo's bed (c 0.6 to 0.4 m).
+    // The budget is a 168 MHz Cortex-M4F's at 10 Hz (it affords far more substeps than the
+    // fastest frame needs), and the estimator starts from the silo's bed (c 0.6 to 0.4 m).
     assert!(report
         .notes
         .iter()

@@ -98,6 +98,8 @@ fn largest_frame_fits_the_bound() {
         outflow: -1.0e-3,
         outflow_fines: 1.0,
         outflow_fines_window: 0.5,
+        // "No exit predicted" travels as +inf.
+        off_spec_in: f32::INFINITY,
     };
     let mut s = [0u8; Estimate::POSTCARD_MAX_SIZE];
     let mut o = [0u8; ESTIMATE_WIRE_MAX];

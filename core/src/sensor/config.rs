@@ -46,6 +46,114 @@ pub struct SensorOpening<R> {
     pub upper: R,
 }
 
+/// The tick's time budget and the estimator's cost model, in CPU cycles (issue 9).
+///
+/// A tick may take as many substeps as the stable step asks for, up to
+/// `floor((cycles - fixed) / substep)` with `fixed = per_cell cells + per_point points
+/// frames` (`frames`: the frames the tick decoded, at least 1, so a burst after a stall pays
+/// for its decoding out of the substeps) and `substep = per_cell_substep cells`
+/// ([`Self::substeps`]). The cap is a model of the cost,
+/// not a clock reading, so it is the same on the host and on the firmware and a replay is
+/// deterministic. The coefficients are instruction counts measured by `firmware-sim/run.sh`
+/// under QEMU `-icount` (one cycle per instruction: the Cortex-M4F issues most integer and
+/// FPU instructions in one cycle; flash wait states on a real part make a cycle count larger,
+/// which a controller covers by granting the sensor less than the whole period, see
+/// docs/soft-sensor.md "Cycle budget"). The firmware checks every tick's measured count
+/// against the model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CycleBudget {
+    /// Cycles the sensor may spend in one tick (clock frequency times the tick period times
+    /// the share of the CPU the controller grants the sensor).
+    pub cycles: u32,
+    /// Fixed part of a tick per estimator cell: bilinear map, `prepare_velocity`, estimate.
+    pub per_cell: u32,
+    /// Fixed part of a tick per sensor point: UART decode (COBS, CRC, postcard), validation,
+    /// median / 1-2-1 / EMA filter of one frame.
+    pub per_point: u32,
+    /// One substep per estimator cell (`step_percolation` compensated + `carry_own_velocity`).
+    pub per_cell_substep: u32,
+}
+
+impl CycleBudget {
+    /// The cost model of the f32 estimator on the Cortex-M4F (firmware-sim, 32 x 32 estimator,
+    /// 8 x 8 sensor, 2026-11-30): per cell map 60 + `prepare_velocity` 357 + estimate 83 =
+    /// 500, feed 90 per cell = 1,440 per sensor point, substep 370; rounded up by about 3 %
+    /// so that a whole tick (986,255 instructions measured with one substep, against 983,040
+    /// from the unrounded terms) stays inside the model.
+    pub const CORTEX_M4F: Self = Self {
+        cycles: 0,
+        per_cell: 515,
+        per_point: 1_485,
+        per_cell_substep: 381,
+    };
+
+    /// This cost model with the budget of a CPU at `clock_hz` granting the sensor the share
+    /// `share` (in (0, 1]) of every `period` [s]: `floor(clock_hz period share)` cycles,
+    /// saturating at `u32::MAX`.
+    pub fn with_clock(self, clock_hz: f64, period: f64, share: f64) -> Self {
+        let c = libm::floor(clock_hz * period * share);
+        let cycles = if c.is_nan() || c <= 0.0 {
+            0
+        } else if c >= u32::MAX as f64 {
+            u32::MAX
+        } else {
+            c as u32
+        };
+        Self { cycles, ..self }
+    }
+
+    /// A budget that affords exactly `k` substeps of `cells` cells, whatever the sensor grid
+    /// (no fixed part, one cycle per cell and substep): for tests and tools that set the cap
+    /// directly.
+    pub const fn for_substeps(k: u16, cells: usize) -> Self {
+        Self {
+            cycles: k as u32 * cells as u32,
+            per_cell: 0,
+            per_point: 0,
+            per_cell_substep: 1,
+        }
+    }
+
+    /// Cycles of the fixed part of a tick with one frame for `cells` estimator cells and
+    /// `points` sensor points.
+    pub fn fixed(&self, cells: usize, points: usize) -> u64 {
+        self.fixed_frames(cells, points, 1)
+    }
+
+    /// Cycles of the fixed part of a tick that decoded `frames` frames (at least one is
+    /// counted).
+    pub fn fixed_frames(&self, cells: usize, points: usize, frames: u32) -> u64 {
+        self.per_cell as u64 * cells as u64
+            + self.per_point as u64 * points as u64 * frames.max(1) as u64
+    }
+
+    /// Cycles of one substep for `cells` estimator cells.
+    pub fn substep(&self, cells: usize) -> u64 {
+        self.per_cell_substep as u64 * cells as u64
+    }
+
+    /// Most substeps one tick can afford: `floor((cycles - fixed) / substep)`, 0 if the fixed
+    /// part alone exceeds the budget, saturating at `u16::MAX` (a free substep, cost 0, also
+    /// gives `u16::MAX`). Integer arithmetic: the same cap on every platform.
+    pub fn substeps(&self, cells: usize, points: usize) -> u16 {
+        self.substeps_frames(cells, points, 1)
+    }
+
+    /// [`Self::substeps`] of a tick that decoded `frames` frames.
+    pub fn substeps_frames(&self, cells: usize, points: usize, frames: u32) -> u16 {
+        let fixed = self.fixed_frames(cells, points, frames);
+        let cycles = self.cycles as u64;
+        if fixed >= cycles {
+            return 0;
+        }
+        let per = self.substep(cells);
+        if per == 0 {
+            return u16::MAX;
+        }
+        ((cycles - fixed) / per).min(u16::MAX as u64) as u16
+    }
+}
+
 /// Largest number of openings of a sensor configuration.
 pub const MAX_OPENINGS: usize = 2;
 /// Largest outflow window in ticks ([`SensorConfig::outflow_window`]).
@@ -94,8 +202,9 @@ pub struct SensorConfig<R> {
     /// Largest accepted frame period, as a multiple of `tick_period` (frames with a longer or
     /// non-positive period are rejected as out of range).
     pub max_period_factor: R,
-    /// Work budget: most substeps of one tick.
-    pub max_substeps: u16,
+    /// Time budget of a tick and the cost model: the tick takes at most
+    /// [`CycleBudget::substeps`] substeps (at least one must fit).
+    pub budget: CycleBudget,
     /// Ticks without a valid frame during which the last good velocity is held; after that
     /// the estimate freezes.
     pub hold_ticks: u16,
@@ -124,6 +233,13 @@ pub struct SensorConfig<R> {
     /// Alarm when the outlet fines fraction leaves `[lo, hi]` (the fines fraction of the
     /// outflow over the window if anything left the box during it, else the outlet region).
     pub fines_band: [R; 2],
+    /// Hysteresis of the fines alarms: a raised alarm clears only once the fraction is back
+    /// inside `[lo + h, hi - h]` (>= 0, less than half the band).
+    pub fines_hysteresis: R,
+    /// Persistence of the fines alarms: the fraction must be out of the band (or, to clear,
+    /// back inside the hysteresis band) for this many consecutive ticks (>= 1) before the
+    /// alarm state changes, so a noisy tick does not chatter.
+    pub alarm_persist: u16,
     /// Openings in wall sides (outlets), at most [`MAX_OPENINGS`].
     pub openings: heapless::Vec<SensorOpening<R>, MAX_OPENINGS>,
     /// Ticks over which the outflow fines fraction is averaged (1 to [`MAX_OUTFLOW_WINDOW`]).
@@ -185,7 +301,7 @@ impl<R: SensorReal> SensorConfig<R> {
             ("courant", pos(self.courant) && self.courant < R::ONE),
             ("tick_period", pos(self.tick_period)),
             ("max_period_factor", pos(self.max_period_factor)),
-            ("max_substeps", self.max_substeps > 0),
+            ("budget", self.substep_cap() > 0),
             (
                 "reject_speed",
                 pos(self.reject_speed) && pos(self.outlier_tol),
@@ -195,7 +311,12 @@ impl<R: SensorReal> SensorConfig<R> {
                 "alarms",
                 self.psi_alarm.is_finite()
                     && self.fines_band[0].is_finite()
-                    && self.fines_band[1].is_finite(),
+                    && self.fines_band[1].is_finite()
+                    && self.fines_band[0] <= self.fines_band[1]
+                    && nonneg(self.fines_hysteresis)
+                    && self.fines_hysteresis + self.fines_hysteresis
+                        <= self.fines_band[1] - self.fines_band[0]
+                    && self.alarm_persist > 0,
             ),
         ];
         for (name, ok) in checks {
@@ -239,6 +360,12 @@ impl<R: SensorReal> SensorConfig<R> {
     /// Number of estimator cells.
     pub fn cell_count(&self) -> usize {
         self.cells[0] as usize * self.cells[1] as usize
+    }
+
+    /// Most substeps of one tick: what the cycle budget affords (model, not a clock reading).
+    pub fn substep_cap(&self) -> u16 {
+        self.budget
+            .substeps(self.cell_count(), self.sensor_points())
     }
 
     /// Number of sensor points.

@@ -1,6 +1,6 @@
 //! The soft-sensor estimator: input handling, the budgeted tick, and the estimate.
 
-use super::config::{ConfigError, SensorConfig};
+use super::config::{ConfigError, CycleBudget, SensorConfig};
 use super::config::{MAX_OPENINGS, MAX_OUTFLOW_WINDOW};
 use super::entropy;
 use super::frame::{bump, Estimate, Reject, VelocityFrame};
@@ -95,13 +95,14 @@ pub struct TickProfile {
 ///   `Counters::lost_periods`. A late frame whose period a held tick already covered only
 ///   updates the velocity.
 /// * Budget: the advance of `dt` takes `ceil(dt / stable_dt)` equal substeps; if that
-///   exceeds what is left of `max_substeps` this tick, it takes the remaining budget of
+///   exceeds what is left of the cap this tick (`floor((budget.cycles - fixed) /
+///   substep)` of the cost model, [`super::CycleBudget`]), it takes the remaining budget of
 ///   full stable substeps (Courant-limited, so bounded and conservative), adds the shortfall
 ///   to `lag` and sets [`health::BUDGET_LIMITED`].
 /// * [`Self::finish_tick`] ends a tick: if frames were accepted, it maps the filtered
 ///   velocity onto the estimator grid once (`Segregation::prepare_velocity`: no validation
 ///   of phi, no clamping, so the state stays exactly conservative) and advances by the booked
-///   time, so the work of a tick is one mapping plus at most `max_substeps` substeps however
+///   time, so the work of a tick is one mapping plus at most the cap's substeps however
 ///   many frames arrived. If no frame was accepted during the tick, the last good velocity is held for one `tick_period` ([`health::STALE_INPUT`]) up to `hold_ticks`
 ///   consecutive ticks, after which the estimate freezes ([`health::FROZEN`]) until a good
 ///   frame arrives. It returns the [`Estimate`].
@@ -126,6 +127,12 @@ pub struct SoftSensor<R: SensorReal, const N: usize> {
     flags: u8,
     /// Substeps taken in the current tick.
     substeps: u16,
+    /// Most substeps of the current tick: what the configuration's cycle budget affords
+    /// after the fixed part with `frames` frames decoded.
+    cap: u16,
+    /// Frames decoded this tick (accepted or rejected, byte-level rejects included): each
+    /// costs its decoding and filtering in the cost model.
+    frames: u32,
     accepted_this_tick: bool,
     /// Time of the frames accepted this tick, advanced by `finish_tick` (0 between ticks).
     pending: R,
@@ -139,6 +146,19 @@ pub struct SoftSensor<R: SensorReal, const N: usize> {
     pub(super) out_head: u16,
     /// What left the box since configuration (grains, small grains).
     pub(super) out_total: [R; 2],
+    /// Latched fines alarms ([`alarm::FINES_LOW`] / [`alarm::FINES_HIGH`]).
+    fines_state: u8,
+    /// Consecutive ticks below / above the band / back inside the hysteresis band.
+    fines_runs: [u16; 3],
+    /// (estimator time, outlet fines fraction) of the last ticks that had one (ring), for the
+    /// trend of the off-spec prediction.
+    trend: [[R; 2]; MAX_OUTFLOW_WINDOW],
+    /// Samples in `trend` (at most `outflow_window`) and the next slot.
+    trend_len: u16,
+    trend_head: u16,
+    /// The last off-spec prediction [s] (see [`Estimate::off_spec_in`]); `None`: no exit
+    /// predicted.
+    off_spec_in: Option<R>,
 }
 
 impl<R: SensorReal, const N: usize> Default for SoftSensor<R, N> {
@@ -167,7 +187,12 @@ const fn empty_config<R: SensorReal>() -> SensorConfig<R> {
         courant: R::HALF,
         tick_period: R::ONE,
         max_period_factor: R::TWO,
-        max_substeps: 1,
+        budget: CycleBudget {
+            cycles: 1,
+            per_cell: 0,
+            per_point: 0,
+            per_cell_substep: 1,
+        },
         hold_ticks: 0,
         reject_speed: R::ONE,
         outlier_tol: R::ONE,
@@ -178,6 +203,8 @@ const fn empty_config<R: SensorReal>() -> SensorConfig<R> {
         outlet: None,
         psi_alarm: R::ZERO,
         fines_band: [R::ZERO, R::ONE],
+        fines_hysteresis: R::ZERO,
+        alarm_persist: 1,
         openings: heapless::Vec::new(),
         outflow_window: 1,
     }
@@ -212,6 +239,8 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             },
             flags: 0,
             substeps: 0,
+            cap: 1,
+            frames: 0,
             accepted_this_tick: false,
             pending: R::ZERO,
             open: [[Openings::none(); 2]; 2],
@@ -219,6 +248,12 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             out_ring: [[R::ZERO; 2]; MAX_OUTFLOW_WINDOW],
             out_head: 0,
             out_total: [R::ZERO; 2],
+            fines_state: 0,
+            fines_runs: [0; 3],
+            trend: [[R::ZERO; 2]; MAX_OUTFLOW_WINDOW],
+            trend_len: 0,
+            trend_head: 0,
+            off_spec_in: None,
         }
     }
 
@@ -283,6 +318,8 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.counters = Counters::default();
         self.flags = 0;
         self.substeps = 0;
+        self.cap = cfg.substep_cap();
+        self.frames = 0;
         self.accepted_this_tick = false;
         self.pending = R::ZERO;
         self.open = [[Openings::none(); 2]; 2];
@@ -302,6 +339,12 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.out_ring = [[R::ZERO; 2]; MAX_OUTFLOW_WINDOW];
         self.out_head = 0;
         self.out_total = [R::ZERO; 2];
+        self.fines_state = 0;
+        self.fines_runs = [0; 3];
+        self.trend = [[R::ZERO; 2]; MAX_OUTFLOW_WINDOW];
+        self.trend_len = 0;
+        self.trend_head = 0;
+        self.off_spec_in = None;
         self.seg
             .prepare()
             .map_err(|_| ConfigError::Parameter("initial state"))
@@ -361,6 +404,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
     /// tick already covered it) is advanced at the end of the tick; on rejection nothing but
     /// the counters and the tick's health flags changed.
     pub fn submit(&mut self, f: &VelocityFrame) -> Result<(), Reject> {
+        self.frames = self.frames.saturating_add(1);
         if let Err(r) = self.validate(f) {
             self.count_reject(r);
             return Err(r);
@@ -399,8 +443,10 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             Reject::NonFinite => bump(&mut c.non_finite),
             Reject::Range => bump(&mut c.range),
             Reject::Seq => bump(&mut c.seq),
-            // Counted by the decoder; only the health flag is set here.
-            Reject::Overflow | Reject::Framing | Reject::Crc | Reject::Decode => {}
+            // Counted by the decoder; only the health flag and the frame's cost here.
+            Reject::Overflow | Reject::Framing | Reject::Crc | Reject::Decode => {
+                self.frames = self.frames.saturating_add(1);
+            }
         }
     }
 
@@ -506,9 +552,10 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         debug_assert!(res.is_ok(), "validated input must prepare: {res:?}");
     }
 
-    /// Advances by `dt` within what is left of this tick's substep budget.
+    /// Advances by `dt` within what is left of this tick's substep cap (from the cycle
+    /// budget, [`SensorConfig::substep_cap`]).
     fn advance(&mut self, dt: R) {
-        let left = self.cfg.max_substeps.saturating_sub(self.substeps);
+        let left = self.cap.saturating_sub(self.substeps);
         let sdt = self.seg.stable_dt();
         let ratio = dt.to_f64() / sdt.to_f64();
         let need = libm::ceil(ratio).max(1.0);
@@ -570,6 +617,12 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         clock: &mut impl FnMut() -> u64,
     ) -> (Estimate, TickProfile) {
         let mut prof = TickProfile::default();
+        // The cap of this tick: the budget after the fixed part with the frames it decoded.
+        self.cap = self.cfg.budget.substeps_frames(
+            self.cfg.cell_count(),
+            self.cfg.sensor_points(),
+            self.frames,
+        );
         let t0 = clock();
         if self.accepted_this_tick {
             // One velocity update per tick however many frames arrived (a burst after a
@@ -604,13 +657,15 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.out_total[1] += self.tick_out[1];
         let t3 = clock();
         prof.substeps = t3 - t0 - prof.map - prof.prepare;
-        let (e, excursions) = self.readout();
+        let (mut e, excursions) = self.readout();
         if excursions > 0 {
             self.counters.phi_excursions = self.counters.phi_excursions.wrapping_add(excursions);
         }
+        self.update_off_spec(&mut e);
         prof.estimate = clock() - t3;
         self.flags = 0;
         self.substeps = 0;
+        self.frames = 0;
         self.tick_out = [R::ZERO; 2];
         self.accepted_this_tick = false;
         self.tick = self.tick.wrapping_add(1);
@@ -713,14 +768,10 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         } else {
             cfg.outlet.and_then(|o| regions.get(o as usize)).copied()
         };
-        if let Some(fines) = outlet_fines {
-            if (fines as f64) < cfg.fines_band[0].to_f64() {
-                alarms |= alarm::FINES_LOW;
-            }
-            if (fines as f64) > cfg.fines_band[1].to_f64() {
-                alarms |= alarm::FINES_HIGH;
-            }
-        }
+        // The fines alarms are latched by `update_off_spec` at the end of each tick
+        // (persistence and hysteresis), so a readout between ticks shows the same state.
+        let _ = outlet_fines;
+        alarms |= self.fines_state;
         let mut h = self.flags;
         if !self.have_velocity {
             h |= health::NO_INPUT;
@@ -744,8 +795,120 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             outflow: f(self.tick_out[0]),
             outflow_fines: f(fraction(self.tick_out)),
             outflow_fines_window: f(window_fines),
+            off_spec_in: self.off_spec_in.map_or(f32::INFINITY, f),
         };
         (e, excursions)
+    }
+
+    /// The outlet fines fraction the alarms watch: that of what left over the window if
+    /// anything left, else the outlet region's mean, else none.
+    fn outlet_fines(&self, e: &Estimate) -> Option<R> {
+        let window: R = self.out_ring[..self.cfg.outflow_window as usize]
+            .iter()
+            .fold(R::ZERO, |s, o| s + o[0]);
+        if window > R::ZERO {
+            Some(R::from_f32(e.outflow_fines_window))
+        } else {
+            self.cfg
+                .outlet
+                .and_then(|o| e.regions.get(o as usize))
+                .map(|&x| R::from_f32(x))
+        }
+    }
+
+    /// End of a tick: latches the fines alarms and predicts the time to the next off-spec
+    /// event, then writes both into `e`.
+    ///
+    /// * Alarms: the fraction `f` (see [`Self::outlet_fines`]) raises [`alarm::FINES_LOW`]
+    ///   (`f < lo`) or [`alarm::FINES_HIGH`] (`f > hi`) after `alarm_persist` consecutive
+    ///   ticks out of the band, and clears only after `alarm_persist` consecutive ticks back
+    ///   inside `[lo + h, hi - h]` (`h = fines_hysteresis`): both a persistence count and a
+    ///   hysteresis, so neither a noisy tick nor a fraction hovering at a band edge chatters.
+    ///   A tick without a fraction (nothing left, no outlet region) changes nothing.
+    ///   `alarm_persist = 1`, `h = 0` is the instantaneous comparison.
+    /// * Prediction: a least-squares line through the last `outflow_window` (time, f) samples
+    ///   (estimator time, so held and burst ticks are placed where they belong), extrapolated
+    ///   from its value at the latest sample to the band edge it heads for: `(hi - f)/slope`
+    ///   or `(f - lo)/(-slope)`. 0 while out of the band or alarmed; infinity for a flat or
+    ///   inward trend or fewer than 3 samples. The windowed fraction lags the discharge by
+    ///   about half the window, and a trend sees an event only once it has begun: this warns
+    ///   of a drift, not of a front that has not yet reached the outlet (docs/soft-sensor.md).
+    fn update_off_spec(&mut self, e: &mut Estimate) {
+        let cfg = &self.cfg;
+        let (lo, hi, h) = (cfg.fines_band[0], cfg.fines_band[1], cfg.fines_hysteresis);
+        let persist = cfg.alarm_persist.max(1);
+        if let Some(f) = self.outlet_fines(e) {
+            let runs = &mut self.fines_runs;
+            let step = |run: &mut u16, on: bool| *run = if on { run.saturating_add(1) } else { 0 };
+            step(&mut runs[0], f < lo);
+            step(&mut runs[1], f > hi);
+            step(&mut runs[2], f >= lo + h && f <= hi - h);
+            if runs[0] >= persist {
+                self.fines_state = alarm::FINES_LOW;
+            } else if runs[1] >= persist {
+                self.fines_state = alarm::FINES_HIGH;
+            } else if self.fines_state != 0 && runs[2] >= persist {
+                self.fines_state = 0;
+            }
+            let w = cfg.outflow_window as usize;
+            self.trend[self.trend_head as usize % w] = [self.seg.time(), f];
+            self.trend_head = ((self.trend_head as usize + 1) % w) as u16;
+            self.trend_len = (self.trend_len + 1).min(w as u16);
+            self.off_spec_in = if self.fines_state != 0 || f < lo || f > hi {
+                Some(R::ZERO)
+            } else {
+                self.trend_exit(lo, hi)
+            };
+        }
+        e.alarms = (e.alarms & !(alarm::FINES_LOW | alarm::FINES_HIGH)) | self.fines_state;
+        e.off_spec_in = self
+            .off_spec_in
+            .map_or(f32::INFINITY, |t| t.to_f64() as f32);
+    }
+
+    /// Time until the least-squares line through the trend samples reaches `lo` or `hi`
+    /// from its value at the latest sample (`None`: no exit ahead). Sums in ring order
+    /// from the oldest sample, so the result is the same on every platform.
+    fn trend_exit(&self, lo: R, hi: R) -> Option<R> {
+        let n = self.trend_len as usize;
+        if n < 3 {
+            return None;
+        }
+        let w = self.cfg.outflow_window as usize;
+        let first = (self.trend_head as usize + w - n) % w;
+        let at = |k: usize| self.trend[(first + k) % w];
+        let inv = R::ONE / R::from_u32(n as u32);
+        let t0 = at(0)[0];
+        let (mut st, mut sf) = (R::ZERO, R::ZERO);
+        for k in 0..n {
+            st += at(k)[0] - t0;
+            sf += at(k)[1];
+        }
+        let (tm, fm) = (st * inv, sf * inv);
+        let (mut stt, mut stf) = (R::ZERO, R::ZERO);
+        for k in 0..n {
+            let dt = at(k)[0] - t0 - tm;
+            stt += dt * dt;
+            stf += dt * (at(k)[1] - fm);
+        }
+        if stt <= R::ZERO {
+            return None;
+        }
+        let slope = stf / stt;
+        let now = at(n - 1)[0] - t0;
+        let f = fm + slope * (now - tm);
+        let t = if slope > R::ZERO {
+            (hi - f) / slope
+        } else if slope < R::ZERO {
+            (f - lo) / -slope
+        } else {
+            return None;
+        };
+        if t.is_finite() {
+            Some(t.max(R::ZERO))
+        } else {
+            None
+        }
     }
 
     /// Hash of the whole estimator state: the core state hash (time, phi, c, T, u) then the

@@ -90,10 +90,15 @@ pub struct Estimate {
     pub outflow_fines: f32,
     /// Fines fraction of what left over the last `outflow_window` ticks; 0 if nothing left.
     pub outflow_fines_window: f32,
+    /// Predicted time until the outlet fines fraction leaves the band `fines_band` [s]:
+    /// 0 while it is out of the band (or a fines alarm is raised), `f32::INFINITY` when no
+    /// exit is predicted (its trend is flat or heads into the band, or fewer than 3 ticks of
+    /// outflow are known). See `SoftSensor` ("Off-spec prediction").
+    pub off_spec_in: f32,
 }
 
 impl MaxSize for Estimate {
-    const POSTCARD_MAX_SIZE: usize = 5 + 5 + 4 * 4 + 1 + 4 * MAX_REGIONS + 2 + 3 + 4 + 3 * 4;
+    const POSTCARD_MAX_SIZE: usize = 5 + 5 + 4 * 4 + 1 + 4 * MAX_REGIONS + 2 + 3 + 4 + 4 * 4;
 }
 
 /// The CRC envelope inside the COBS frame.
@@ -115,6 +120,8 @@ pub const fn wire_max(body: usize) -> usize {
 pub const FRAME_WIRE_MAX: usize = wire_max(VelocityFrame::POSTCARD_MAX_SIZE);
 /// Worst-case wire size of an estimate.
 pub const ESTIMATE_WIRE_MAX: usize = wire_max(Estimate::POSTCARD_MAX_SIZE);
+/// Largest postcard body of an [`Estimate`] (the scratch `encode` needs for it).
+pub const ESTIMATE_BODY_MAX: usize = Estimate::POSTCARD_MAX_SIZE;
 
 /// Why encoding failed (a buffer too small).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

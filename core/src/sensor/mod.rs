@@ -25,11 +25,12 @@ pub mod entropy;
 pub mod estimator;
 pub mod feeder;
 pub mod frame;
+pub mod kinematic;
 pub mod recording;
 pub mod snapshot;
 
 pub use config::{
-    ConfigError, Region, SensorConfig, SensorOpening, MAX_OPENINGS, MAX_OUTFLOW_WINDOW,
+    ConfigError, CycleBudget, Region, SensorConfig, SensorOpening, MAX_OPENINGS, MAX_OUTFLOW_WINDOW,
 };
 pub use estimator::{seq_after, Counters, SoftSensor, TickProfile};
 pub use frame::{Estimate, FrameDecoder, Reject, VelocityFrame, WireCounters};

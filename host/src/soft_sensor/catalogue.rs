@@ -40,7 +40,7 @@ use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Equations, Fields, Scene};
 use sieve_core::flow::Flow;
 use sieve_core::segregation::direction::shear_rate_squared;
-use sieve_core::sensor::{Region, SensorConfig, SoftSensor, VelocityFrame};
+use sieve_core::sensor::{CycleBudget, Region, SensorConfig, SoftSensor, VelocityFrame};
 use sieve_core::{diagnose, Boundary, Real, Segregation};
 
 /// Heating prefactor a, eta0 [m] and eps0 [1/m] of the glass beads of model.md 7.4: the
@@ -71,8 +71,10 @@ pub struct SceneRecordOptions {
     pub period: Option<f64>,
     /// Frames; `None`: enough to cover `run.t_end` (at most [`MAX_DEFAULT_FRAMES`]).
     pub frames: Option<u32>,
-    /// Substep budget per tick written into the configuration.
-    pub max_substeps: u16,
+    /// Clock of the CPU the tick budget is for [Hz] ([`super::DEFAULT_CPU_HZ`]).
+    pub cpu_hz: f64,
+    /// Share of every tick period the CPU grants the sensor, in (0, 1].
+    pub cpu_share: f64,
 }
 
 impl Default for SceneRecordOptions {
@@ -84,7 +86,8 @@ impl Default for SceneRecordOptions {
             seed: 1,
             period: None,
             frames: None,
-            max_substeps: 4,
+            cpu_hz: super::DEFAULT_CPU_HZ,
+            cpu_share: 1.0,
         }
     }
 }
@@ -245,12 +248,41 @@ fn profile_step(u: [&[f64]; 2], ns: [usize; 2], periodic: [bool; 2]) -> f64 {
     step
 }
 
+/// The cycle budget of a `period` tick for `cfg`'s grids ([`super::cpu_budget`]); refused in
+/// one line if it does not cover the fixed part of a tick and one substep.
+fn budget_for(
+    cfg: &SensorConfig<f32>,
+    opts: &SceneRecordOptions,
+    period: f64,
+    label: &str,
+) -> Result<CycleBudget> {
+    let budget = super::cpu_budget(opts.cpu_hz, opts.cpu_share, period);
+    let (cells, points) = (cfg.cell_count(), cfg.sensor_points());
+    if budget.substeps(cells, points) == 0 {
+        return Err(Error::at(
+            label,
+            "",
+            format!(
+                "a {period} s tick on a {} MHz CPU at share {} gives the sensor {} cycles, less than the fixed part of a tick ({}) plus one substep ({}) of a {}-cell estimator with {} sensor points: lower --rate, the estimator or sensor grid, or raise --cpu-mhz / --cpu-share",
+                opts.cpu_hz / 1e6,
+                opts.cpu_share,
+                budget.cycles,
+                budget.fixed(cells, points),
+                budget.substep(cells),
+                cells,
+                points
+            ),
+        ));
+    }
+    Ok(budget)
+}
+
 /// The stable substep of the soft sensor (f32, the firmware's estimator) with the clean
 /// sensor velocity: one tick of a tiny period, then its Courant step.
 fn estimator_dt(cfg: &SensorConfig<f32>, clean: &[f32]) -> Result<f64> {
     let mut probe = cfg.clone();
     probe.tick_period = 1e-6;
-    probe.max_substeps = 1;
+    probe.budget = CycleBudget::for_substeps(1, probe.cell_count());
     let mut sensor: Box<SoftSensor<f32, ESTIMATOR_CAPACITY>> = Box::default();
     sensor
         .configure(&probe)
@@ -421,7 +453,8 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
         courant: 0.5,
         tick_period: 1.0,
         max_period_factor: 2.0,
-        max_substeps: opts.max_substeps,
+        // The budget of a 1 s tick until the period is known (below).
+        budget: super::cpu_budget(opts.cpu_hz, opts.cpu_share, 1.0),
         hold_ticks: 5,
         reject_speed: f(3.0 * umax),
         outlier_tol: f(6.0 * sigma + step + 1e-3 * umax),
@@ -434,6 +467,8 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
         outlet: None,
         psi_alarm: 0.3,
         fines_band: [0.4, 0.8],
+        fines_hysteresis: 0.01,
+        alarm_persist: 3,
         openings: Default::default(),
         outflow_window: 10,
     };
@@ -489,6 +524,7 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
         }
     };
     cfg.tick_period = f(period);
+    cfg.budget = budget_for(&cfg, opts, period, label)?;
     // Frames and truth.
     let mut writer = Writer::new(opts.sensor, period, sigma, opts.seed).map_err(fail)?;
     let mut final_psi = 0.0;
@@ -673,7 +709,7 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
         courant: 0.5,
         tick_period: f32_(period),
         max_period_factor: 2.0,
-        max_substeps: opts.max_substeps,
+        budget: super::cpu_budget(opts.cpu_hz, opts.cpu_share, period),
         hold_ticks: 5,
         reject_speed: 1.0,
         outlier_tol: 1.0,
@@ -685,6 +721,8 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
         outlet: None,
         psi_alarm: 0.3,
         fines_band: [0.4, 0.8],
+        fines_hysteresis: 0.01,
+        alarm_persist: 3,
         openings: Default::default(),
         outflow_window: 10,
     };
@@ -854,15 +892,16 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
     } else {
         estimator_dt(&cfg, &fastest)?
     };
+    cfg.budget = budget_for(&cfg, opts, period, label)?;
     if dt.is_finite() && dt > 0.0 {
         // Room for the noise, which raises the measured speeds and shear.
         let need = (1.5 * period / dt).ceil().clamp(1.0, 1024.0) as u16;
-        if need > cfg.max_substeps {
+        let cap = cfg.substep_cap();
+        if need > cap {
             notes.push(format!(
-                "the fastest frame needs {need} substeps of {dt:.3e} s per {period} s tick: the sensor configuration's budget is {need} (not {})",
-                cfg.max_substeps
+                "the fastest frame needs {need} substeps of {dt:.3e} s per {period} s tick; the cycle budget ({} cycles) affords {cap}: such ticks are budget-limited (lag)",
+                cfg.budget.cycles
             ));
-            cfg.max_substeps = need;
         }
     }
     let (bytes, stream_bytes) = writer

@@ -23,9 +23,12 @@ use sieve_core::sensor::{SensorConfig, MAX_SENSOR_POINTS, MAX_SENSOR_SIDE};
 /// What to do with a damaged file, appended to the messages of [`parse`].
 const DAMAGED: &str = "the recording is damaged: record it again with `sieve record`";
 
-/// Largest substep budget per tick accepted from a recording. The firmware uses 4; each
-/// substep costs one pass over the estimator grid, so a hostile 65535 would turn a replay of
-/// a few thousand frames into hours.
+/// Largest substep work per tick accepted from a recording, in substeps of a full
+/// [`ESTIMATOR_CAPACITY`] grid: the cap the cycle budget affords
+/// ([`SensorConfig::substep_cap`]) times the cells may not exceed this many full-grid
+/// substeps. Each substep costs one pass over the estimator grid, so a hostile budget of
+/// `u32::MAX` cycles with zero costs (65,535 substeps) would turn a replay of a few thousand
+/// frames into hours; a Cortex-M4F at 168 MHz and 10 Hz affords 42 on 32 x 32.
 pub const MAX_SUBSTEPS: u16 = 1024;
 
 /// Parses `bytes` as a recording; a failure names the part of the file that is wrong.
@@ -186,11 +189,20 @@ pub fn config(c: &SensorConfig<f32>) -> Result<(), String> {
     if !(c.smoothing.is_finite() && c.smoothing > 0.0 && c.smoothing <= 1.0) {
         return Err(field("config.smoothing", c.smoothing, "0 < smoothing <= 1"));
     }
-    if c.max_substeps == 0 || c.max_substeps > MAX_SUBSTEPS {
+    let cap = c.substep_cap() as usize;
+    if cap == 0 || cap * c.cell_count() > MAX_SUBSTEPS as usize * ESTIMATOR_CAPACITY {
+        let b = &c.budget;
         return Err(field(
-            "config.max_substeps",
-            c.max_substeps,
-            &format!("1 to {MAX_SUBSTEPS} substeps per tick"),
+            "config.budget",
+            format!(
+                "{} cycles per tick at {} per cell + {} per sensor point + {} per cell and substep ({cap} substeps of {} cells)",
+                b.cycles,
+                b.per_cell,
+                b.per_point,
+                b.per_cell_substep,
+                c.cell_count()
+            ),
+            &format!("a budget that affords 1 to {MAX_SUBSTEPS} substeps of {ESTIMATOR_CAPACITY} cells per tick"),
         ));
     }
     within("psi_alarm", c.psi_alarm, -1.0, 2.0, "")?;

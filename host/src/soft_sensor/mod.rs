@@ -34,10 +34,22 @@ mod scene;
 pub use catalogue::{record_scene, SceneRecordOptions, SceneRecordReport};
 pub use record::{record, record_to_bytes, RecordOptions, RecordReport};
 pub use replay::{
-    print_report, replay, replay_bytes, OutflowAccuracy, ReplayOptions, ReplayReport, ReplayRow,
+    print_report, replay, replay_bytes, replay_bytes_with, replay_kinematic, replay_with, OffSpec,
+    OutflowAccuracy, ReplayOptions, ReplayReport, ReplayRow,
 };
 pub use scene::{coarsen, Scene, Truth, TRUTH_CAPACITY};
 pub use sieve_core::sensor::feeder::Faults;
+use sieve_core::sensor::CycleBudget;
 
 /// Estimator capacity used by the host replay and by firmware-sim (32 x 32 cells).
 pub const ESTIMATOR_CAPACITY: usize = 1024;
+
+/// Clock the recorder budgets a tick for by default: a 168 MHz Cortex-M4F (STM32F4 class).
+pub const DEFAULT_CPU_HZ: f64 = 168e6;
+
+/// The cycle budget of a tick of `period` [s] on a Cortex-M4F at `cpu_hz` granting the sensor
+/// the share `cpu_share` of its time, with the cost model firmware-sim measured
+/// ([`CycleBudget::CORTEX_M4F`]).
+pub fn cpu_budget(cpu_hz: f64, cpu_share: f64, period: f64) -> CycleBudget {
+    CycleBudget::CORTEX_M4F.with_clock(cpu_hz, period, cpu_share)
+}

@@ -28,13 +28,15 @@ pub struct RecordOptions {
     pub period: f64,
     /// Number of frames.
     pub frames: u32,
-    /// Substep budget per tick written into the configuration.
-    pub max_substeps: u16,
+    /// Clock of the CPU the tick budget is for [Hz] ([`super::DEFAULT_CPU_HZ`]).
+    pub cpu_hz: f64,
+    /// Share of every tick period the CPU grants the sensor, in (0, 1].
+    pub cpu_share: f64,
 }
 
 impl RecordOptions {
     /// Defaults of a scene: truth and estimator 32 x 32, sensor 8 x 8 (4x coarser), 5 %
-    /// noise, seed 1, the scene's period and length, budget 4 substeps.
+    /// noise, seed 1, the scene's period and length, the whole of a 168 MHz Cortex-M4F.
     pub fn new(scene: Scene) -> Self {
         Self {
             scene,
@@ -45,7 +47,8 @@ impl RecordOptions {
             seed: 1,
             period: scene.default_period(),
             frames: scene.default_frames(),
-            max_substeps: 4,
+            cpu_hz: super::DEFAULT_CPU_HZ,
+            cpu_share: 1.0,
         }
     }
 }
@@ -257,7 +260,7 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
         opts.sensor,
         opts.noise,
         opts.period,
-        opts.max_substeps,
+        super::cpu_budget(opts.cpu_hz, opts.cpu_share, opts.period),
     );
     config
         .validate(super::ESTIMATOR_CAPACITY)

@@ -5,8 +5,9 @@ use super::scene::coarsen;
 use super::ESTIMATOR_CAPACITY;
 use sieve_core::sensor::feeder::{feed_bytes, Faults, Feeder, InjectedFaults};
 use sieve_core::sensor::frame::FRAME_WIRE_MAX;
+use sieve_core::sensor::kinematic::Kinematic;
 use sieve_core::sensor::recording::TruthRecord;
-use sieve_core::sensor::{Counters, FrameDecoder, SoftSensor, WireCounters};
+use sieve_core::sensor::{alarm, Counters, FrameDecoder, SensorConfig, SoftSensor, WireCounters};
 use std::io::Write;
 use std::path::Path;
 
@@ -54,6 +55,9 @@ pub struct ReplayRow {
     pub outflow_fines: f32,
     /// Fines fraction of the estimator's outflow over its window (0 if none).
     pub outflow_fines_window: f32,
+    /// Predicted time until the outlet fines fraction leaves the band [s] (0: out of it now,
+    /// infinity: no exit predicted).
+    pub off_spec_in: f32,
 }
 
 /// Result of a replay.
@@ -92,6 +96,80 @@ pub struct ReplayReport {
     pub mean_c_error: f64,
     /// The outflow against the truth's discharge, if the truth's box discharged.
     pub outflow: Option<OutflowAccuracy>,
+    /// The fines alarms and the off-spec prediction against the truth, if it discharged.
+    pub off_spec: Option<OffSpec>,
+}
+
+/// When the outlet fines fraction leaves the band `[lo, hi]`: truth, estimator alarm and the
+/// estimator's predictions (issue 9, "time to the next off-spec event").
+#[derive(Clone, Debug, PartialEq)]
+pub struct OffSpec {
+    /// The band of the configuration.
+    pub band: [f32; 2],
+    /// Estimator time of the first row whose truth window fraction is out of the band (the
+    /// truth's windows as in [`OutflowAccuracy`]: where it discharged at least 1 % of its
+    /// largest window), if it leaves.
+    pub truth_leaves: Option<f64>,
+    /// Estimator time of the first row with a fines alarm raised.
+    pub alarm: Option<f64>,
+    /// Predictions made before the truth left: (time of the prediction, predicted time of
+    /// leaving = time + `off_spec_in`) for every row with a finite prediction.
+    pub predictions: Vec<(f64, f64)>,
+}
+
+impl OffSpec {
+    /// The last prediction made at least `lead` seconds before the truth left, as (time of
+    /// the prediction, predicted leaving time - true leaving time).
+    pub fn error_at_lead(&self, lead: f64) -> Option<(f64, f64)> {
+        let t = self.truth_leaves?;
+        self.predictions
+            .iter()
+            .rev()
+            .find(|p| p.0 <= t - lead)
+            .map(|p| (p.0, p.1 - t))
+    }
+}
+
+/// The truth's window fractions against the band, the first alarm and the predictions.
+fn off_spec(rows: &[ReplayRow], w: usize, band: [f32; 2]) -> Option<OffSpec> {
+    let last = rows.last()?;
+    if !(last.out_truth[0] > 0.0) {
+        return None;
+    }
+    let w = w.max(1);
+    let diff = |k: usize| -> [f64; 2] {
+        let a = rows[k].out_truth;
+        let b = if k >= w {
+            rows[k - w].out_truth
+        } else {
+            [0.0, 0.0]
+        };
+        [a[0] - b[0], a[1] - b[1]]
+    };
+    let largest = (0..rows.len()).map(|k| diff(k)[0]).fold(0.0, f64::max);
+    let (lo, hi) = (band[0] as f64, band[1] as f64);
+    let truth_leaves = (0..rows.len()).find_map(|k| {
+        let d = diff(k);
+        let f = d[1] / d[0];
+        (d[0] >= 0.01 * largest && d[0] > 0.0 && !(lo..=hi).contains(&f))
+            .then_some(rows[k].time as f64)
+    });
+    let alarm = rows
+        .iter()
+        .find(|r| r.alarms & (alarm::FINES_LOW | alarm::FINES_HIGH) != 0)
+        .map(|r| r.time as f64);
+    let until = truth_leaves.unwrap_or(f64::INFINITY);
+    let predictions = rows
+        .iter()
+        .filter(|r| (r.time as f64) < until && r.off_spec_in.is_finite())
+        .map(|r| (r.time as f64, r.time as f64 + r.off_spec_in as f64))
+        .collect();
+    Some(OffSpec {
+        band,
+        truth_leaves,
+        alarm,
+        predictions,
+    })
 }
 
 /// The outlet fines fraction of the estimator against the truth's discharge (issue 9).
@@ -156,20 +234,71 @@ fn outflow_accuracy(rows: &[ReplayRow], w: usize) -> Option<OutflowAccuracy> {
     })
 }
 
+/// Fines fraction of what left the truth's box over the `w` rows ending at row `k` (0 if
+/// nothing left).
+fn truth_window(rows: &[ReplayRow], k: usize, w: usize) -> f64 {
+    let a = rows[k].out_truth;
+    let b = if k >= w {
+        rows[k - w].out_truth
+    } else {
+        [0.0, 0.0]
+    };
+    let d = [a[0] - b[0], a[1] - b[1]];
+    if d[0] > 0.0 {
+        (d[1] / d[0]).clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
 /// Replays recording bytes.
 pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, String> {
+    replay_bytes_with(bytes, opts, |_| Ok(()))
+}
+
+/// Replays recording bytes with the controller's settings changed by `settings` (e.g. the
+/// fines band and the alarm persistence: they change the alarms and the prediction, not the
+/// estimate); it may refuse a setting with a message.
+pub fn replay_bytes_with(
+    bytes: &[u8],
+    opts: &ReplayOptions,
+    settings: impl FnOnce(&mut SensorConfig<f32>) -> Result<(), String>,
+) -> Result<ReplayReport, String> {
+    run(bytes, opts, settings, None)
+}
+
+/// Replays a recording of a discharging silo without its velocity frames: every tick's frame
+/// is the Nedderman-Tuzun kinematic velocity ([`Kinematic`], constant `b` [m]) scaled by the
+/// discharge rate a load cell under the orifice reads, i.e. the truth's discharge over the
+/// previous frame period (causal: the rate of the period that just ended). The truth's
+/// discharge is solid volume per unit depth, so the load cell's mass rate is it times
+/// `rho_s depth` and the bulk flux it gives back is `rate / c` with the configuration's c;
+/// rho_s and depth cancel here (2 500 kg/m^3 and 1 m are used). The recording needs an
+/// opening in its floor.
+pub fn replay_kinematic(bytes: &[u8], b: f64) -> Result<ReplayReport, String> {
+    run(bytes, &ReplayOptions::default(), |_| Ok(()), Some(b))
+}
+
+fn run(
+    bytes: &[u8],
+    opts: &ReplayOptions,
+    settings: impl FnOnce(&mut SensorConfig<f32>) -> Result<(), String>,
+    kinematic: Option<f64>,
+) -> Result<ReplayReport, String> {
     // Everything the replay sizes or indexes by is bounded first (check.rs): a valid CRC
     // does not make a header sane.
     let rec = check::parse(bytes)?;
     check::header(&rec.header)?;
     let truth: Vec<TruthRecord> = check::truth(&rec)?;
+    let mut config = rec.header.config.clone();
+    settings(&mut config)?;
     let mut sensor: Box<SoftSensor<f32, ESTIMATOR_CAPACITY>> = Box::default();
     sensor
-        .configure(&rec.header.config)
-        .map_err(|e| format!("header field config: {e}; record it again"))?;
+        .configure(&config)
+        .map_err(|e| format!("config: {e}"))?;
     let mut decoder: Box<FrameDecoder<FRAME_WIRE_MAX>> = Box::default();
     let mut feeder = Box::new(Feeder::new(rec.stream, opts.faults));
-    let cfg = rec.header.config.clone();
+    let cfg = config;
     let period = cfg.tick_period as f64;
     let nf = [cfg.cells[0] as usize, cfg.cells[1] as usize];
     let nc = [
@@ -183,10 +312,67 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
     let mass0 = mass(&sensor);
     let mut rows = Vec::new();
     let mut tick = 0u32;
+    const DENSITY: f64 = 2500.0;
+    const DEPTH: f64 = 1.0;
+    let source = match kinematic {
+        None => None,
+        Some(b) => {
+            let o = cfg
+                .openings
+                .iter()
+                .find(|o| o.axis == 1 && !o.high)
+                .ok_or("--kinematic needs a recording with an opening in its floor (a silo)")?;
+            let k = Kinematic::new(
+                cfg.extent[0] as f64,
+                cfg.extent[1] as f64,
+                o.lower as f64,
+                o.upper as f64,
+                b,
+                cfg.sensor,
+                DENSITY,
+                cfg.c as f64,
+                DEPTH,
+            )
+            .map_err(|e| format!("kinematic source: {e:?} (B = {b} m)"))?;
+            Some(Box::new(k))
+        }
+    };
     // The firmware loop: one tick per frame period; the feeder's bytes of the tick go through
     // the decoder into the sensor, then the tick ends. Runs until the stream is delivered.
-    while !feeder.done() {
-        feeder.tick(|chunk| feed_bytes(&mut *sensor, &mut *decoder, chunk));
+    // With the kinematic source: one tick per truth record, its frame from the rate alone.
+    loop {
+        if let Some(k) = &source {
+            let n = tick as usize;
+            if n >= truth.len() {
+                break;
+            }
+            let before = |m: usize| {
+                if m == 0 {
+                    0.0
+                } else {
+                    truth[m - 1].discharged[0] as f64
+                }
+            };
+            // The solid volume that left over the previous period, as a mass rate.
+            let volume = if n == 0 {
+                0.0
+            } else {
+                before(n) - before(n - 1)
+            };
+            let mass_rate = volume.max(0.0) / period * DENSITY * DEPTH;
+            let f = k.frame(
+                tick + 1,
+                (n + 1) as f32 * cfg.tick_period,
+                cfg.tick_period,
+                k.bulk_flux(mass_rate),
+            );
+            let _ = sensor.submit(&f);
+        } else {
+            if feeder.done() {
+                break;
+            }
+            feeder.tick(|chunk| feed_bytes(&mut *sensor, &mut *decoder, chunk));
+        }
         let e = sensor.finish_tick();
         // Compare with the truth at the estimator's own time (the frame periods it has
         // simulated), so lost or late periods show up as error, not as a shifted index.
@@ -226,6 +412,7 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
                 out_truth: [t.discharged[0] as f64, t.discharged[1] as f64],
                 outflow_fines: e.outflow_fines,
                 outflow_fines_window: e.outflow_fines_window,
+                off_spec_in: e.off_spec_in,
             });
         }
         if !e.psi.is_finite() {
@@ -253,6 +440,7 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
     let max_c_error = rows.iter().map(|r| r.c_err).fold(0.0, nan_max);
     let mean_c_error = rows.iter().map(|r| r.c_l1).sum::<f64>() / rows.len().max(1) as f64;
     let outflow = outflow_accuracy(&rows, cfg.outflow_window as usize);
+    let off_spec = off_spec(&rows, cfg.outflow_window as usize, cfg.fines_band);
     let mass1 = mass(&sensor);
     if !(mass1.is_finite() && max_psi_error.is_finite() && max_l1.is_finite()) {
         return Err(format!(
@@ -287,13 +475,23 @@ pub fn replay_bytes(bytes: &[u8], opts: &ReplayOptions) -> Result<ReplayReport, 
         max_c_error,
         mean_c_error,
         outflow,
+        off_spec,
     })
 }
 
 /// Replays a recording file: the soft sensor (f32, firmware loop) against the truth.
 pub fn replay(path: &Path, opts: &ReplayOptions) -> Result<ReplayReport, String> {
+    replay_with(path, opts, |_| Ok(()))
+}
+
+/// [`replay`] with the controller's settings changed (see [`replay_bytes_with`]).
+pub fn replay_with(
+    path: &Path,
+    opts: &ReplayOptions,
+    settings: impl FnOnce(&mut SensorConfig<f32>) -> Result<(), String>,
+) -> Result<ReplayReport, String> {
     let bytes = std::fs::read(path).map_err(|e| format!("cannot read the recording: {e}"))?;
-    replay_bytes(&bytes, opts)
+    replay_bytes_with(&bytes, opts, settings)
 }
 
 /// Prints the error over time (every `every`-th tick and the last) and the summary lines in
@@ -302,7 +500,7 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
     writeln!(out, "scene={}", r.scene)?;
     writeln!(
         out,
-        "{:>6} {:>6} {:>8} {:>8} {:>8} {:>9} {:>8} {:>6} {:>5} {:>8} {:>8} {:>8}",
+        "{:>6} {:>6} {:>8} {:>8} {:>8} {:>9} {:>8} {:>6} {:>5} {:>8} {:>8} {:>8} {:>8} {:>6} {:>8}",
         "tick",
         "seq",
         "time",
@@ -314,14 +512,18 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
         "subst",
         "c_err",
         "out_fin",
-        "out_win"
+        "out_win",
+        "tru_win",
+        "alarms",
+        "offspec"
     )?;
     let n = r.rows.len();
+    let w = r.outflow.as_ref().map_or(1, |o| o.window);
     for (k, row) in r.rows.iter().enumerate() {
         if k % every.max(1) == 0 || k + 1 == n {
             writeln!(
                 out,
-                "{:>6} {:>6} {:>8.3} {:>8.4} {:>8.4} {:>9.5} {:>8.5} {:>#6x} {:>5} {:>8.5} {:>8.5} {:>8.5}",
+                "{:>6} {:>6} {:>8.3} {:>8.4} {:>8.4} {:>9.5} {:>8.5} {:>#6x} {:>5} {:>8.5} {:>8.5} {:>8.5} {:>8.5} {:>#6x} {:>8.3}",
                 row.tick,
                 row.seq,
                 row.time,
@@ -333,7 +535,10 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
                 row.substeps,
                 row.c_err,
                 row.outflow_fines,
-                row.outflow_fines_window
+                row.outflow_fines_window,
+                truth_window(&r.rows, k, w),
+                row.alarms,
+                row.off_spec_in
             )?;
         }
     }
@@ -356,6 +561,25 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
             o.total_fines[1],
             o.total_out[0],
             o.total_out[1]
+        )?;
+    }
+    if let Some(o) = &r.off_spec {
+        let t = |x: Option<f64>| x.map_or("never".to_string(), |v| format!("{v:.3}"));
+        let lead = |l: f64| {
+            o.error_at_lead(l).map_or("none".to_string(), |(at, err)| {
+                format!("{err:+.3} s (made at {at:.3})")
+            })
+        };
+        writeln!(
+            out,
+            "off_spec: band=[{}, {}] truth_leaves={} first_alarm={} prediction_error lead_2s={} lead_1s={} lead_0.5s={}",
+            o.band[0],
+            o.band[1],
+            t(o.truth_leaves),
+            t(o.alarm),
+            lead(2.0),
+            lead(1.0),
+            lead(0.5)
         )?;
     }
     let c = &r.counters;

@@ -7,7 +7,7 @@
 //! (its stored scene name stays `shear-cell` so the file is reproduced byte for byte). Every
 //! other scene is recorded by [`super::catalogue`].
 
-use sieve_core::sensor::{Region, SensorConfig};
+use sieve_core::sensor::{CycleBudget, Region, SensorConfig};
 use sieve_core::{
     Boundary, DirectionMode, Grid, Phase, Real, Scheme, Segregation, SegregationConfig,
     TemperatureMode,
@@ -153,7 +153,7 @@ impl Scene {
         sensor: [u8; 2],
         noise: f64,
         period: f64,
-        max_substeps: u16,
+        budget: CycleBudget,
     ) -> SensorConfig<f32> {
         let e = self.extent();
         let umax = self.max_speed();
@@ -199,7 +199,7 @@ impl Scene {
             courant: 0.5,
             tick_period: f(period),
             max_period_factor: 2.0,
-            max_substeps,
+            budget,
             hold_ticks: 5,
             reject_speed: f(3.0 * umax),
             outlier_tol: f(6.0 * sigma + profile_step + 1e-3 * umax),
@@ -214,6 +214,8 @@ impl Scene {
             outlet,
             psi_alarm: 0.3,
             fines_band: [0.4, 0.8],
+            fines_hysteresis: 0.01,
+            alarm_persist: 3,
             openings: Default::default(),
             outflow_window: 10,
         };
