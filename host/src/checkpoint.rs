@@ -987,6 +987,7 @@ pub fn put_frozen(e: &mut Entries, fr: &FrozenFields) {
     e.put("frozen.equations", Value::Text(s.equations.clone()));
     e.put("frozen.back_coupling", Value::Text(s.back_coupling.clone()));
     e.put("frozen.pressure", Value::Text(s.pressure.clone()));
+    e.put("frozen.stress", Value::Text(s.stress.clone()));
     e.put(
         "frozen.flow_steps_to_steady",
         Value::U64s(s.flow_steps_to_steady.into_iter().collect()),
@@ -1048,6 +1049,8 @@ pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<FrozenFields> {
             back_coupling: e.text("frozen.back_coupling")?.into(),
             // (checkpoints written before the pressure modes: explicit)
             pressure: e.text("frozen.pressure").unwrap_or("explicit").into(),
+            // (checkpoints written before the stress choice: the spec's)
+            stress: e.text("frozen.stress").unwrap_or("spec").into(),
             flow_steps_to_steady: steady,
             flow_steps: e.u64("frozen.flow_steps")?,
             cg_iterations: e.u64("frozen.cg_iterations")?,

@@ -304,6 +304,8 @@ pub struct FlowSummary {
     pub back_coupling: String,
     /// How the flow advanced its pressure: "explicit" or "implicit" (`flow.pressure`).
     pub pressure: String,
+    /// The flow's viscous stress: "spec" or "objective" (`flow.stress`, model.md 2.6).
+    pub stress: String,
     /// Flow steps to the steady state (frozen-flow; null when coupled).
     pub flow_steps_to_steady: Option<u64>,
     /// Flow steps in total.

@@ -75,7 +75,10 @@ impl LabGrid {
 struct Drum {
     axis: [f64; 2],
     radius: f64,
+    /// Rate of the grid's rotation (0 in the lab frame, whose grid is at rest).
     omega: f64,
+    /// The drum's own rate in either frame (the averaging window is one revolution).
+    turn: f64,
 }
 
 fn drum_of(scene: &Scene) -> Option<Drum> {
@@ -88,14 +91,19 @@ fn drum_of(scene: &Scene) -> Option<Drum> {
         3 => [g.center[0], g.center[2]],
         _ => return None,
     };
+    let turn = scene
+        .frame
+        .as_ref()
+        .map_or(0.0, |f| std::f64::consts::TAU * f.rev_per_s);
     let rotating = scene
         .frame
         .as_ref()
-        .filter(|f| f.kind == crate::scene::FrameKind::Rotating);
+        .is_some_and(|f| f.kind == crate::scene::FrameKind::Rotating);
     Some(Drum {
         axis,
         radius: g.size,
-        omega: rotating.map_or(0.0, |f| std::f64::consts::TAU * f.rev_per_s),
+        omega: if rotating { turn } else { 0.0 },
+        turn,
     })
 }
 
@@ -275,8 +283,8 @@ pub fn analyse(
     let Some(&(t_last, _)) = entries.last() else {
         return Ok(None);
     };
-    let period = if drum.omega != 0.0 {
-        std::f64::consts::TAU / drum.omega.abs()
+    let period = if drum.turn != 0.0 {
+        std::f64::consts::TAU / drum.turn.abs()
     } else {
         f64::INFINITY
     };

@@ -19,11 +19,13 @@ use crate::error::{Error, Result};
 use crate::scene::validate::{FlowModel, WallSlip};
 use crate::scene::{
     solver_errors, BackCoupling, Equations, Fields, FrameKind, PressureKind, Scene, SpinUp,
+    StressKind,
 };
 use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{
     CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, PressureMode, Slip,
+    Stress,
 };
 use sieve_core::frame::{Frame, Rotation};
 use sieve_core::{Boundary, Grid, Real, Segregation};
@@ -88,6 +90,10 @@ fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<
     cfg.pressure = match fm.pressure {
         PressureKind::Explicit => PressureMode::Explicit,
         PressureKind::Implicit => PressureMode::Implicit,
+    };
+    cfg.stress = match fm.stress {
+        StressKind::Spec => Stress::Spec,
+        StressKind::Objective => Stress::Objective,
     };
     // A rotating frame (docs/frames.md): the grid turns with the container; validation
     // allows it with a coupled flow only and checks the centre, axis and rate.
@@ -212,6 +218,7 @@ fn summary_of<R: Real, const D: usize, const N: usize>(
         equations: fm.equations.name().into(),
         back_coupling: fm.back_coupling.name().into(),
         pressure: flow.config().pressure.name().into(),
+        stress: flow.config().stress.name().into(),
         flow_steps_to_steady: to_steady,
         flow_steps: flow.steps(),
         cg_iterations: flow.cg_iterations(),
@@ -412,10 +419,30 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
     let fail = |e| Error::failure(format!("{}: coupled step failed: {e}", scene.label));
     let mut cpl = match geo {
         Some(g) => {
-            // The container's wall: the law of the box's floor (z_low), at rest; a turning
-            // container turns through the rotating frame (docs/frames.md).
+            // The container's wall: the law of the box's floor (z_low); at rest in the
+            // rotating frame, turning at omega about the frame's axis in the lab frame
+            // (docs/frames.md).
             let floor = boundaries::<R, D>(scene, fm)[D - 1][0];
-            flow.set_geometry(g, CutWall::resting(floor.slip))
+            let mut wall = CutWall::resting(floor.slip);
+            if let Some(fr) = scene
+                .frame
+                .as_ref()
+                .filter(|f| f.kind == FrameKind::Lab && f.omega != 0.0)
+            {
+                let rot = Rotation::<R, D> {
+                    omega: R::from_f64(fr.omega),
+                    center: core::array::from_fn(|a| R::from_f64(fr.center[a])),
+                    axis: fr.axis,
+                };
+                let (p, q) = rot.plane();
+                wall = CutWall {
+                    slip: floor.slip,
+                    omega: rot.omega,
+                    center: rot.center,
+                    plane: [p, q],
+                };
+            }
+            flow.set_geometry(g, wall)
                 .map_err(|e| solver_errors::flow_error(scene, &e))?;
             Coupled::new_embedded(flow, seg, cc, g).map_err(fail)?
         }

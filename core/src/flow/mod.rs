@@ -74,10 +74,12 @@
 
 pub mod cg;
 pub mod coupled;
+mod objective;
 mod pressure;
 mod step;
 mod walls;
 
+pub use objective::Stress;
 pub use pressure::PressureMode;
 pub use walls::CutWall;
 
@@ -243,6 +245,10 @@ pub struct FlowConfig<R, const D: usize> {
     /// acoustic time-step limit) or implicit (one SPD solve per step, no acoustic limit;
     /// [`PressureMode`]).
     pub pressure: PressureMode,
+    /// The viscous stress (model.md 2.6): the model's `eta grad u` (default) or the objective
+    /// `eta (grad u + grad u^T)`, equal in simple shear and zero in a rigid rotation
+    /// ([`Stress`]).
+    pub stress: Stress,
 }
 
 impl<R: Real, const D: usize> FlowConfig<R, D> {
@@ -265,6 +271,7 @@ impl<R: Real, const D: usize> FlowConfig<R, D> {
             free_surface_push: false,
             frame: Frame::Lab,
             pressure: PressureMode::Explicit,
+            stress: Stress::Spec,
         }
     }
 }
@@ -428,6 +435,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 free_surface_push: false,
                 frame: Frame::Lab,
                 pressure: PressureMode::Explicit,
+                stress: Stress::Spec,
             },
             c: z,
             m: zd,

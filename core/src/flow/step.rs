@@ -1,7 +1,7 @@
 //! One time step of the flow (the scheme of the module docs of [`super`]).
 
 use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
-use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip};
+use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip, Stress};
 use crate::boundary::Boundary;
 use crate::closure;
 use crate::frame::{turn_by, Frame};
@@ -728,11 +728,21 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             mass_norm += cd * cd;
         }
         let mass_norm = mass_norm.sqrt();
+        // Objective stress (model.md 2.6, module `objective`): the normal part of
+        // `div(eta grad u^T)` doubles the component's own face coefficient (implicit), the
+        // cross parts are a lagged face force.
+        let objective = self.cfg.stress == Stress::Objective;
         for comp in 0..D {
             for i in 0..n {
                 let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
                 self.diag[i] = cd;
                 self.rhs[i] = cd * self.u[comp][i];
+            }
+            if objective {
+                self.transposed_force(comp);
+                for k in self.kf[comp][..n].iter_mut() {
+                    *k *= R::TWO;
+                }
             }
             for axis in 0..D {
                 if periodic[axis] {
@@ -747,7 +757,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         let wa = self.box_aperture(axis, high, i);
                         match self.wall_face(comp, &side, i, axis) {
                             Face::Value(v) => {
-                                let k = wa * (k2 * self.eta[i] * shut);
+                                let mut k = wa * (k2 * self.eta[i] * shut);
+                                if objective && comp == axis {
+                                    k *= R::TWO; // normal stress 2 eta d_n u_n
+                                }
                                 self.diag[i] += k;
                                 self.rhs[i] += k * v;
                             }
@@ -802,6 +815,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     preconditioner: Preconditioner::Auto,
                 },
             );
+            if objective {
+                // back to eta_f ap / h^2 (a power of two: exact)
+                for k in self.kf[comp][..n].iter_mut() {
+                    *k *= R::HALF;
+                }
+            }
             self.last_cg[comp.min(2)] = res.iterations;
             self.cg_iterations += u64::from(res.iterations);
             for i in 0..n {
@@ -818,12 +837,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
     /// Discrete viscous heating `H = eta kappa:kappa` per cell into the `inflow` scratch: each
     /// face's dissipation `eta_f |du|^2 / h^2` is shared half and half by its two cells, so the
-    /// heating equals the work of the discrete viscous operator.
+    /// heating equals the work of the discrete viscous operator. With the objective stress
+    /// (model.md 2.6) each face and cut wall adds the work of the transposed part, so `H` is
+    /// `2 eta D:D` (clipped at 0 per cell; module `objective`).
     fn heating(&mut self) {
         let n = self.grid.len();
         let h = self.grid.spacing();
         let grid = self.grid;
         let periodic = self.periodic();
+        let objective = self.cfg.stress == Stress::Objective;
         self.inflow[..n].fill(R::ZERO);
         for a in 0..D {
             let fb = grid.face_blocks(a);
@@ -837,11 +859,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
             if periodic[a] {
-                grid.for_each_boundary_cell(a, true, |last, first| {
-                    let w = R::HALF * self.kf[a][last] * self.jump2(last, first);
-                    self.inflow[last] += w;
-                    self.inflow[first] += w;
-                });
+                for b in 0..fb.blocks {
+                    let l0 = b * fb.block_stride;
+                    for first in l0..l0 + s {
+                        let last = first + fb.block_len;
+                        let w = R::HALF * self.kf[a][last] * self.jump2(last, first);
+                        self.inflow[last] += w;
+                        self.inflow[first] += w;
+                    }
+                }
                 continue;
             }
             let k4 = R::from_f64(4.0) / (h[a] * h[a]);
@@ -854,7 +880,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         w += match self.wall_face(comp, &side, i, a) {
                             Face::Value(v) => {
                                 let du = v - self.u[comp][i];
-                                k4 * self.eta[i] * du * du
+                                let w = k4 * self.eta[i] * du * du;
+                                if objective && comp == a {
+                                    w + w // the doubled normal stress
+                                } else {
+                                    w
+                                }
                             }
                             Face::Stress(tau) => tau * tau / self.eta[i],
                             Face::Free => R::ZERO,
@@ -878,6 +909,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     self.inflow[i] += kw * self.eta[i] * du2;
                 }
             }
+        }
+        if objective {
+            self.objective_heating();
         }
     }
 

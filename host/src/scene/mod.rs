@@ -370,6 +370,21 @@ pub struct FlowSpec {
     /// "explicit" (default): forward-backward pressure, acoustic time-step limit;
     /// "implicit": one pressure solve per step, no acoustic limit (docs/implicit-pressure.md).
     pub pressure: Option<PressureKind>,
+    /// "spec" (default): the model's stress `eta grad u`; "objective": `eta (grad u +
+    /// grad u^T)`, equal in simple shear, zero in a rigid rotation (model.md 2.6,
+    /// docs/frames.md).
+    pub stress: Option<StressKind>,
+}
+
+/// The viscous stress of the flow (model.md 2, 2.6).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StressKind {
+    /// The model's `eta grad u`, heating `eta kappa:kappa`.
+    #[default]
+    Spec,
+    /// The frame-indifferent `eta (grad u + grad u^T)`, heating `2 eta D:D`.
+    Objective,
 }
 
 /// How the flow advances its pressure (model.md 5.3, 5.4).

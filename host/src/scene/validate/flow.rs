@@ -330,5 +330,6 @@ pub(super) fn check(
         courant,
         spin_up: fs.spin_up.unwrap_or_default(),
         pressure: fs.pressure.unwrap_or_default(),
+        stress: fs.stress.unwrap_or_default(),
     })
 }

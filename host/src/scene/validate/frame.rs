@@ -6,8 +6,9 @@
 //!
 //! What runs today: the rotating frame with a solved, coupled flow (turning gravity,
 //! centrifugal and Coriolis forces in the flow, the turning gravity in the segregation) in a
-//! box. A lab frame with a turning drum wall needs a coupled flow on cut cells (see
-//! validate/geometry.rs) and is refused until then, as is a rotating frame without a flow
+//! box; the lab frame with a turning cut-cell wall (a [geometry], coupled flow; the wall moves
+//! at `omega x (x - centre)`). A turning lab frame without a geometry is refused (a box's
+//! walls cannot turn on the grid), as is a rotating frame without a flow
 //! (nothing would turn but gravity) or with a frozen flow (a turning frame has no steady state).
 
 use super::{vector, Problems};
@@ -151,13 +152,16 @@ pub(super) fn check(
                 "\"rotating\" has no steady flow to freeze: allowed with model.equations = \"coupled\"",
             ));
         }
-        FrameKind::Lab if turning => {
+        // the lab frame turns a drum's cut-cell wall (docs/frames.md); a box cannot turn
+        FrameKind::Lab
+            if turning && (geometry_center.is_none() || equations != Equations::Coupled) =>
+        {
             ok = false;
             p.push(Error::range(
                 l,
                 "frame.rev_per_s",
                 rev,
-                "0 in the lab frame (a turning drum wall needs a coupled flow on cut cells, not wired yet): turn the container with frame.kind = \"rotating\"",
+                "0 in the lab frame without a [geometry] and model.equations = \"coupled\" (only a cut-cell wall can turn on the lab's grid): turn the container with frame.kind = \"rotating\"",
             ));
         }
         _ => {}

@@ -25,7 +25,9 @@ mod run;
 pub use problems::Problems;
 
 use super::expr::Expr;
-use super::{BackCoupling, Equations, ExactKind, Precision, PressureKind, SceneFile, SpinUp};
+use super::{
+    BackCoupling, Equations, ExactKind, Precision, PressureKind, SceneFile, SpinUp, StressKind,
+};
 use crate::error::{Error, Result};
 use sieve_core::{Boundary, Phase, Scheme};
 
@@ -144,6 +146,8 @@ pub struct FlowModel {
     pub spin_up: SpinUp,
     /// Pressure mode of the flow step.
     pub pressure: PressureKind,
+    /// Viscous stress of the flow step.
+    pub stress: StressKind,
 }
 
 /// A validated scene: every number finite and in range, every expression compiled.
