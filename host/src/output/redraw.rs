@@ -11,10 +11,11 @@
 //!   time (at most [`plot::MAX_FRAMES_GIF`], evenly spread); empty cells grey;
 //! - flow scenes: `flow_velocity.png`, `flow_temperature.png`, `flow_shear_ratio.png`.
 
-use super::plot::{self, MapGrid};
+use super::plot::{self, Curve, MapGrid};
 use super::vtk::{read_vti, Vti};
 use crate::data::{Profiles, SeriesRow};
 use crate::error::{Error, Result};
+use crate::silo::DischargeRow;
 use std::path::{Path, PathBuf};
 
 /// Reads `series.csv` (header [`super::csv::SERIES_HEADER`]).
@@ -283,7 +284,7 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
     let discharge = run.join("discharge.csv");
     if discharge.exists() {
         let rows = crate::silo::read_csv(&discharge)?;
-        written.extend(crate::silo::plots(&rows, plots, &name, dims)?);
+        written.extend(discharge_plots(&rows, plots, &name, dims)?);
     }
 
     let profiles = run.join("profiles.csv");
@@ -351,6 +352,69 @@ pub fn replot(dir: &Path) -> Result<(PathBuf, Vec<String>)> {
     let written = redraw(dir, staging.path())?;
     let target = staging.commit()?;
     Ok((target, written))
+}
+
+/// The discharge pictures of a run with an outlet: `discharge.png` (the rate of all grains
+/// and of the fines against time over the mass left in the silo) and `outflow_fines.png`
+/// (the fines fraction of what left in each output interval: the number a controller wants,
+/// issue 9). `dims` picks the unit (grain volume per unit depth in 2D). Rows before the
+/// first outflow have no fines fraction and are left out of that curve; a run where nothing
+/// has left yet draws only `discharge.png`. Returns the names of the files written.
+pub fn discharge_plots(
+    rows: &[DischargeRow],
+    dir: &Path,
+    name: &str,
+    dims: usize,
+) -> Result<Vec<String>> {
+    let (q, m) = if dims == 3 {
+        ("m^3", "m^3")
+    } else {
+        ("m^2", "m^2 (per unit depth)")
+    };
+    let curve = |label: &str, f: fn(&DischargeRow) -> f64, skip_first: bool| -> Curve {
+        let pts = rows
+            .iter()
+            .skip(usize::from(skip_first))
+            .map(|r| (r.t, f(r)))
+            .filter(|p| p.1.is_finite())
+            .collect();
+        (label.to_string(), pts)
+    };
+    // a rate is the mean over the interval ending at its row: the first row has none
+    let rates = [
+        curve("all grains", |r| r.rate, true),
+        curve("fines", |r| r.rate_small, true),
+    ];
+    let left = [
+        curve("all grains", |r| r.mass, false),
+        curve("fines", |r| r.mass_small, false),
+    ];
+    let mut written = Vec::new();
+    plot::stacked_curves(
+        &dir.join("discharge.png"),
+        &format!("{name}: discharge rate and what is left in the silo"),
+        "t [s]",
+        &[
+            (&format!("discharge rate [{q}/s]"), &rates),
+            (&format!("left in the silo [{m}]"), &left),
+        ],
+    )?;
+    written.push("discharge.png".to_string());
+    let fines = [curve(
+        "fines fraction of the discharge",
+        |r| r.fines_fraction,
+        true,
+    )];
+    if !fines[0].1.is_empty() {
+        plot::stacked_curves(
+            &dir.join("outflow_fines.png"),
+            &format!("{name}: fines fraction of what leaves the outlet (per output interval)"),
+            "t [s]",
+            &[("fines fraction of the discharge", &fines)],
+        )?;
+        written.push("outflow_fines.png".to_string());
+    }
+    Ok(written)
 }
 
 #[cfg(test)]
