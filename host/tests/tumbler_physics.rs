@@ -98,6 +98,17 @@ fn tumbler_grows_a_core_of_fines_and_back_coupling_changes_c_not_the_pattern() {
     assert!(mixed.len() > 20, "{} mixed cells", mixed.len());
     let mean = |v: &[(f64, f64)]| mixed.iter().map(|&i| v[i].0).sum::<f64>() / mixed.len() as f64;
     let (c_on, c_off) = (mean(&ca), mean(&cb));
+    let gap = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .filter(|g| g.is_finite())
+        .fold(0.0, f64::max);
+    println!(
+        "centre phihat {centre:.3} (off {centre_off:.3}), wall ring {outer:.3}, rings within \
+         {gap:.3}, mixed cells ({}) c {c_on:.4} with, {c_off:.4} without back-coupling",
+        mixed.len()
+    );
     assert!(
         c_on > c_off + 0.015,
         "c of the mixed cells {c_on} with, {c_off} without"
