@@ -171,6 +171,8 @@ fn bad_flow_keys_exit_2_with_one_line_naming_file_key_and_range() {
     );
     assert_bad(&["material.phi_rlp=0.7"], &["material.phi_rlp", "phi_rcp"]);
     assert_bad(&["flow.courant=0.9"], &["flow.courant", "0.5"]);
+    assert_bad(&["flow.cg_tolerance=0.01"], &["flow.cg_tolerance", "1e-3"]);
+    assert_bad(&["flow.cg_tolerance=0"], &["flow.cg_tolerance", "1e-14"]);
     // a moving wall moves tangentially only
     assert_bad(
         &["boundary.flow.z_high.velocity=[0.0055, 0.001]"],
@@ -316,4 +318,38 @@ fn converge_runs_the_frozen_flow_per_level() {
     // the segregation ran on the frozen flow: the coarse level differs from the fine one
     let l1 = rows[0]["l1"].as_f64().unwrap();
     assert!(l1.is_finite() && l1 > 0.0, "{l1}");
+}
+
+/// `flow.cg_tolerance` reaches the solver: a looser tolerance takes fewer CG iterations on the
+/// same steps (a short coupled drum), and the run keeps both phases and the bounds.
+#[test]
+fn cg_tolerance_key_reaches_the_flow_solver() {
+    let d = tmp();
+    let base = [
+        "run", "tumbler", "--cells", "20", "--t-end", "0.5", "--quiet",
+    ];
+    let mut loose = base.to_vec();
+    loose.extend(["--set", "flow.cg_tolerance=1e-6", "--out", "loose"]);
+    let mut tight = base.to_vec();
+    tight.extend(["--out", "tight"]);
+    for args in [&loose, &tight] {
+        let (code, out, err) = run_in(d.path(), args);
+        assert_eq!(code, 0, "{args:?}: {out} {err}");
+    }
+    let (l, t) = (
+        json(&d.path().join("loose/summary.json")),
+        json(&d.path().join("tight/summary.json")),
+    );
+    let it = |s: &serde_json::Value| s["flow"]["cg_iterations"].as_u64().unwrap();
+    println!(
+        "CG iterations: {} at 1e-6, {} at the default",
+        it(&l),
+        it(&t)
+    );
+    assert!(it(&l) < it(&t), "{} vs {}", it(&l), it(&t));
+    for s in [&l, &t] {
+        assert!(s["mass_rel_drift"].as_f64().unwrap().abs() < 1e-12);
+        assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
+        assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
+    }
 }

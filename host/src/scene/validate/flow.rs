@@ -282,6 +282,16 @@ pub(super) fn check(
         Some(fs.t_min.unwrap_or(1e-14)),
         "[m^2/s^2]",
     ));
+    let cg_tolerance = fs.cg_tolerance;
+    let cg_ok = cg_tolerance.is_none_or(|x| (1e-14..=1e-3).contains(&x));
+    if !cg_ok {
+        p.push(Error::range(
+            l,
+            "flow.cg_tolerance",
+            cg_tolerance.unwrap_or(f64::NAN),
+            "1e-14 <= cg_tolerance <= 1e-3",
+        ));
+    }
     let courant = fs.courant.unwrap_or(0.4);
     let courant_ok = courant.is_finite() && courant > 0.0 && courant <= 0.5;
     if !courant_ok {
@@ -312,7 +322,7 @@ pub(super) fn check(
             &format!("flow.min_steps = {min_steps} <= max_steps <= 100000000"),
         ));
     }
-    (packing_ok && courant_ok && min_ok && max_ok).then_some(())?;
+    (packing_ok && courant_ok && min_ok && max_ok && cg_ok).then_some(())?;
     Some(FlowModel {
         equations: f.model.equations,
         back_coupling: f.model.back_coupling.unwrap_or_default(),
@@ -327,6 +337,7 @@ pub(super) fn check(
         min_steps: min_steps as u64,
         max_steps: max_steps as u64,
         t_min: t_min?,
+        cg_tolerance,
         courant,
         spin_up: fs.spin_up.unwrap_or_default(),
         pressure: fs.pressure.unwrap_or_default(),

@@ -140,6 +140,8 @@ pub struct FlowModel {
     pub max_steps: u64,
     /// T floor of the transport coefficients.
     pub t_min: f64,
+    /// Relative tolerance of the flow's CG solves (`None`: the core's default, 1e-10 in f64).
+    pub cg_tolerance: Option<f64>,
     /// Flow Courant number.
     pub courant: f64,
     /// Spin-up policy.
