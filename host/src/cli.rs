@@ -173,12 +173,18 @@ pub struct ReplayArgs {
     pub every: usize,
     /// The controller's band for the outlet fines fraction, LO,HI (0 <= LO <= HI <= 1)
     /// [default: the recording's]; it changes the alarms and the off-spec prediction only.
-    #[arg(long = "fines-band", value_name = "LO,HI")]
+    #[arg(long = "fines-band", value_name = "LO,HI", allow_hyphen_values = true)]
     pub fines_band: Option<String>,
     /// Ticks the fines fraction must stay out of the band before an alarm (and back inside
     /// before it clears) [default: the recording's].
-    #[arg(long = "alarm-persist", value_name = "N")]
-    pub alarm_persist: Option<u16>,
+    /// (Signed, so that a negative N gets the range message, not "unexpected argument".)
+    #[arg(
+        long = "alarm-persist",
+        value_name = "N",
+        allow_negative_numbers = true,
+        value_parser = clap::value_parser!(i64).range(1..=65535)
+    )]
+    pub alarm_persist: Option<i64>,
     /// Replace the recorded velocity frames by the Nedderman-Tuzun kinematic velocity of a
     /// flat-bottomed silo with kinematic constant B [m], scaled by the discharge rate alone
     /// (a load cell; docs/soft-sensor.md). Silo recordings only.
@@ -659,9 +665,6 @@ pub fn execute(cli: Cli) -> Result<()> {
                 return soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
                     .map_err(|e| Error::failure(format!("stdout: {e}")));
             }
-            if a.alarm_persist == Some(0) {
-                return Err(Error::range("command line", "--alarm-persist", 0, "N >= 1"));
-            }
             // The replay's messages say what is wrong with the file; the file goes in front.
             let report = soft_sensor::replay_with(&a.file, &opts, |c| {
                 if let Some(b) = band {
@@ -669,7 +672,7 @@ pub fn execute(cli: Cli) -> Result<()> {
                     // The recorded hysteresis, narrowed to fit a narrow band.
                     c.fines_hysteresis = c.fines_hysteresis.min(0.5 * (b[1] - b[0]));
                 }
-                if let Some(n) = a.alarm_persist {
+                if let Some(n) = a.alarm_persist.and_then(|n| u16::try_from(n).ok()) {
                     c.alarm_persist = n;
                 }
                 Ok(())

@@ -311,6 +311,24 @@ fn bad_options_exit_2_with_one_line() {
         &["replay", cut.to_str().unwrap()],
         "the recording is damaged",
     );
+    // Replay flags (issue 9): out of range, negative, not numbers: one line each.
+    let rec = recordings().join("shear-cell.rec");
+    let rec = rec.to_str().unwrap();
+    for (flag, value) in [
+        ("--fines-band", "0.6,0.4"),
+        ("--fines-band", "-1,2"),
+        ("--fines-band", "nan,1"),
+        ("--fines-band", "0.4"),
+        ("--alarm-persist", "0"),
+        ("--alarm-persist", "-3"),
+        ("--alarm-persist", "1e9"),
+        ("--alarm-persist", "70000"),
+        ("--kinematic", "0"),
+        ("--kinematic", "-1"),
+        ("--kinematic", "nan"),
+    ] {
+        assert_bad(&["replay", rec, flag, value], flag);
+    }
     let missing = dir.path().join("missing.rec");
     assert_bad(
         &["replay", missing.to_str().unwrap()],
