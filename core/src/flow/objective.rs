@@ -220,7 +220,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             for i in 0..n {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
-                    self.rhs[i] += kw * self.eta[i] * self.walls.wall_d[i] * self.r[i];
+                    let e = self.wall_law(i).1;
+                    self.rhs[i] += kw * e * self.walls.wall_d[i] * self.r[i];
                 }
             }
         }
@@ -269,7 +270,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     for i in 0..n {
                         let kw = self.walls.wall_k[i];
                         if kw > R::ZERO {
-                            let ub = self.boundary_velocity(i);
+                            let ub = self.wall_law(i).0;
                             self.r[i] +=
                                 (ub[a] - self.u[a][i]) * (self.ap[i] * self.walls.normal[b][i]);
                         }
@@ -279,7 +280,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             for i in 0..n {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
-                    self.inflow[i] += kw * self.eta[i] * (self.walls.wall_d[i] * self.r[i]);
+                    let e = self.wall_law(i).1;
+                    self.inflow[i] += kw * e * (self.walls.wall_d[i] * self.r[i]);
                 }
             }
         }

@@ -771,12 +771,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
             if emb {
-                // the cut wall fragment: Dirichlet towards u_B (lagged wall law)
+                // the cut wall fragment: towards u_B with the drag of the lagged wall law
                 for i in 0..n {
                     let kw = self.walls.wall_k[i];
                     if kw > R::ZERO {
-                        let ub = self.boundary_velocity(i);
-                        let k = kw * self.eta[i];
+                        let (ub, e) = self.wall_law(i);
+                        let k = kw * e;
                         self.diag[i] += k;
                         self.rhs[i] += k * ub[comp];
                     }
@@ -896,17 +896,17 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             }
         }
         if self.walls.on {
-            // the work of the cut wall term `eta A / (d |C|) (u_B - u)` (content units)
+            // the work of the cut wall term `e A / (d |C|) (u_B - u)` (content units)
             for i in 0..n {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
-                    let ub = self.boundary_velocity(i);
+                    let (ub, e) = self.wall_law(i);
                     let mut du2 = R::ZERO;
                     for (comp, b) in ub.iter().enumerate() {
                         let d = *b - self.u[comp][i];
                         du2 += d * d;
                     }
-                    self.inflow[i] += kw * self.eta[i] * du2;
+                    self.inflow[i] += kw * e * du2;
                 }
             }
         }
