@@ -92,7 +92,7 @@ fn the_chute_keeps_the_exact_bagnold_profile_at_the_model_friction_angle() {
             let e = uk / exact(&m, friction, z).0 - 1.0;
             rows.push(format!("{:.2}", 100.0 * e));
             all = all.max(e.abs());
-            if z >= 0.3 * H && z <= 0.8 * H {
+            if (0.3 * H..=0.8 * H).contains(&z) {
                 inner = inner.max(e.abs());
             }
         }
