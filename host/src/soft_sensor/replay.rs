@@ -614,3 +614,50 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
     )?;
     writeln!(out, "final_state_hash=0x{:016x}", r.final_state_hash)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A row with cumulative outflows (grains, small grains) of the estimator and the truth.
+    fn row(tick: u32, est: [f64; 2], truth: [f64; 2]) -> ReplayRow {
+        ReplayRow {
+            tick,
+            seq: tick + 1,
+            time: (tick + 1) as f32 * 0.1,
+            psi: 1.0,
+            psi_truth: 1.0,
+            l1: 0.0,
+            health: 0,
+            alarms: 0,
+            substeps: 1,
+            regions: Vec::new(),
+            c_err: 0.0,
+            c_l1: 0.0,
+            out_est: est,
+            out_truth: truth,
+            outflow_fines: 0.0,
+            outflow_fines_window: 0.0,
+            off_spec_in: f32::INFINITY,
+        }
+    }
+
+    #[test]
+    fn a_window_in_which_the_estimator_let_nothing_out_is_counted_as_silent() {
+        // Window of 1 tick. Truth: 1.0 of grains per tick at fines 0.5, 0.5, 0.8. Estimator:
+        // nothing in the first tick, then 1.0 at fines 0.5 and 0.6.
+        let rows = [
+            row(0, [0.0, 0.0], [1.0, 0.5]),
+            row(1, [1.0, 0.5], [2.0, 1.0]),
+            row(2, [2.0, 1.1], [3.0, 1.8]),
+        ];
+        let o = outflow_accuracy(&rows, 1).unwrap();
+        assert_eq!(o.windows, 3);
+        assert_eq!(o.silent_windows, 1);
+        // The silent window's fraction counts as 0: error 0.5 in `max`; `max_flowing` is
+        // the last window's |0.6 - 0.8|.
+        assert!((o.max_window_error - 0.5).abs() < 1e-12);
+        assert!((o.max_window_error_flowing - 0.2).abs() < 1e-12);
+        assert!((o.mean_window_error - 0.7 / 3.0).abs() < 1e-12);
+    }
+}
