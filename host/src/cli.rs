@@ -185,6 +185,12 @@ pub struct ReplayArgs {
         value_parser = clap::value_parser!(i64).range(1..=65535)
     )]
     pub alarm_persist: Option<i64>,
+    /// Multiply the recorded segregation rate S0 by G (0 < G <= 100), i.e. sqrt(T) from the
+    /// measured shear by G: a per-installation calibration of a coarse sensor grid, which
+    /// smooths away shear bands (docs/soft-sensor.md "Why the estimator under-segregates").
+    /// Unlike --fines-band it changes the estimate (and the state hash).
+    #[arg(long = "shear-gain", value_name = "G", allow_negative_numbers = true)]
+    pub shear_gain: Option<f64>,
     /// Replace the recorded velocity frames by the Nedderman-Tuzun kinematic velocity of a
     /// flat-bottomed silo with kinematic constant B [m], scaled by the discharge rate alone
     /// (a load cell; docs/soft-sensor.md). Silo recordings only.
@@ -637,6 +643,16 @@ pub fn execute(cli: Cli) -> Result<()> {
                     Some([v[0], v[1]])
                 }
             };
+            if let Some(g) = a.shear_gain {
+                if !(g.is_finite() && g > 0.0 && g <= 100.0) {
+                    return Err(Error::range(
+                        "command line",
+                        "--shear-gain",
+                        g,
+                        "0 < G <= 100",
+                    ));
+                }
+            }
             if let Some(b) = a.kinematic {
                 if !(b.is_finite() && b > 0.0 && b <= 1.0) {
                     return Err(Error::range(
@@ -646,11 +662,15 @@ pub fn execute(cli: Cli) -> Result<()> {
                         "0 < B <= 1 m",
                     ));
                 }
-                if a.faults || a.fines_band.is_some() || a.alarm_persist.is_some() {
+                if a.faults
+                    || a.fines_band.is_some()
+                    || a.alarm_persist.is_some()
+                    || a.shear_gain.is_some()
+                {
                     return Err(Error::at(
                         "command line",
                         "--kinematic",
-                        "--kinematic replays the rate alone: it takes no --faults, --fines-band or --alarm-persist",
+                        "--kinematic replays the rate alone: it takes no --faults, --fines-band, --alarm-persist or --shear-gain",
                     ));
                 }
                 let bytes = std::fs::read(&a.file).map_err(|e| {
@@ -674,6 +694,10 @@ pub fn execute(cli: Cli) -> Result<()> {
                 }
                 if let Some(n) = a.alarm_persist.and_then(|n| u16::try_from(n).ok()) {
                     c.alarm_persist = n;
+                }
+                if let Some(g) = a.shear_gain {
+                    // S = S0 sqrt(T) (model.md 3.1): a gain on sqrt(T) is a gain on S0.
+                    c.s0 *= g as f32;
                 }
                 Ok(())
             })

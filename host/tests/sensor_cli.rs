@@ -46,6 +46,37 @@ fn hash_line(stdout: &str) -> &str {
 }
 
 #[test]
+fn shear_gain_scales_the_segregation_and_one_changes_nothing() {
+    // `--shear-gain G` multiplies S0, i.e. sqrt(T) from the measured shear (model.md 3.1):
+    // G = 1 is the recorded estimate bit for bit; a larger gain segregates the idealised
+    // shear cell faster, so its psi falls further (the estimate changes, and its hash).
+    // Measured: psi at tick 50 is 0.532 with G = 1 and 0.020 with G = 3.
+    let (clean, _) = golden();
+    let rec = recordings().join("shear-cell.rec");
+    let rec = rec.to_str().expect("utf-8 path");
+    let (code, out, err) = sieve(&["replay", rec, "--shear-gain", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(hash_line(&out), clean);
+    let psi_at_tick_50 = |out: &str| -> f64 {
+        // The row of tick 50 (halfway; by the end both have segregated): tick, seq, time,
+        // psi, ...
+        let row = out
+            .lines()
+            .find(|l| l.split_whitespace().next() == Some("50"))
+            .expect("tick 50");
+        row.split_whitespace().nth(3).unwrap().parse().unwrap()
+    };
+    let (code, out3, err) = sieve(&["replay", rec, "--shear-gain", "3"]);
+    assert_eq!(code, 0, "{err}");
+    assert_ne!(hash_line(&out3), clean);
+    let (p1, p3) = (psi_at_tick_50(&out), psi_at_tick_50(&out3));
+    assert!(
+        p1 > 0.4 && p3 < 0.1,
+        "psi with gain 1: {p1}, with gain 3: {p3}"
+    );
+}
+
+#[test]
 fn replay_of_the_committed_recording_prints_the_golden_hashes() {
     let (clean, faulted) = golden();
     let rec = recordings().join("shear-cell.rec");
@@ -326,6 +357,10 @@ fn bad_options_exit_2_with_one_line() {
         ("--kinematic", "0"),
         ("--kinematic", "-1"),
         ("--kinematic", "nan"),
+        ("--shear-gain", "0"),
+        ("--shear-gain", "-2"),
+        ("--shear-gain", "nan"),
+        ("--shear-gain", "1e9"),
     ] {
         assert_bad(&["replay", rec, flag, value], flag);
     }

@@ -147,18 +147,18 @@ pub struct SoftSensor<R: SensorReal, const N: usize> {
     /// What left the box since configuration (grains, small grains).
     pub(super) out_total: [R; 2],
     /// Latched fines alarms ([`alarm::FINES_LOW`] / [`alarm::FINES_HIGH`]).
-    fines_state: u8,
+    pub(super) fines_state: u8,
     /// Consecutive ticks below / above the band / back inside the hysteresis band.
-    fines_runs: [u16; 3],
+    pub(super) fines_runs: [u16; 3],
     /// (estimator time, outlet fines fraction) of the last ticks that had one (ring), for the
     /// trend of the off-spec prediction.
-    trend: [[R; 2]; MAX_OUTFLOW_WINDOW],
+    pub(super) trend: [[R; 2]; MAX_OUTFLOW_WINDOW],
     /// Samples in `trend` (at most `outflow_window`) and the next slot.
-    trend_len: u16,
-    trend_head: u16,
+    pub(super) trend_len: u16,
+    pub(super) trend_head: u16,
     /// The last off-spec prediction [s] (see [`Estimate::off_spec_in`]); `None`: no exit
     /// predicted.
-    off_spec_in: Option<R>,
+    pub(super) off_spec_in: Option<R>,
 }
 
 impl<R: SensorReal, const N: usize> Default for SoftSensor<R, N> {

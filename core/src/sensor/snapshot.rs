@@ -1,12 +1,16 @@
 //! Snapshots: the estimator state as postcard items plus a CRC-32, restored bit-identically.
 //!
-//! Layout (format 4): `postcard(SnapshotHeader)`, then `cells` values of the carried volume
+//! Layout (format 5): `postcard(SnapshotHeader)` (since format 5 with the latched fines
+//! alarms, their persistence counters, the trend ring's length and head and the last
+//! off-spec prediction, so a restored sensor raises and clears its alarms on the same ticks
+//! as an uninterrupted one), then `cells` values of the carried volume
 //! fraction `c`, `cells` values of the tracked phase fraction `q` (phi for `Phase::Small`,
 //! c - phi for `Phase::Large`: the solver's own state, written and restored with
 //! `set_tracked`, so either phase round-trips bit-exactly), `cells` values of the rounding
 //! error the compensated updates carry per cell, `2 cells` face coefficients `k` (x, then z),
 //! `2 * sensor points` values of the smoothed sensor velocity and `2 * outflow_window`
-//! values of the outflow window (each a postcard `R`: fixed-width IEEE bits), then the CRC-32
+//! values of the outflow window, `2 * outflow_window` values of the trend ring (estimator
+//! time, outlet fines fraction) of the off-spec prediction (each a postcard `R`: fixed-width IEEE bits), then the CRC-32
 //! of everything before it (4 bytes little endian). Items are written and read one by one,
 //! so no buffer of the size of the state is needed besides the output itself.
 //!
@@ -18,13 +22,13 @@
 //! restored as stored.
 
 use super::estimator::{Counters, SoftSensor};
-use super::{crc32, SensorReal, MAX_FRAME_VALUES, MAX_OUTFLOW_WINDOW};
+use super::{alarm, crc32, SensorReal, MAX_FRAME_VALUES, MAX_OUTFLOW_WINDOW};
 use crate::hash::Fnv64;
 use postcard::ser_flavors::Flavor;
 use serde::{Deserialize, Serialize};
 
 /// Snapshot format version.
-pub const SNAPSHOT_VERSION: u16 = 4;
+pub const SNAPSHOT_VERSION: u16 = 5;
 
 /// How far outside [0, c] a stored tracked fraction may be. The estimator carries c with the
 /// same face fluxes as phi, so phi stays in [0, c] up to the sub-ulp carry of its compensated
@@ -33,7 +37,7 @@ pub const SNAPSHOT_PHI_SLACK: f64 = 0.05;
 
 /// Upper bound of a snapshot's size for capacity `N` (f64 values, generous header).
 pub const fn snapshot_capacity(n: usize) -> usize {
-    256 + 8 * (5 * n + MAX_FRAME_VALUES + 2 * MAX_OUTFLOW_WINDOW)
+    256 + 8 * (5 * n + MAX_FRAME_VALUES + 4 * MAX_OUTFLOW_WINDOW)
 }
 
 #[derive(Serialize, Deserialize)]
@@ -55,6 +59,11 @@ struct SnapshotHeader<R> {
     counters: Counters,
     out_head: u16,
     out_total: [R; 2],
+    fines_state: u8,
+    fines_runs: [u16; 3],
+    trend_len: u16,
+    trend_head: u16,
+    off_spec_in: Option<R>,
 }
 
 /// Why a snapshot was refused (the state is then unchanged).
@@ -117,6 +126,11 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             counters: self.counters,
             out_head: self.out_head,
             out_total: self.out_total,
+            fines_state: self.fines_state,
+            fines_runs: self.fines_runs,
+            trend_len: self.trend_len,
+            trend_head: self.trend_head,
+            off_spec_in: self.off_spec_in,
         }
     }
 
@@ -153,6 +167,10 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         for o in &self.out_ring[..self.cfg.outflow_window as usize] {
             put(out, &mut at, &o[0])?;
             put(out, &mut at, &o[1])?;
+        }
+        for s in &self.trend[..self.cfg.outflow_window as usize] {
+            put(out, &mut at, &s[0])?;
+            put(out, &mut at, &s[1])?;
         }
         let crc = crc32(&out[..at]);
         let end = at + 4;
@@ -192,7 +210,11 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             && h.lag.is_finite()
             && h.out_total[0].is_finite()
             && h.out_total[1].is_finite()
-            && (h.out_head as usize) < window;
+            && (h.out_head as usize) < window
+            && matches!(h.fines_state, 0 | alarm::FINES_LOW | alarm::FINES_HIGH)
+            && (h.trend_len as usize) <= window
+            && (h.trend_head as usize) < window
+            && h.off_spec_in.is_none_or(|t| t.is_finite() && t >= R::ZERO);
         if !sane {
             return Err(SnapshotError::Value);
         }
@@ -200,7 +222,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         // [0, 1], carries below an ulp, everything finite).
         let tol = R::from_f64(SNAPSHOT_PHI_SLACK);
         let mut r = rest;
-        for i in 0..5 * n + nv + 2 * window {
+        for i in 0..5 * n + nv + 4 * window {
             let (v, next): (R, _) =
                 postcard::take_from_bytes(r).map_err(|_| SnapshotError::Decode)?;
             let bad_c = i < n && !(v >= R::ZERO && v <= R::ONE);
@@ -241,6 +263,9 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         for k in 0..window {
             self.out_ring[k] = [next_value(&mut r), next_value(&mut r)];
         }
+        for k in 0..window {
+            self.trend[k] = [next_value(&mut r), next_value(&mut r)];
+        }
         self.have_velocity = h.have_velocity;
         self.last_seq = h.last_seq;
         self.covered = h.covered;
@@ -266,6 +291,11 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         }
         self.out_head = h.out_head;
         self.out_total = h.out_total;
+        self.fines_state = h.fines_state;
+        self.fines_runs = h.fines_runs;
+        self.trend_len = h.trend_len;
+        self.trend_head = h.trend_head;
+        self.off_spec_in = h.off_spec_in;
         self.counters = h.counters;
         self.seg.set_clock(h.time, h.steps);
         Ok(())

@@ -184,6 +184,12 @@ pub struct OutflowAccuracy {
     pub mean_window_error: f64,
     /// Windows compared.
     pub windows: usize,
+    /// Of those, windows in which the estimator let nothing out (its fraction is undefined
+    /// there and counts as 0 in `max_window_error`: the first window of a silo, before the
+    /// first frame that moves arrives).
+    pub silent_windows: usize,
+    /// `max_window_error` over the windows in which the estimator let something out.
+    pub max_window_error_flowing: f64,
     /// Fines fraction of everything that left, estimator and truth.
     pub total_fines: [f64; 2],
     /// Grain volume that left, estimator and truth (per unit depth).
@@ -214,13 +220,20 @@ fn outflow_accuracy(rows: &[ReplayRow], w: usize) -> Option<OutflowAccuracy> {
         }
     };
     let (mut max, mut sum, mut count) = (0.0f64, 0.0, 0usize);
+    let (mut silent, mut max_flowing) = (0usize, 0.0f64);
     for k in 0..rows.len() {
         let t = diff(k, |r| r.out_truth);
         if t[0] < 0.01 * largest {
             continue;
         }
-        let e = (frac(diff(k, |r| r.out_est)) - frac(t)).abs();
+        let est = diff(k, |r| r.out_est);
+        let e = (frac(est) - frac(t)).abs();
         max = max.max(e);
+        if est[0] > 0.0 {
+            max_flowing = max_flowing.max(e);
+        } else {
+            silent += 1;
+        }
         sum += e;
         count += 1;
     }
@@ -229,6 +242,8 @@ fn outflow_accuracy(rows: &[ReplayRow], w: usize) -> Option<OutflowAccuracy> {
         max_window_error: max,
         mean_window_error: sum / count.max(1) as f64,
         windows: count,
+        silent_windows: silent,
+        max_window_error_flowing: max_flowing,
         total_fines: [frac(last.out_est), frac(last.out_truth)],
         total_out: [last.out_est[0], last.out_truth[0]],
     })
@@ -552,11 +567,13 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
     if let Some(o) = &r.outflow {
         writeln!(
             out,
-            "outflow_fines_error: window={} ticks max={:.5} mean={:.5} windows={} total_fines est={:.5} truth={:.5} out est={:.5e} truth={:.5e}",
+            "outflow_fines_error: window={} ticks max={:.5} mean={:.5} windows={} silent={} max_flowing={:.5} total_fines est={:.5} truth={:.5} out est={:.5e} truth={:.5e}",
             o.window,
             o.max_window_error,
             o.mean_window_error,
             o.windows,
+            o.silent_windows,
+            o.max_window_error_flowing,
             o.total_fines[0],
             o.total_fines[1],
             o.total_out[0],
@@ -596,4 +613,51 @@ pub fn print_report(r: &ReplayReport, every: usize, out: &mut impl Write) -> std
         r.ticks, r.lag, r.mass_drift
     )?;
     writeln!(out, "final_state_hash=0x{:016x}", r.final_state_hash)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A row with cumulative outflows (grains, small grains) of the estimator and the truth.
+    fn row(tick: u32, est: [f64; 2], truth: [f64; 2]) -> ReplayRow {
+        ReplayRow {
+            tick,
+            seq: tick + 1,
+            time: (tick + 1) as f32 * 0.1,
+            psi: 1.0,
+            psi_truth: 1.0,
+            l1: 0.0,
+            health: 0,
+            alarms: 0,
+            substeps: 1,
+            regions: Vec::new(),
+            c_err: 0.0,
+            c_l1: 0.0,
+            out_est: est,
+            out_truth: truth,
+            outflow_fines: 0.0,
+            outflow_fines_window: 0.0,
+            off_spec_in: f32::INFINITY,
+        }
+    }
+
+    #[test]
+    fn a_window_in_which_the_estimator_let_nothing_out_is_counted_as_silent() {
+        // Window of 1 tick. Truth: 1.0 of grains per tick at fines 0.5, 0.5, 0.8. Estimator:
+        // nothing in the first tick, then 1.0 at fines 0.5 and 0.6.
+        let rows = [
+            row(0, [0.0, 0.0], [1.0, 0.5]),
+            row(1, [1.0, 0.5], [2.0, 1.0]),
+            row(2, [2.0, 1.1], [3.0, 1.8]),
+        ];
+        let o = outflow_accuracy(&rows, 1).unwrap();
+        assert_eq!(o.windows, 3);
+        assert_eq!(o.silent_windows, 1);
+        // The silent window's fraction counts as 0: error 0.5 in `max`; `max_flowing` is
+        // the last window's |0.6 - 0.8|.
+        assert!((o.max_window_error - 0.5).abs() < 1e-12);
+        assert!((o.max_window_error_flowing - 0.2).abs() < 1e-12);
+        assert!((o.mean_window_error - 0.7 / 3.0).abs() < 1e-12);
+    }
 }
