@@ -14,7 +14,7 @@ pub mod validate;
 
 use crate::error::{Error, Result};
 use serde::Deserialize;
-use sieve_core::{Boundary, Phase, Scheme};
+use sieve_core::{Boundary, Phase, Scheme, Transport};
 
 pub use validate::frame::{FrameKind, FrameModel, FrameSpec};
 pub use validate::geometry::{Geometry, GeometrySpec, ShapeKind};
@@ -182,6 +182,10 @@ pub struct NumericsSpec {
     /// Courant number, 0 < C < 1.
     #[serde(default = "default_courant")]
     pub courant: f64,
+    /// Face value of phihat in the carried transport of coupled runs: donor (default) or
+    /// limited (second order, bounded; docs/model.md 5.7).
+    #[serde(default)]
+    pub transport: Transport,
 }
 
 impl Default for NumericsSpec {
@@ -190,6 +194,7 @@ impl Default for NumericsSpec {
             scheme: Scheme::default(),
             phase: Phase::default(),
             courant: default_courant(),
+            transport: Transport::default(),
         }
     }
 }
