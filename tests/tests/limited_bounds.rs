@@ -17,6 +17,9 @@ use sieve_core::{Boundary, Grid, Phase, Segregation, SegregationConfig, Transpor
 
 const N: usize = 256;
 
+/// Face amounts per axis and cell (the layout of `MassFluxes`).
+type Amounts<const D: usize> = Box<[[f64; N]; D]>;
+
 fn c_value() -> impl Strategy<Value = f64> {
     prop_oneof![
         2 => Just(0.0),
@@ -57,7 +60,7 @@ fn limited_fluxes<const D: usize>(
     bc: &[[Boundary; 2]; D],
     raw_faces: &[Vec<f64>; D],
     raw_low: &[Vec<f64>; D],
-) -> (Box<[[f64; N]; D]>, Box<[[f64; N]; D]>) {
+) -> (Amounts<D>, Amounts<D>) {
     let grid = *s.grid();
     let n = grid.len();
     let cells = grid.cells();
@@ -239,8 +242,9 @@ proptest! {
     ) {
         let phase = if large { Phase::Large } else { Phase::Small };
         let n = c.len();
-        let a = run([n], [bc], phase, &c, &ph, &inflow, &[f.clone()], &[lo.clone()], steps)?;
-        let b = run([n], [bc], phase, &c, &ph, &inflow, &[f], &[lo], steps)?;
+        let (f, lo) = ([f], [lo]);
+        let a = run([n], [bc], phase, &c, &ph, &inflow, &f, &lo, steps)?;
+        let b = run([n], [bc], phase, &c, &ph, &inflow, &f, &lo, steps)?;
         prop_assert_eq!(a, b);
     }
 
@@ -264,9 +268,9 @@ proptest! {
     ) {
         let phase = if large { Phase::Large } else { Phase::Small };
         let nz = c.len() / nx;
-        let a = run([nx, nz], [bx, bz], phase, &c, &ph, &inflow,
-            &[fx.clone(), fz.clone()], &[lx.clone(), lz.clone()], steps)?;
-        let b = run([nx, nz], [bx, bz], phase, &c, &ph, &inflow, &[fx, fz], &[lx, lz], steps)?;
+        let (f, lo) = ([fx, fz], [lx, lz]);
+        let a = run([nx, nz], [bx, bz], phase, &c, &ph, &inflow, &f, &lo, steps)?;
+        let b = run([nx, nz], [bx, bz], phase, &c, &ph, &inflow, &f, &lo, steps)?;
         prop_assert_eq!(a, b);
     }
 }
