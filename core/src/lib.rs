@@ -34,4 +34,5 @@ pub use grid::Grid;
 pub use real::Real;
 pub use segregation::{
     DirectionMode, Phase, Scheme, Segregation, SegregationConfig, SetupError, TemperatureMode,
+    Transport,
 };

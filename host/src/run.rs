@@ -159,6 +159,7 @@ pub fn load<R: Real, const D: usize, const N: usize>(
     cfg.courant = R::from_f64(scene.courant);
     s.setup(grid, bc, cfg)
         .map_err(|e| solver_errors::setup_error(scene, &e))?;
+    s.set_transport(scene.transport);
     for i in 0..scene.len() {
         let u: [R; D] = core::array::from_fn(|a| R::from_f64(fields.u[a][i]));
         s.set_cell(

@@ -24,7 +24,11 @@
 //! whole bed across the grid, and the first-order upwind transport of phi smears it by a
 //! numerical diffusion `~ omega R h / 2` (5e-5 m^2/s here), which re-mixes; in the rotating
 //! frame the bulk is at rest on the grid. The gap does not close quickly with h (48 x 48:
-//! 0.74 / 0.48). With the spec stress on 34 x 34 the lab frame's centre phihat is 0.48 (0.97
+//! 0.74 / 0.48). Nor with the limited second-order face value of phihat
+//! (`numerics.transport = "limited"`, docs/model.md 5.7): Psi(5 s) 0.711 / 0.498 on 34 x 34
+//! and 0.589 / 0.399 on 48 x 48, lower in both frames but still ~0.2 apart, so the lab
+//! frame's extra remixing is not only the face value (docs/tumbler.md); this test keeps the
+//! donor rule and its Psi bound. With the spec stress on 34 x 34 the lab frame's centre phihat is 0.48 (0.97
 //! rotating), its layer 13.3 / 14.1 mm, its angle 20.5 / 21.7 deg, its fines core 6.1 mm
 //! from the rotating frame's.
 

@@ -35,7 +35,7 @@
 //! the percolation stage alone ([`Segregation::stable_dt_percolation`],
 //! `Coupled::stable_dt`), not by the segregation's transport term `|u| / h`.
 
-use super::{Phase, Segregation};
+use super::{Phase, Segregation, Transport};
 use crate::boundary::Boundary;
 use crate::geometry::CutCells;
 use crate::real::Real;
@@ -84,6 +84,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// advance the clock (the percolation stage does: [`Self::step_percolation`]). The face
     /// coefficients are used as scratch: call [`Self::prepare`] before the next step.
     pub fn carry_mass_fluxes(&mut self, fx: MassFluxes<'_, R, D, N>) -> Discharge<R, D> {
+        if self.transport == Transport::Limited {
+            return self.carry_limited(fx, None);
+        }
         let n = self.grid.len();
         let grid = self.grid;
         let vol = grid.cell_volume();
@@ -220,7 +223,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// Tracked fraction `q / c` of the inflow state at boundary cell `i` (its Dirichlet phi
     /// over the cell's c, as the solver's own inflow faces read it), in `[0, 1]`.
-    fn inflow_fraction(&self, i: usize) -> R {
+    pub(super) fn inflow_fraction(&self, i: usize) -> R {
         let c = self.c[i];
         if c > R::ZERO {
             (self.inflow_tracked(i) / c).max(R::ZERO).min(R::ONE)
@@ -233,7 +236,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 /// The small-phase part of an amount `f >= 0` with tracked fraction `qhat` (the tracked phase
 /// is the small one if `small`, else the large one).
 #[inline(always)]
-fn small_part<R: Real>(small: bool, f: R, qhat: R) -> R {
+pub(super) fn small_part<R: Real>(small: bool, f: R, qhat: R) -> R {
     let q = f * qhat;
     if small {
         q
@@ -257,6 +260,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         fx: MassFluxes<'_, R, D, N>,
         geo: &CutCells<R, D, N>,
     ) -> Discharge<R, D> {
+        if self.transport == Transport::Limited {
+            return self.carry_limited(fx, Some(geo));
+        }
         let n = self.grid.len();
         let grid = self.grid;
         let vol = grid.cell_volume();

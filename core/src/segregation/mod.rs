@@ -11,10 +11,12 @@ mod carried;
 pub mod direction;
 mod embedded;
 pub mod flux;
+mod limited;
 mod step;
 
 pub use carried::{Discharge, MassFluxes};
 pub use flux::Scheme;
+pub use limited::Transport;
 
 use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};
 use crate::grid::Grid;
@@ -219,6 +221,8 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     /// Per axis: c, T, k and u are the same in every cell (bit for bit) since the last
     /// prepare, so the step reads only q on that axis ([`Self::detect_uniform`]).
     uniform: [bool; D],
+    /// Face value of the carried transport ([`Self::set_transport`]).
+    transport: Transport,
     time: R,
     steps: u64,
 }
@@ -254,6 +258,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             flushed: R::ZERO,
             prepared: false,
             uniform: [false; D],
+            transport: Transport::Donor,
             time: R::ZERO,
             steps: 0,
         }
@@ -333,6 +338,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.flushed = R::ZERO;
         self.prepared = false;
         self.uniform = [false; D];
+        self.transport = Transport::Donor;
         self.time = R::ZERO;
         self.steps = 0;
         Ok(())

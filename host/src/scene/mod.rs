@@ -14,7 +14,7 @@ pub mod validate;
 
 use crate::error::{Error, Result};
 use serde::Deserialize;
-use sieve_core::{Boundary, Phase, Scheme};
+use sieve_core::{Boundary, Phase, Scheme, Transport};
 
 pub use validate::frame::{FrameKind, FrameModel, FrameSpec};
 pub use validate::geometry::{Geometry, GeometrySpec, ShapeKind};
@@ -182,6 +182,10 @@ pub struct NumericsSpec {
     /// Courant number, 0 < C < 1.
     #[serde(default = "default_courant")]
     pub courant: f64,
+    /// Face value of phihat in the carried transport of coupled runs: donor (default) or
+    /// limited (second order, bounded; docs/model.md 5.7).
+    #[serde(default, deserialize_with = "transport_name")]
+    pub transport: Transport,
 }
 
 impl Default for NumericsSpec {
@@ -190,8 +194,30 @@ impl Default for NumericsSpec {
             scheme: Scheme::default(),
             phase: Phase::default(),
             courant: default_courant(),
+            transport: Transport::default(),
         }
     }
+}
+
+/// `numerics.transport` by name; anything else (a number, a table, another word) is refused
+/// naming the allowed values.
+fn transport_name<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Transport, D::Error> {
+    struct Name;
+    impl serde::de::Visitor<'_> for Name {
+        type Value = Transport;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("`donor` or `limited`")
+        }
+        fn visit_str<E: serde::de::Error>(self, v: &str) -> std::result::Result<Transport, E> {
+            Transport::ALL
+                .into_iter()
+                .find(|t| t.name() == v)
+                .ok_or_else(|| E::unknown_variant(v, &["donor", "limited"]))
+        }
+    }
+    d.deserialize_str(Name)
 }
 
 fn default_courant() -> f64 {

@@ -29,7 +29,7 @@ use super::{
     BackCoupling, Equations, ExactKind, Precision, PressureKind, SceneFile, SpinUp, StressKind,
 };
 use crate::error::{Error, Result};
-use sieve_core::{Boundary, Phase, Scheme};
+use sieve_core::{Boundary, Phase, Scheme, Transport};
 
 /// Compiled cell capacity for each dimension (index `dim - 1`): 65536 cells in 1D, 512 x 512
 /// in 2D, 64^3 in 3D.
@@ -177,6 +177,8 @@ pub struct Scene {
     pub phase: Phase,
     /// Courant number.
     pub courant: f64,
+    /// Face value of the carried transport (coupled runs).
+    pub transport: Transport,
     /// S0.
     pub s0: f64,
     /// Remixing diffusivity.
@@ -296,6 +298,15 @@ impl Scene {
         if !has_flow {
             flow::only_with_flow(&mut p, l, &f);
         }
+        if f.numerics.transport != Transport::Donor && f.model.equations != Equations::Coupled {
+            // Only a coupled run carries phi on the flow's face mass fluxes.
+            p.push(Error::range(
+                l,
+                "numerics.transport",
+                format!("{:?}", f.numerics.transport.name()),
+                "\"donor\" unless model.equations = \"coupled\" (\"limited\" acts on the carried transport of coupled runs)",
+            ));
+        }
         let grid = dim.and_then(|d| grid::check(&mut p, l, &f.grid, d));
         let courant = material::courant(&mut p, l, &f.numerics);
         let mat = material::check(&mut p, l, &f.material);
@@ -368,6 +379,7 @@ impl Scene {
             scheme: f.numerics.scheme,
             phase: f.numerics.phase,
             courant,
+            transport: f.numerics.transport,
             s0,
             diffusion,
             phi_rcp,
