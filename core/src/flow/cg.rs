@@ -127,6 +127,8 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
         let lines: usize = cells[1..].iter().product();
         let mut k = [0usize; D];
         let empty: &[R] = &[];
+        let kf: [&[R]; D] = core::array::from_fn(|a| &self.kf[a][..]);
+        let strides: [usize; D] = core::array::from_fn(|a| self.grid.stride(a));
         for line in 0..lines {
             let i0 = line * n0;
             // The faces of the other axes, in the order they are added: per axis the face to
@@ -134,35 +136,14 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
             // at the first); as (coefficients, neighbour values) of the whole line.
             let mut kt: [&[R]; 6] = [empty; 6];
             let mut xt: [&[R]; 6] = [empty; 6];
-            let mut m = 0;
-            for a in 1..D {
-                let c = cells[a];
-                if c < 2 {
-                    continue;
-                }
-                let s = self.grid.stride(a);
-                let kf = &self.kf[a];
-                let span = (c - 1) * s;
-                if k[a] + 1 < c {
-                    (kt[m], xt[m]) = (&kf[i0..i0 + n0], &x[i0 + s..i0 + s + n0]);
-                    m += 1;
-                }
-                if k[a] > 0 {
-                    (kt[m], xt[m]) = (&kf[i0 - s..i0 - s + n0], &x[i0 - s..i0 - s + n0]);
-                    m += 1;
-                }
-                if self.periodic[a] && k[a] + 1 == c {
-                    (kt[m], xt[m]) = (&kf[i0..i0 + n0], &x[i0 - span..i0 - span + n0]);
-                    m += 1;
-                }
-                if self.periodic[a] && k[a] == 0 {
-                    (kt[m], xt[m]) = (
-                        &kf[i0 + span..i0 + span + n0],
-                        &x[i0 + span..i0 + span + n0],
-                    );
-                    m += 1;
-                }
-            }
+            let m = line_faces(
+                (cells, strides, self.periodic),
+                kf,
+                x,
+                (&k, i0, n0),
+                &mut kt,
+                &mut xt,
+            );
             let line_x = &x[i0..i0 + n0];
             let o = &mut out[i0..i0 + n0];
             let (ds, bs) = (&diag[i0..i0 + n0], &b[i0..i0 + n0]);
@@ -422,6 +403,51 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
 
 /// One line along axis 0 of [`Stencil::product`]: its values and the `M` face terms of the
 /// other axes (coefficients and neighbour values over the line).
+/// The faces of axes `1..D` of the line of `n0` cells that starts at `i0` (coordinates `k`),
+/// in the order a face-by-face product adds them: per axis the face to `+a` (or the wrap face
+/// at the last cell), the face from `-a` (or the wrap face at the first), each as the line's
+/// coefficients and neighbour values. Returns how many (at most 6) it wrote into `kt`, `xt`.
+/// Shared by the fine product and the coarse levels' residual, so both keep the same order.
+#[inline(always)]
+fn line_faces<'a, R, const D: usize>(
+    (cells, strides, periodic): ([usize; D], [usize; D], [bool; D]),
+    kf: [&'a [R]; D],
+    x: &'a [R],
+    (k, i0, n0): (&[usize; D], usize, usize),
+    kt: &mut [&'a [R]; 6],
+    xt: &mut [&'a [R]; 6],
+) -> usize {
+    let mut m = 0;
+    for a in 1..D {
+        let c = cells[a];
+        if c < 2 {
+            continue;
+        }
+        let (s, kf) = (strides[a], kf[a]);
+        let span = (c - 1) * s;
+        if k[a] + 1 < c {
+            (kt[m], xt[m]) = (&kf[i0..i0 + n0], &x[i0 + s..i0 + s + n0]);
+            m += 1;
+        }
+        if k[a] > 0 {
+            (kt[m], xt[m]) = (&kf[i0 - s..i0 - s + n0], &x[i0 - s..i0 - s + n0]);
+            m += 1;
+        }
+        if periodic[a] && k[a] + 1 == c {
+            (kt[m], xt[m]) = (&kf[i0..i0 + n0], &x[i0 - span..i0 - span + n0]);
+            m += 1;
+        }
+        if periodic[a] && k[a] == 0 {
+            (kt[m], xt[m]) = (
+                &kf[i0 + span..i0 + span + n0],
+                &x[i0 + span..i0 + span + n0],
+            );
+            m += 1;
+        }
+    }
+    m
+}
+
 struct LineTerms<'a, R> {
     x: &'a [R],
     kt: &'a [&'a [R]],
@@ -771,34 +797,14 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
             let i0 = line * n0;
             let mut kt: [&[R]; 6] = [empty; 6];
             let mut xt: [&[R]; 6] = [empty; 6];
-            let mut m = 0;
-            for a in 1..D {
-                let c = cells[a];
-                if c < 2 {
-                    continue;
-                }
-                let (s, kf) = (self.strides[a], self.kf[a]);
-                let span = (c - 1) * s;
-                if k[a] + 1 < c {
-                    (kt[m], xt[m]) = (&kf[i0..i0 + n0], &x[i0 + s..i0 + s + n0]);
-                    m += 1;
-                }
-                if k[a] > 0 {
-                    (kt[m], xt[m]) = (&kf[i0 - s..i0 - s + n0], &x[i0 - s..i0 - s + n0]);
-                    m += 1;
-                }
-                if self.periodic[a] && k[a] + 1 == c {
-                    (kt[m], xt[m]) = (&kf[i0..i0 + n0], &x[i0 - span..i0 - span + n0]);
-                    m += 1;
-                }
-                if self.periodic[a] && k[a] == 0 {
-                    (kt[m], xt[m]) = (
-                        &kf[i0 + span..i0 + span + n0],
-                        &x[i0 + span..i0 + span + n0],
-                    );
-                    m += 1;
-                }
-            }
+            let m = line_faces(
+                (cells, self.strides, self.periodic),
+                self.kf,
+                x,
+                (&k, i0, n0),
+                &mut kt,
+                &mut xt,
+            );
             let (xs, bs, ds) = (&x[i0..i0 + n0], &b[i0..i0 + n0], &self.adiag[i0..i0 + n0]);
             let kl = &k0[i0..i0 + n0];
             let o = &mut out[i0..i0 + n0];
