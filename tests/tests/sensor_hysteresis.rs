@@ -242,3 +242,59 @@ fn alarm_state_survives_a_snapshot() {
     }
     assert_eq!(a.state_hash(), b.state_hash());
 }
+
+/// A valid snapshot taken while the alarm holds (window 4, so the outflow and trend rings
+/// have room to be wrong).
+fn held_snapshot() -> Vec<u8> {
+    let mut cfg = config(3, 0.05);
+    cfg.outflow_window = 4;
+    let mut s: Box<SoftSensor<f32, N>> = Box::default();
+    s.configure(&cfg).unwrap();
+    for k in 1..=20u32 {
+        s.tick(Some(&frame(k)));
+    }
+    let mut snap = vec![0u8; snapshot_capacity(N)];
+    let n = s.snapshot(&mut snap).unwrap();
+    snap.truncate(n);
+    snap
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(300))]
+    /// The snapshot reader (format 5, with the alarm state) on hostile bytes that carry a
+    /// valid CRC, so the decoder and the value checks are what meet them: bytes overwritten
+    /// anywhere in the body, or the body cut short. It never panics; a refused snapshot
+    /// leaves the sensor as it was; an accepted one ticks on with finite readouts.
+    #[test]
+    fn snapshot_reader_survives_hostile_bytes_with_a_valid_crc(
+        edits in proptest::collection::vec((proptest::prelude::any::<usize>(), proptest::prelude::any::<u8>()), 1..6),
+        cut in proptest::option::of(proptest::prelude::any::<usize>()),
+    ) {
+        let snap = held_snapshot();
+        let mut body = snap[..snap.len() - 4].to_vec();
+        for (at, v) in &edits {
+            let k = at % body.len();
+            body[k] = *v;
+        }
+        if let Some(c) = cut {
+            body.truncate(c % (body.len() + 1));
+        }
+        let crc = sieve_core::sensor::crc32(&body);
+        body.extend_from_slice(&crc.to_le_bytes());
+        let mut cfg = config(3, 0.05);
+        cfg.outflow_window = 4;
+        let mut s: Box<SoftSensor<f32, N>> = Box::default();
+        s.configure(&cfg).unwrap();
+        let fresh = s.state_hash();
+        match s.restore(&body) {
+            Err(_) => proptest::prop_assert_eq!(s.state_hash(), fresh),
+            Ok(()) => {
+                for k in 21..=40u32 {
+                    let e = s.tick(Some(&frame(k)));
+                    proptest::prop_assert!(e.psi.is_finite() && e.outflow_fines_window.is_finite());
+                    proptest::prop_assert!(!e.off_spec_in.is_nan());
+                }
+            }
+        }
+    }
+}
