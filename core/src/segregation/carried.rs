@@ -136,15 +136,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let mut guarded = R::ZERO;
         for i in 0..n {
             let c = self.c[i];
-            let mut q = self.q[i] + self.carry[i];
+            let q = guard_tracked(self.q[i] + self.carry[i], c, &mut guarded);
             self.carry[i] = R::ZERO;
-            if q < R::ZERO {
-                guarded -= q;
-                q = R::ZERO;
-            } else if q > c {
-                guarded += c - q;
-                q = c;
-            }
             let r = c - q;
             let (qhat, keep) = if c > R::ZERO {
                 ((q / c).min(R::ONE), ((c - self.rhs[i]) / c).max(R::ZERO))
@@ -233,6 +226,21 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     }
 }
 
+/// The tracked amount `q` of a cell brought into `[0, c]` (round-off of the previous stage),
+/// the amount moved added to `guarded`. Shared by the donor and the limited transport.
+#[inline(always)]
+pub(super) fn guard_tracked<R: Real>(q: R, c: R, guarded: &mut R) -> R {
+    if q < R::ZERO {
+        *guarded -= q;
+        R::ZERO
+    } else if q > c {
+        *guarded += c - q;
+        c
+    } else {
+        q
+    }
+}
+
 /// The small-phase part of an amount `f >= 0` with tracked fraction `qhat` (the tracked phase
 /// is the small one if `small`, else the large one).
 #[inline(always)]
@@ -317,14 +325,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let mut guarded = R::ZERO;
         for i in 0..n {
             let c = self.c[i];
-            let mut q = self.q[i];
-            if q < R::ZERO {
-                guarded -= q;
-                q = R::ZERO;
-            } else if q > c {
-                guarded += c - q;
-                q = c;
-            }
+            let q = guard_tracked(self.q[i], c, &mut guarded);
             self.flux[i] = if c > R::ZERO {
                 (q / c).min(R::ONE)
             } else {
@@ -395,7 +396,19 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 });
             }
         }
-        // Content -> fractions at the masters, then the members copy them.
+        self.spread_group_content(geo);
+        for i in 0..n {
+            self.c[i] = self.q[i] + self.k[0][i];
+        }
+        self.prepared = false;
+        out
+    }
+
+    /// Cut cells, after a carried transport: the tracked (`q`) and untracked (`k[0]`)
+    /// content each master kept for its merge group becomes fractions (over the group
+    /// volume), and the members copy their master's. Shared by the donor and the limited rule.
+    pub(super) fn spread_group_content(&mut self, geo: &CutCells<R, D, N>) {
+        let n = self.grid.len();
         for i in 0..n {
             if geo.master(i) == i && !geo.is_solid(i) {
                 let vg = geo.group_volume(i);
@@ -409,10 +422,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 self.q[i] = self.q[m];
                 self.k[0][i] = self.k[0][m];
             }
-            self.c[i] = self.q[i] + self.k[0][i];
         }
-        self.prepared = false;
-        out
     }
 }
 

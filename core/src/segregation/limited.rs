@@ -47,7 +47,7 @@
 //! is used. So the solver's size is unchanged (the firmware's soft sensor does not use this
 //! path: its own-velocity transport stays the donor rule).
 
-use super::carried::{small_part, Discharge, MassFluxes};
+use super::carried::{guard_tracked, small_part, Discharge, MassFluxes};
 use super::Segregation;
 use crate::boundary::Boundary;
 use crate::geometry::CutCells;
@@ -270,15 +270,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let mut guarded = R::ZERO;
         for i in 0..n {
             let c = self.c[i];
-            let mut q = self.q[i] + self.carry[i];
+            let q = guard_tracked(self.q[i] + self.carry[i], c, &mut guarded);
             self.carry[i] = R::ZERO;
-            if q < R::ZERO {
-                guarded -= q;
-                q = R::ZERO;
-            } else if q > c {
-                guarded += c - q;
-                q = c;
-            }
             self.q[i] = q;
             self.flux[i] = if c > R::ZERO {
                 (q / c).min(R::ONE)
@@ -400,20 +393,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // Pass D: content -> fractions at the masters (cut cells), members copy them;
         // c = tracked + untracked; the slope scratch in `carry` back to zero.
         if let Some(g) = geo {
-            for i in 0..n {
-                if g.master(i) == i && !g.is_solid(i) {
-                    let vg = g.group_volume(i);
-                    self.q[i] = self.q[i] / vg;
-                    self.k[0][i] = self.k[0][i] / vg;
-                }
-            }
-            for i in 0..n {
-                let m = g.master(i);
-                if m != i {
-                    self.q[i] = self.q[m];
-                    self.k[0][i] = self.k[0][m];
-                }
-            }
+            self.spread_group_content(g);
         }
         for i in 0..n {
             self.c[i] = self.q[i] + self.k[0][i];
