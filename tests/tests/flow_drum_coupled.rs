@@ -6,16 +6,14 @@
 //! exactly in every cell after every step (cut cells and merged cells included), the
 //! segregation's c equal to the flow's, bit-identical reruns.
 
+mod drum_common;
+
+use drum_common::{half_drum, HalfDrum};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::diagnostics::diagnose_embedded;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
-use sieve_core::flow::{CutWall, Flow, FlowConfig, FlowSide, Slip};
-use sieve_core::frame::{Frame, Rotation};
-use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
-use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
-use sieve_core::{Boundary, Grid};
+use sieve_core::flow::FlowConfig;
 use sieve_tests::run_big;
-use std::f64::consts::PI;
 
 const N: usize = 1024;
 
@@ -30,33 +28,14 @@ struct Outcome {
 }
 
 fn drum(steps: usize) -> Outcome {
-    let n = 24;
-    let (r, h) = (0.05, 0.1 / (n as f64 - 2.0));
-    let lo = 0.05 - r - h;
-    let grid = Grid::new([n, n], [lo; 2], [0.1 + 2.0 * h; 2], N).unwrap();
-    let mut cut: Box<CutCells<f64, 2, N>> = Box::new(CutCells::zeroed());
-    cut.build(
-        &grid,
-        &Region::drum([0.05, 0.05], r),
-        [false; 2],
-        DEFAULT_SMALL,
-    )
-    .unwrap();
-    let omega = 2.0 * PI;
     let mut cfg = FlowConfig::new(Material::glass_beads());
-    cfg.frame = Frame::Rotating(Rotation::new(omega, [0.05, 0.05], 0).unwrap());
     cfg.free_surface_push = true;
-    let tan = 11f64.to_radians().tan();
-    let wall = FlowSide::wall(Slip::Friction(tan));
-    let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
-    flow.setup(grid, [[wall, wall], [wall, wall]], cfg).unwrap();
-    flow.set_geometry(&cut, CutWall::resting(Slip::Friction(tan)))
-        .unwrap();
-    let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
-    let mut scfg = SegregationConfig::new();
-    scfg.gravity = [0.0, -9.81];
-    scfg.direction = DirectionMode::Flow;
-    seg.setup(grid, [[Boundary::Wall; 2]; 2], scfg).unwrap();
+    let HalfDrum {
+        grid,
+        mut flow,
+        mut seg,
+        cut,
+    } = half_drum::<N>(cfg);
     for i in 0..grid.len() {
         let z = grid.center(i)[1];
         let c = if z < 0.05 && !cut.is_solid(i) {

@@ -6,20 +6,21 @@
 //! the column collapse ends where the explicit one does; the coupled drum on cut cells keeps
 //! both phases; the silo keeps in + out and discharges at the explicit rate.
 
+mod drum_common;
 mod silo_common;
+
+use drum_common::{half_drum, HalfDrum};
 use sieve::silo::DischargeSeries;
 use sieve_core::boundary::{Opening, Openings};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::diagnostics::diagnose_embedded;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{CutWall, Flow, FlowConfig, FlowSide, OutletPressure, PressureMode, Slip};
-use sieve_core::frame::{Frame, Rotation};
 use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
 use sieve_core::{Boundary, Grid};
 use sieve_tests::run_big;
 use silo_common::silo_material;
-use std::f64::consts::PI;
 
 const N: usize = 4096;
 const IMPLICIT: PressureMode = PressureMode::Implicit;
@@ -294,31 +295,12 @@ struct DrumOutcome {
 /// its own frame, glass beads, wall friction 11 deg, back-coupling R = 1/2) in implicit mode.
 fn coupled_drum(steps: usize) -> DrumOutcome {
     const M: usize = 1024;
-    let n = 24;
-    let (r, h) = (0.05, 0.1 / (n as f64 - 2.0));
-    let lo = 0.05 - r - h;
-    let grid = Grid::new([n, n], [lo; 2], [0.1 + 2.0 * h; 2], M).unwrap();
-    let mut cut: Box<CutCells<f64, 2, M>> = Box::new(CutCells::zeroed());
-    cut.build(
-        &grid,
-        &Region::drum([0.05, 0.05], r),
-        [false; 2],
-        DEFAULT_SMALL,
-    )
-    .unwrap();
-    let mut cfg = glass(IMPLICIT);
-    cfg.frame = Frame::Rotating(Rotation::new(2.0 * PI, [0.05, 0.05], 0).unwrap());
-    let tan = 11f64.to_radians().tan();
-    let wall = FlowSide::wall(Slip::Friction(tan));
-    let mut flow: Box<Flow<f64, 2, M>> = Box::new(Flow::zeroed());
-    flow.setup(grid, [[wall, wall], [wall, wall]], cfg).unwrap();
-    flow.set_geometry(&cut, CutWall::resting(Slip::Friction(tan)))
-        .unwrap();
-    let mut seg: Box<Segregation<f64, 2, M>> = Box::new(Segregation::zeroed());
-    let mut scfg = SegregationConfig::new();
-    scfg.gravity = [0.0, -9.81];
-    scfg.direction = DirectionMode::Flow;
-    seg.setup(grid, [[Boundary::Wall; 2]; 2], scfg).unwrap();
+    let HalfDrum {
+        grid,
+        mut flow,
+        mut seg,
+        cut,
+    } = half_drum::<M>(glass(IMPLICIT));
     for i in 0..grid.len() {
         let z = grid.center(i)[1];
         let c = if z < 0.05 && !cut.is_solid(i) {
