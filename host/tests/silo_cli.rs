@@ -3,21 +3,9 @@
 //! amounts to round-off, phi stays in [0, c]; the orifice width is a `--set` key and a bad
 //! one exits 2 with one line naming file, key and range.
 
-use assert_cmd::Command;
-use std::path::Path;
+mod common;
 
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String) {
-    let out = Command::cargo_bin("sieve")
-        .unwrap()
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use common::run_in;
 
 #[test]
 fn coarse_silo_discharges_with_exact_mass_accounting() {

@@ -5,21 +5,10 @@
 //! Also the hopper scene (cut cells + outlet) through the CLI: its fines are counted by open
 //! volume (in + out = initial to round-off).
 
-use assert_cmd::Command;
-use std::path::Path;
+mod common;
 
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String) {
-    let out = Command::cargo_bin("sieve")
-        .unwrap()
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use common::run_in;
+use std::path::Path;
 
 fn is_png(path: &Path) -> bool {
     std::fs::read(path).is_ok_and(|b| b.len() > 1000 && b.starts_with(b"\x89PNG\r\n\x1a\n"))

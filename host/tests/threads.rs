@@ -10,7 +10,9 @@
 //! (halo 2), compensated updates, the large phase, and cells that are flushed (docs/model.md
 //! 5.6). Through the CLI: `--threads 1` and `--threads 3` write the same files byte for byte.
 
-use assert_cmd::Command;
+mod common;
+
+use common::run_in;
 use sieve::parallel::Driver;
 use sieve_core::segregation::SegregationConfig;
 use sieve_core::{
@@ -260,19 +262,6 @@ fn row_sums_fold_to_the_same_bits_for_any_split() {
 }
 
 // ---- the CLI: --threads 1 and --threads 3 write the same files ----
-
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String) {
-    let out = Command::cargo_bin("sieve")
-        .unwrap()
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 /// summary.json without the wall-clock timings (the only values that may differ).
 fn summary_without_timings(dir: &Path) -> serde_json::Value {

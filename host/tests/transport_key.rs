@@ -5,21 +5,10 @@
 //! solver (another state hash than the donor rule on the same coupled drum), keeps the bounds
 //! exactly and the mass to round-off, and reruns bit for bit.
 
-use assert_cmd::Command;
-use std::path::Path;
+mod common;
 
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String) {
-    let out = Command::cargo_bin("sieve")
-        .unwrap()
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use common::run_in;
+use std::path::Path;
 
 fn refused(args: &[&str], allowed: &str) {
     let d = tempfile::tempdir().unwrap();
