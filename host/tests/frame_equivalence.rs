@@ -50,15 +50,6 @@ fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
-fn run(dir: &Path, out: &str, frame: &str) {
-    run_with(
-        dir,
-        out,
-        frame,
-        &["--set", "boundary.flow.z_low={wall=\"no-slip\"}"],
-    );
-}
-
 fn run_with(dir: &Path, out: &str, frame: &str, extra: &[&str]) {
     let o = Command::cargo_bin("sieve")
         .unwrap()
@@ -90,6 +81,32 @@ fn csv(path: &Path, names: &[&str]) -> Vec<Vec<f64>> {
         .collect()
 }
 
+/// Runs the tumbler (objective stress, `extra` settings) in the lab frame into `dir/lab` and in
+/// the rotating frame into `dir/rot`, side by side; returns their summaries after checking what
+/// every run keeps: the stress and end time asked, mass to round-off, 0 <= phi <= c exactly.
+fn both_frames(dir: &Path, extra: &[&str]) -> (serde_json::Value, serde_json::Value) {
+    std::thread::scope(|s| {
+        s.spawn(|| run_with(dir, "lab", "lab", extra));
+        s.spawn(|| run_with(dir, "rot", "rotating", extra));
+    });
+    let lab = json(&dir.join("lab/summary.json"));
+    let rot = json(&dir.join("rot/summary.json"));
+    for s in [&lab, &rot] {
+        assert_eq!(s["flow"]["stress"], "objective");
+        assert_eq!(s["t_end"].as_f64().unwrap(), T_END);
+        assert!(s["mass_rel_drift"].as_f64().unwrap().abs() < 1e-12);
+        // 0 <= phi <= c exactly
+        assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
+        assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
+    }
+    (lab, rot)
+}
+
+/// A number of the summary's drum readouts.
+fn drum(s: &serde_json::Value, k: &str) -> f64 {
+    s["drum"][k].as_f64().unwrap()
+}
+
 /// Centroid of the fines core in the lab, relative to the axis: the phi-weighted centroid of
 /// the dense cells (c > 0.3) with phihat > 0.75, rotated by `angle` about the axis.
 fn fines_core(path: &Path, angle: f64) -> [f64; 2] {
@@ -115,21 +132,11 @@ fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
 #[test]
 fn lab_and_rotating_frames_tell_the_same_story_with_the_objective_stress() {
     let d = tempfile::tempdir().unwrap();
-    std::thread::scope(|s| {
-        s.spawn(|| run(d.path(), "lab", "lab"));
-        s.spawn(|| run(d.path(), "rot", "rotating"));
-    });
-    let lab = json(&d.path().join("lab/summary.json"));
-    let rot = json(&d.path().join("rot/summary.json"));
-    for s in [&lab, &rot] {
-        assert_eq!(s["flow"]["stress"], "objective");
-        assert_eq!(s["t_end"].as_f64().unwrap(), T_END);
-        assert!(s["mass_rel_drift"].as_f64().unwrap().abs() < 1e-12);
-        // 0 <= phi <= c exactly
-        assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
-        assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
-    }
-    let f = |s: &serde_json::Value, k: &str| s["drum"][k].as_f64().unwrap();
+    let (lab, rot) = both_frames(
+        d.path(),
+        &["--set", "boundary.flow.z_low={wall=\"no-slip\"}"],
+    );
+    let f = drum;
     let v = |s: &serde_json::Value, k: &str| -> [f64; 2] {
         let a = s["drum"][k].as_array().unwrap();
         [a[0].as_f64().unwrap(), a[1].as_f64().unwrap()]
@@ -195,18 +202,8 @@ fn lab_and_rotating_frames_tell_the_same_story_with_the_objective_stress() {
 #[test]
 fn with_the_friction_wall_the_lab_bed_turns_up_as_in_the_rotating_frame() {
     let d = tempfile::tempdir().unwrap();
-    std::thread::scope(|s| {
-        s.spawn(|| run_with(d.path(), "lab", "lab", &[]));
-        s.spawn(|| run_with(d.path(), "rot", "rotating", &[]));
-    });
-    let lab = json(&d.path().join("lab/summary.json"));
-    let rot = json(&d.path().join("rot/summary.json"));
-    let f = |s: &serde_json::Value, k: &str| s["drum"][k].as_f64().unwrap();
-    for s in [&lab, &rot] {
-        assert!(s["mass_rel_drift"].as_f64().unwrap().abs() < 1e-12);
-        assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
-        assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
-    }
+    let (lab, rot) = both_frames(d.path(), &[]);
+    let f = drum;
     let (al, ar) = (
         f(&lab, "angle_of_repose_deg"),
         f(&rot, "angle_of_repose_deg"),
