@@ -1,29 +1,14 @@
 //! The CLI contract of issue 2: exit codes and one-line messages for bad input, the files a run
 //! writes and their headers, atomic output directories, `--set` overrides, reproducibility.
 
-use assert_cmd::Command;
-use std::path::{Path, PathBuf};
+mod common;
 
-fn sieve() -> Command {
-    Command::cargo_bin("sieve").expect("binary sieve")
-}
+use common::run_full;
+
+use std::path::{Path, PathBuf};
 
 fn tmp() -> tempfile::TempDir {
     tempfile::tempdir().expect("temp dir")
-}
-
-/// Runs `sieve args...` in `dir`; returns (exit code, stdout, stderr).
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    let out = sieve()
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .expect("run sieve");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 fn summary(dir: &Path) -> serde_json::Value {
@@ -40,7 +25,7 @@ fn assert_bad_input(args: &[&str], needles: &[&str]) {
     let d = tmp();
     let mut full = args.to_vec();
     full.extend(["--out", "out", "--quiet"]);
-    let (code, _, err) = run_in(d.path(), &full);
+    let (code, _, err) = run_full(d.path(), &full);
     assert_eq!(code, 2, "{args:?}: stderr {err}");
     assert_eq!(
         err.lines().count(),
@@ -59,7 +44,7 @@ fn assert_bad_input(args: &[&str], needles: &[&str]) {
 #[test]
 fn scenes_lists_every_builtin_and_every_file() {
     let d = tmp();
-    let (code, out, _) = run_in(d.path(), &["scenes"]);
+    let (code, out, _) = run_full(d.path(), &["scenes"]);
     assert_eq!(code, 0);
     let listed: Vec<&str> = out.lines().map(|l| l.split('\t').next().unwrap()).collect();
     let mut files: Vec<String> = std::fs::read_dir(scenes_dir())
@@ -193,14 +178,14 @@ fn bad_input_exits_2_with_one_line_naming_file_key_and_range() {
 fn malformed_toml_and_unknown_top_level_key() {
     let d = tmp();
     std::fs::write(d.path().join("broken.toml"), "name = \"x\"\n[grid\n").unwrap();
-    let (code, _, err) = run_in(d.path(), &["run", "broken.toml", "--quiet"]);
+    let (code, _, err) = run_full(d.path(), &["run", "broken.toml", "--quiet"]);
     assert_eq!(code, 2);
     assert_eq!(err.lines().count(), 1);
     assert!(err.contains("broken.toml: malformed TOML: line 2"), "{err}");
 
     let text = std::fs::read_to_string(scenes_dir().join("column-a.toml")).unwrap();
     std::fs::write(d.path().join("extra.toml"), format!("colour = 3\n{text}")).unwrap();
-    let (code, _, err) = run_in(d.path(), &["run", "extra.toml", "--quiet"]);
+    let (code, _, err) = run_full(d.path(), &["run", "extra.toml", "--quiet"]);
     assert_eq!(code, 2);
     assert!(
         err.contains("extra.toml: colour: unknown field `colour`"),
@@ -212,7 +197,7 @@ fn malformed_toml_and_unknown_top_level_key() {
 #[test]
 fn run_writes_every_output_with_the_contract_headers() {
     let d = tmp();
-    let (code, out, err) = run_in(
+    let (code, out, err) = run_full(
         d.path(),
         &[
             "run", "column-a", "--cells", "50", "--t-end", "0.3", "--quiet",
@@ -290,7 +275,7 @@ fn run_writes_every_output_with_the_contract_headers() {
 #[test]
 fn set_overrides_and_flags_reach_the_run() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -318,7 +303,7 @@ fn set_overrides_and_flags_reach_the_run() {
     assert_eq!(s["courant"], 0.4);
     assert_eq!(s["output_interval"], 0.25);
     // --scheme beats --set (flags apply after --set), --grid sets every axis.
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -347,7 +332,7 @@ fn column_a_is_reproducible_and_conserves_mass() {
     let d = tmp();
     let mut hashes = Vec::new();
     for out in ["a", "b"] {
-        let (code, _, err) = run_in(d.path(), &["run", "column-a", "--out", out, "--quiet"]);
+        let (code, _, err) = run_full(d.path(), &["run", "column-a", "--out", out, "--quiet"]);
         assert_eq!(code, 0, "{err}");
         let s = summary(&d.path().join(out));
         assert!(s["mass_rel_drift"].as_f64().unwrap() < 1e-12, "{s}");
@@ -361,12 +346,12 @@ fn column_a_is_reproducible_and_conserves_mass() {
     assert_eq!(hashes[0], hashes[1]);
     // A file sieve did not write stops the replacement (host/tests/outsafe.rs has more) ...
     std::fs::write(d.path().join("a/stale.txt"), "old").unwrap();
-    let (code, _, _) = run_in(d.path(), &["run", "column-a", "--out", "a", "--quiet"]);
+    let (code, _, _) = run_full(d.path(), &["run", "column-a", "--out", "a", "--quiet"]);
     assert_eq!(code, 2);
     assert!(d.path().join("a/stale.txt").exists());
     // ... and without it, running into an existing run directory replaces it whole.
     std::fs::remove_file(d.path().join("a/stale.txt")).unwrap();
-    let (code, _, _) = run_in(d.path(), &["run", "column-a", "--out", "a", "--quiet"]);
+    let (code, _, _) = run_full(d.path(), &["run", "column-a", "--out", "a", "--quiet"]);
     assert_eq!(code, 0);
     assert_eq!(
         summary(&d.path().join("a"))["state_hash"],
@@ -388,7 +373,7 @@ fn failed_validation_keeps_an_existing_dir_untouched() {
     let d = tmp();
     std::fs::create_dir(d.path().join("keep")).unwrap();
     std::fs::write(d.path().join("keep/marker"), "x").unwrap();
-    let (code, _, _) = run_in(
+    let (code, _, _) = run_full(
         d.path(),
         &["run", "column-a", "--cfl", "2", "--out", "keep", "--quiet"],
     );
@@ -400,7 +385,7 @@ fn failed_validation_keeps_an_existing_dir_untouched() {
 #[test]
 fn default_scene_runs_in_2d_and_re_segregates() {
     let d = tmp();
-    let (code, _, err) = run_in(d.path(), &["run", "--cells", "16", "--quiet"]);
+    let (code, _, err) = run_full(d.path(), &["run", "--cells", "16", "--quiet"]);
     assert_eq!(code, 0, "{err}");
     let dir = d.path().join("runs/shear-cell-inverse");
     let s = summary(&dir);
@@ -445,7 +430,7 @@ t_end = 0.2
 output_interval = 0.1
 "#;
     std::fs::write(d.path().join("box3.toml"), text).unwrap();
-    let (code, _, err) = run_in(d.path(), &["run", "box3.toml", "--quiet"]);
+    let (code, _, err) = run_full(d.path(), &["run", "box3.toml", "--quiet"]);
     assert_eq!(code, 0, "{err}");
     let dir = d.path().join("runs/box3");
     let s = summary(&dir);
@@ -460,7 +445,7 @@ output_interval = 0.1
 #[test]
 fn converge_column_a_is_first_order() {
     let d = tmp();
-    let (code, out, err) = run_in(
+    let (code, out, err) = run_full(
         d.path(),
         &[
             "converge",
@@ -493,13 +478,13 @@ fn converge_column_a_is_first_order() {
 #[test]
 fn converge_without_exact_solution_needs_nested_levels() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &["converge", "column-b", "--levels", "30,100", "--quiet"],
     );
     assert_eq!(code, 2);
     assert!(err.contains("--levels") && err.contains("nested"), "{err}");
-    let (code, out, err) = run_in(
+    let (code, out, err) = run_full(
         d.path(),
         &[
             "converge",
@@ -521,7 +506,7 @@ fn naive_fluxes_leave_the_bounds_on_column_d_and_the_modified_one_does_not() {
     let mut undershoot = Vec::new();
     for scheme in ["modified", "godunov", "upwind"] {
         // Tracking the large phase: psi = c - phi overshooting c shows up as phi < 0.
-        let (code, _, err) = run_in(
+        let (code, _, err) = run_full(
             d.path(),
             &[
                 "run",
@@ -582,7 +567,7 @@ fn a_file_with_three_mistakes_gets_three_lines() {
             ("t_end = 1.5", "t_end = 0.0"),
         ],
     );
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &["run", scene.to_str().unwrap(), "--out", "out", "--quiet"],
     );
@@ -606,7 +591,7 @@ fn a_file_with_three_mistakes_gets_three_lines() {
 fn a_1d_scene_made_3d_reports_every_per_axis_key_at_once() {
     let d = tmp();
     let scene = column_a_with(d.path(), "to3d.toml", &[("dim = 1", "dim = 3")]);
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &["run", scene.to_str().unwrap(), "--out", "out", "--quiet"],
     );
@@ -635,7 +620,7 @@ fn a_1d_scene_made_3d_reports_every_per_axis_key_at_once() {
             ("exact = \"column-a\"", ""),
         ],
     );
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &["run", fields.to_str().unwrap(), "--out", "out", "--quiet"],
     );
@@ -659,7 +644,7 @@ fn gif_frames(path: &Path) -> usize {
 #[test]
 fn plot_redraws_a_finished_run_with_an_animation_of_every_output() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -692,7 +677,7 @@ fn plot_redraws_a_finished_run_with_an_animation_of_every_output() {
     assert_eq!(stills(&plots), 12);
     assert!(plots.join("phihat_0000.png").exists() && plots.join("phihat_0016.png").exists());
     std::fs::remove_dir_all(&plots).unwrap();
-    let (code, out, err) = run_in(d.path(), &["plot", "r"]);
+    let (code, out, err) = run_full(d.path(), &["plot", "r"]);
     assert_eq!(code, 0, "{err}");
     assert!(
         out.contains("phihat.gif") && out.contains("psi.png"),
@@ -703,7 +688,7 @@ fn plot_redraws_a_finished_run_with_an_animation_of_every_output() {
     let png = std::fs::read(plots.join("psi.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
     // Not a run directory: bad input.
-    let (code, _, err) = run_in(d.path(), &["plot", "."]);
+    let (code, _, err) = run_full(d.path(), &["plot", "."]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("no summary.json"), "{err}");
 }
@@ -712,7 +697,7 @@ fn plot_redraws_a_finished_run_with_an_animation_of_every_output() {
 #[test]
 fn converge_draws_error_against_cell_size_and_wall_time() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "converge",

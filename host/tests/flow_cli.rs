@@ -2,24 +2,14 @@
 //! writes the flow block, p and the flow plots; bad flow keys exit 2 with one line naming file,
 //! key and range; `sieve fit` reproduces its target time; the coupled mode runs.
 
-use assert_cmd::Command;
-use std::path::Path;
+mod common;
 
-fn sieve() -> Command {
-    Command::cargo_bin("sieve").unwrap()
-}
+use common::run_full;
+
+use std::path::Path;
 
 fn tmp() -> tempfile::TempDir {
     tempfile::tempdir().unwrap()
-}
-
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    let out = sieve().current_dir(dir).args(args).output().unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 fn json(path: &Path) -> serde_json::Value {
@@ -38,7 +28,7 @@ fn all_finite(v: &serde_json::Value) -> bool {
 #[test]
 fn frozen_shear_cell_writes_the_flow_block_pressure_and_profiles() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -105,7 +95,7 @@ fn frozen_shear_cell_writes_the_flow_block_pressure_and_profiles() {
 #[test]
 fn prescribed_scenes_have_no_flow_block_and_the_old_final_header() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run", "column-a", "--cells", "20", "--t-end", "0.1", "--quiet",
@@ -125,7 +115,7 @@ fn assert_bad(sets: &[&str], needles: &[&str]) {
         args.push("--set");
         args.push(s);
     }
-    let (code, out, err) = run_in(d.path(), &args);
+    let (code, out, err) = run_full(d.path(), &args);
     assert_eq!(code, 2, "{args:?}: {out} {err}");
     assert_eq!(err.lines().count(), 1, "{args:?}: one line: {err}");
     assert!(err.contains("scenes/shear-cell.toml"), "{err}");
@@ -180,7 +170,7 @@ fn bad_flow_keys_exit_2_with_one_line_naming_file_key_and_range() {
     );
     // flow keys in a prescribed scene
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -200,7 +190,7 @@ fn bad_flow_keys_exit_2_with_one_line_naming_file_key_and_range() {
 #[test]
 fn fit_reproduces_its_target_time() {
     let d = tmp();
-    let (code, out, err) = run_in(
+    let (code, out, err) = run_full(
         d.path(),
         &[
             "fit",
@@ -228,7 +218,7 @@ fn fit_reproduces_its_target_time() {
     let csv = std::fs::read_to_string(d.path().join("fit/fit.csv")).unwrap();
     assert!(csv.starts_with("level,cells,s0,segregation_time"));
     // an independent `sieve run` with the fitted S0 and the fit's sampling reproduces it
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -253,7 +243,7 @@ fn fit_reproduces_its_target_time() {
 #[test]
 fn fit_rejects_a_prescribed_scene() {
     let d = tmp();
-    let (code, _, err) = run_in(d.path(), &["fit", "column-a", "--quiet"]);
+    let (code, _, err) = run_full(d.path(), &["fit", "column-a", "--quiet"]);
     assert_eq!(code, 2, "{err}");
     assert!(
         err.contains("model.equations") && err.contains("frozen-flow"),
@@ -264,7 +254,7 @@ fn fit_rejects_a_prescribed_scene() {
 #[test]
 fn coupled_shear_cell_runs_briefly() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -297,7 +287,7 @@ fn coupled_shear_cell_runs_briefly() {
 #[test]
 fn converge_runs_the_frozen_flow_per_level() {
     let d = tmp();
-    let (code, out, err) = run_in(
+    let (code, out, err) = run_full(
         d.path(),
         &[
             "converge",
@@ -333,7 +323,7 @@ fn cg_tolerance_key_reaches_the_flow_solver() {
     let mut tight = base.to_vec();
     tight.extend(["--out", "tight"]);
     for args in [&loose, &tight] {
-        let (code, out, err) = run_in(d.path(), args);
+        let (code, out, err) = run_full(d.path(), args);
         assert_eq!(code, 0, "{args:?}: {out} {err}");
     }
     let (l, t) = (

@@ -1,33 +1,15 @@
 //! Issue 10, "Never hang, never compute garbage silently", "Messages" and "Accuracy details":
 //! each case below was seen to hang, stay silent or mislead before; each test reproduces it.
 
-use assert_cmd::Command;
+mod common;
+
+use common::{run_env, run_full};
+
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 fn tmp() -> tempfile::TempDir {
     tempfile::tempdir().expect("temp dir")
-}
-
-/// Runs `sieve args...` in `dir` with extra environment; returns (exit code, stdout, stderr).
-fn run_env(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> (i32, String, String) {
-    let mut cmd = Command::cargo_bin("sieve").expect("binary sieve");
-    cmd.current_dir(dir)
-        .args(args)
-        .env_remove("SIEVE_PROGRESS_SECONDS");
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    let out = cmd.output().expect("run sieve");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    run_env(dir, args, &[])
 }
 
 fn summary(dir: &Path) -> serde_json::Value {
@@ -40,7 +22,7 @@ fn summary(dir: &Path) -> serde_json::Value {
 fn refused(args: &[&str], needles: &[&str], secs: u64) -> String {
     let d = tmp();
     let start = Instant::now();
-    let (code, _, err) = run_in(d.path(), args);
+    let (code, _, err) = run_full(d.path(), args);
     let took = start.elapsed();
     assert_eq!(code, 2, "{args:?}: {err}");
     assert_eq!(err.lines().count(), 1, "{args:?}: one line expected: {err}");
@@ -125,7 +107,7 @@ fn max_steps_is_a_limit_the_user_can_raise() {
         20,
     );
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -139,7 +121,7 @@ fn max_steps_is_a_limit_the_user_can_raise() {
     );
     assert_eq!(code, 0, "{err}");
     assert_eq!(summary(&d.path().join("o"))["steps"], 600);
-    let (code, _, err) = run_in(d.path(), &["run", "column-a", "--max-steps", "0"]);
+    let (code, _, err) = run_full(d.path(), &["run", "column-a", "--max-steps", "0"]);
     assert_eq!(code, 2, "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
 }
@@ -172,7 +154,7 @@ fn output_size_is_estimated_and_limited() {
         20,
     );
     let d = tmp();
-    let (code, _, err) = run_in(d.path(), &["run", "column-b", "--out", "o", "--quiet"]);
+    let (code, _, err) = run_full(d.path(), &["run", "column-b", "--out", "o", "--quiet"]);
     assert_eq!(code, 0, "{err}");
     let written: u64 = std::fs::read_dir(d.path().join("o/fields"))
         .unwrap()
@@ -235,7 +217,7 @@ fn progress_lines_when_stderr_is_not_a_terminal() {
             "{l}"
         );
     }
-    let (code, _, err) = run_in(d.path(), &["run", "column-a", "--out", "p"]);
+    let (code, _, err) = run_full(d.path(), &["run", "column-a", "--out", "p"]);
     assert_eq!(code, 0, "{err}");
     assert!(!err.contains("progress: "), "{err}");
     let (code, _, err) = run_env(
@@ -253,7 +235,7 @@ fn progress_lines_when_stderr_is_not_a_terminal() {
 fn no_zero_length_steps_at_output_times() {
     let d = tmp();
     for (scene, steps) in [("column-a", 600), ("column-b", 800)] {
-        let (code, _, err) = run_in(d.path(), &["run", scene, "--out", scene, "--quiet"]);
+        let (code, _, err) = run_full(d.path(), &["run", scene, "--out", scene, "--quiet"]);
         assert_eq!(code, 0, "{err}");
         let s = summary(&d.path().join(scene));
         assert_eq!(s["steps"], steps, "{scene}");
@@ -273,7 +255,7 @@ fn segregation_time_is_resolved_to_the_step() {
         for s in sets {
             args.extend(["--set", s]);
         }
-        let (code, _, err) = run_in(d.path(), &args);
+        let (code, _, err) = run_full(d.path(), &args);
         assert_eq!(code, 0, "{err}");
         summary(&d.path().join(out))
     };
@@ -312,7 +294,7 @@ fn segregation_time_is_resolved_to_the_step() {
 #[test]
 fn coupled_runs_report_the_steps_they_took() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -347,7 +329,7 @@ fn coupled_runs_report_the_steps_they_took() {
 #[test]
 fn broken_bounds_are_reported_in_one_line() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -376,7 +358,7 @@ fn broken_bounds_are_reported_in_one_line() {
     );
     assert!(err.contains("in the cell at z = "), "{err}");
     assert!(err.contains("--scheme modified"), "{err}");
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "run",
@@ -397,7 +379,7 @@ fn broken_bounds_are_reported_in_one_line() {
 #[test]
 fn converge_column_a_default_t_end_is_before_completion() {
     let d = tmp();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "converge",
@@ -425,7 +407,7 @@ fn converge_column_a_default_t_end_is_before_completion() {
         assert!((p - 1.0).abs() < 0.05, "order {p}");
     }
     // given explicitly, it is kept, with a one-line warning
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &[
             "converge", "column-a", "--levels", "50,100", "--t-end", "1.2", "--out", "w",
@@ -462,7 +444,7 @@ fn scene_paths_are_named_for_what_they_are() {
         20,
     );
     std::fs::write(d.path().join("bin.toml"), [0xffu8, 0xfe, 0, 1]).unwrap();
-    let (code, _, err) = run_in(d.path(), &["run", "bin.toml", "--out", "o"]);
+    let (code, _, err) = run_full(d.path(), &["run", "bin.toml", "--out", "o"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("not a text file"), "{err}");
     refused(
@@ -509,7 +491,7 @@ fn command_line_errors_are_one_line() {
     assert!(err.len() < 300, "{} bytes echoed", err.len());
     // --help still prints the help, exit 0
     let d = tmp();
-    let (code, out, _) = run_in(d.path(), &["run", "--help"]);
+    let (code, out, _) = run_full(d.path(), &["run", "--help"]);
     assert_eq!(code, 0);
     assert!(out.contains("--max-steps"), "{out}");
 }
@@ -550,9 +532,9 @@ fn compressed_and_thinned_vtk_holds_the_raw_arrays() {
         v.extend_from_slice(extra);
         v
     };
-    let (code, _, err) = run_in(d.path(), &args("raw", &[]));
+    let (code, _, err) = run_full(d.path(), &args("raw", &[]));
     assert_eq!(code, 0, "{err}");
-    let (code, _, err) = run_in(d.path(), &args("zip", &["--compress"]));
+    let (code, _, err) = run_full(d.path(), &args("zip", &["--compress"]));
     assert_eq!(code, 0, "{err}");
     let raw_file = d.path().join("raw/fields/state_0010.vti");
     let zip_file = d.path().join("zip/fields/state_0010.vti");
@@ -627,7 +609,7 @@ fn compressed_and_thinned_vtk_holds_the_raw_arrays() {
     }
     // thinning: every 4th of 31 output times (0, 4, ..., 28) plus the last (30); phihat and c
     // always, T asked for
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &args("thin", &["--vtk-every", "4", "--fields", "T"]),
     );

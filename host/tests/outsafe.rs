@@ -4,6 +4,10 @@
 //! 130/143/3); what a SIGKILL leaves is removed by the next run into the same DIR.
 //! docs/outputs.md, "Where sieve writes and what it never touches".
 
+mod common;
+
+use common::run_full;
+
 use assert_cmd::cargo::CommandCargoExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -13,16 +17,6 @@ fn sieve_in(dir: &Path) -> Command {
     let mut c = Command::cargo_bin("sieve").expect("binary sieve");
     c.current_dir(dir);
     c
-}
-
-/// Runs `sieve args...` in `dir`; returns (exit code, stdout, stderr).
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    let out = sieve_in(dir).args(args).output().expect("run sieve");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 fn summary(dir: &Path) -> serde_json::Value {
@@ -72,7 +66,7 @@ fn a_directory_sieve_did_not_write_is_never_replaced() {
             "converge", "column-a", "--levels", "10,20", "--t-end", "0.2", "--out", "mydata", "-q",
         ],
     ] {
-        let (code, _, err) = run_in(p, args);
+        let (code, _, err) = run_full(p, args);
         assert_eq!(code, 2, "{args:?}: {err}");
         one_error_line(
             &err,
@@ -86,7 +80,7 @@ fn a_directory_sieve_did_not_write_is_never_replaced() {
     }
     // An empty existing directory is fine; the run marks it.
     std::fs::create_dir(p.join("empty")).unwrap();
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "empty", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "empty", "-q"]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(summary(&p.join("empty"))["status"], "complete");
     let marker: serde_json::Value =
@@ -101,7 +95,7 @@ fn a_directory_sieve_did_not_write_is_never_replaced() {
     );
     // A file the user put into a run directory, however deep, stops the next run...
     std::fs::write(p.join("empty/fields/mine.txt"), "x").unwrap();
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "empty", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "empty", "-q"]);
     assert_eq!(code, 2, "{err}");
     one_error_line(&err, &["fields/mine.txt, which sieve did not write"]);
     assert!(p.join("empty/fields/mine.txt").exists());
@@ -114,12 +108,12 @@ fn a_directory_sieve_did_not_write_is_never_replaced() {
         &["plot", "empty"],
         &["run", "column-a", "--out", "empty", "-q"],
     ] {
-        let (code, _, err) = run_in(p, args);
+        let (code, _, err) = run_full(p, args);
         assert_eq!(code, 0, "{args:?}: {err}");
     }
     // `sieve plot` never deletes a user's file in plots/.
     std::fs::write(p.join("empty/plots/figure-for-paper.png"), "x").unwrap();
-    let (code, _, err) = run_in(p, &["plot", "empty"]);
+    let (code, _, err) = run_full(p, &["plot", "empty"]);
     assert_eq!(code, 2, "{err}");
     assert!(p.join("empty/plots/figure-for-paper.png").exists());
     assert_no_debris(p);
@@ -130,15 +124,15 @@ fn a_directory_sieve_did_not_write_is_never_replaced() {
 fn a_run_directory_of_an_older_sieve_is_still_recognised() {
     let d = tempfile::tempdir().unwrap();
     let p = d.path();
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "old", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "old", "-q"]);
     assert_eq!(code, 0, "{err}");
     // What sieve wrote before directories were marked: the same files, no marker.
     std::fs::remove_file(p.join("old/.sieve-run")).unwrap();
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "old", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "old", "-q"]);
     assert_eq!(code, 0, "{err}");
     std::fs::remove_file(p.join("old/.sieve-run")).unwrap();
     std::fs::write(p.join("old/notes.txt"), "mine").unwrap();
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "old", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "old", "-q"]);
     assert_eq!(code, 2, "{err}");
     assert!(p.join("old/notes.txt").exists());
 }
@@ -151,7 +145,7 @@ fn the_current_directory_and_its_parents_are_refused_before_anything_is_created(
     std::fs::write(work.join("keep.txt"), "x").unwrap();
     let top = d.path().to_str().unwrap().to_string();
     for out in [".", "..", "../..", "/", "./", "../b", top.as_str()] {
-        let (code, _, err) = run_in(&work, &["run", "column-a", "--out", out, "-q"]);
+        let (code, _, err) = run_full(&work, &["run", "column-a", "--out", out, "-q"]);
         assert_eq!(code, 2, "--out {out}: {err}");
         one_error_line(&err, &["current directory or one of its parents", "--out"]);
         assert_eq!(names(&work), ["keep.txt"], "--out {out}");
@@ -167,7 +161,7 @@ fn a_second_run_into_a_locked_directory_exits_2_at_once() {
     // The lock a running sieve holds (this process plays that run).
     let lock = sieve::output::target::Lock::take(&p.join("busy")).expect("lock");
     let start = Instant::now();
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "busy", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "busy", "-q"]);
     assert_eq!(code, 2, "{err}");
     one_error_line(
         &err,
@@ -185,7 +179,7 @@ fn a_second_run_into_a_locked_directory_exits_2_at_once() {
         Vec::<String>::new(),
         "the lock file goes with the lock"
     );
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "busy", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "busy", "-q"]);
     assert_eq!(code, 0, "{err}");
     assert_no_debris(p);
 }
@@ -261,7 +255,7 @@ fn sigint_and_sigterm_keep_the_partial_run() {
         let mut child = long_run(p, &out);
         wait_for_outputs(p, &out, &mut child);
         // Meanwhile a second run into the same DIR is refused at once with the first's pid.
-        let (code, _, err) = run_in(p, &["run", "column-a", "--out", &out, "-q"]);
+        let (code, _, err) = run_full(p, &["run", "column-a", "--out", &out, "-q"]);
         assert_eq!(code, 2, "{err}");
         one_error_line(
             &err,
@@ -339,7 +333,7 @@ fn what_a_sigkill_leaves_is_removed_by_the_next_run() {
     std::fs::write(p.join(".k.old-AbCdEf/old/summary.json"), "{}").unwrap();
     std::fs::create_dir(p.join(".k.tmp-users")).unwrap();
     std::fs::write(p.join(".k.tmp-users/data.txt"), "mine").unwrap();
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "k", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "k", "-q"]);
     assert_eq!(code, 0, "{err}");
     one_error_line(
         &err,
@@ -352,7 +346,7 @@ fn what_a_sigkill_leaves_is_removed_by_the_next_run() {
     assert!(!p.join(".k.old-AbCdEf").exists());
     assert!(p.join(".k.tmp-users/data.txt").exists(), "not sieve's");
     assert_eq!(summary(&p.join("k"))["status"], "complete");
-    let (code, _, err) = run_in(p, &["run", "column-a", "--out", "k", "-q"]);
+    let (code, _, err) = run_full(p, &["run", "column-a", "--out", "k", "-q"]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(err, "", "nothing left to remove");
 }
@@ -362,7 +356,7 @@ fn a_non_finite_state_stops_the_run_with_exit_3_and_keeps_it() {
     let d = tempfile::tempdir().unwrap();
     let p = d.path();
     // Issue 10: grid.upper = [1e-160] gave dt = 1.8e308, phi NaN and exit 0.
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         p,
         &[
             "run",

@@ -9,24 +9,14 @@
 //! refusals: another scene, another build's or a damaged checkpoint, none at all, a fresh run
 //! over a checkpoint, a bad interval (exit 2, one line each). Last, the reader is fuzzed.
 
-use assert_cmd::Command;
+mod common;
+
+use common::run_full;
+
 use proptest::prelude::*;
 use sieve::checkpoint::{decode, encode, Entries, Value};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-
-fn sieve() -> Command {
-    Command::cargo_bin("sieve").unwrap()
-}
-
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    let out = sieve().current_dir(dir).args(args).output().unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
@@ -75,7 +65,7 @@ fn kill_and_resume(args: &[&str]) -> serde_json::Value {
     reference.extend_from_slice(args);
     reference.extend_from_slice(&["--out", "ref", "-q"]);
     let start = Instant::now();
-    let (code, _, err) = run_in(d.path(), &reference);
+    let (code, _, err) = run_full(d.path(), &reference);
     assert_eq!(code, 0, "{err}");
     let ref_seconds = start.elapsed().as_secs_f64();
 
@@ -107,7 +97,7 @@ fn kill_and_resume(args: &[&str]) -> serde_json::Value {
         "{args:?}: the run finished before the kill ({ref_seconds:.2} s): lengthen it"
     );
     assert!(!d.path().join("run").exists(), "a killed run committed DIR");
-    let (code, _, err) = run_in(d.path(), &["run", "--resume", "run", "-q"]);
+    let (code, _, err) = run_full(d.path(), &["run", "--resume", "run", "-q"]);
     assert_eq!(code, 0, "{args:?}: resume failed: {err}");
     assert!(
         !d.path().join(".run.checkpoint").exists(),
@@ -225,7 +215,7 @@ fn killed_run(dir: &Path) -> PathBuf {
 }
 
 fn one_line_refusal(dir: &Path, args: &[&str], needles: &[&str]) {
-    let (code, _, err) = run_in(dir, args);
+    let (code, _, err) = run_full(dir, args);
     assert_eq!(code, 2, "{args:?}: {err}");
     // The first refusal may follow the note that the killed run's staging debris was
     // removed (docs/outputs.md); the error itself is one line.
@@ -334,7 +324,7 @@ fn refusals_name_the_checkpoint_and_what_to_do() {
     std::fs::remove_file(&snap).unwrap();
     std::fs::write(&snap, &v).unwrap();
     // intact again: it resumes and cleans up
-    let (code, _, err) = run_in(d.path(), &["run", "--resume", "run", "-q"]);
+    let (code, _, err) = run_full(d.path(), &["run", "--resume", "run", "-q"]);
     assert_eq!(code, 0, "{err}");
     assert!(d.path().join("run").join("summary.json").exists());
     assert!(!d.path().join(".run.checkpoint").exists());

@@ -3,21 +3,11 @@
 //! the allowed range), the `drum-settling` scene (mass to round-off, bounds exact, fines
 //! below the bed's centre, solid cells masked), and the rotating frame of a coupled flow.
 
-use assert_cmd::Command;
+mod common;
+
+use common::run_full;
+
 use std::path::Path;
-
-fn sieve() -> Command {
-    Command::cargo_bin("sieve").unwrap()
-}
-
-fn run_in(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    let out = sieve().current_dir(dir).args(args).output().unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
@@ -45,7 +35,7 @@ fn columns(path: &Path) -> std::collections::HashMap<String, Vec<f64>> {
 /// A bad value: exit 2, exactly one stderr line, naming the file and `key`, with `allowed`.
 fn refused(args: &[&str], key: &str, allowed: &str) {
     let d = tempfile::tempdir().unwrap();
-    let (code, _, err) = run_in(d.path(), args);
+    let (code, _, err) = run_full(d.path(), args);
     assert_eq!(code, 2, "{args:?}: {err}");
     let lines: Vec<&str> = err.lines().collect();
     assert_eq!(lines.len(), 1, "{args:?}: one line expected:\n{err}");
@@ -72,7 +62,7 @@ fn with_sets<'a>(base: &[&'a str], sets: &[&'a str]) -> Vec<&'a str> {
 #[test]
 fn drum_settling_conserves_mass_keeps_bounds_and_sinks_the_fines() {
     let d = tempfile::tempdir().unwrap();
-    let (code, _, err) = run_in(
+    let (code, _, err) = run_full(
         d.path(),
         &["run", "drum-settling", "--t-end", "1", "--quiet"],
     );
@@ -150,7 +140,7 @@ fn drum_settling_reruns_bit_identically() {
             "0.3",
             "--quiet",
         ];
-        let (code, _, err) = run_in(d.path(), &args);
+        let (code, _, err) = run_full(d.path(), &args);
         assert_eq!(code, 0, "{err}");
         json(&d.path().join("runs/drum-settling/summary.json"))["state_hash"].clone()
     };
@@ -196,7 +186,7 @@ fn every_shape_runs_with_mass_to_round_off() {
             args.push("--set");
             args.push(s);
         }
-        let (code, _, err) = run_in(d.path(), &args);
+        let (code, _, err) = run_full(d.path(), &args);
         assert_eq!(code, 0, "{sets:?}: {err}");
         let s = json(&d.path().join("runs/drum-settling/summary.json"));
         let drift = s["mass_rel_drift"].as_f64().unwrap();
@@ -418,7 +408,7 @@ fn rotating_frame_of_a_coupled_flow_runs_and_is_the_lab_at_rest() {
             a.push("--set");
             a.push(s);
         }
-        let (code, _, err) = run_in(d.path(), &a);
+        let (code, _, err) = run_full(d.path(), &a);
         assert_eq!(code, 0, "{sets:?}: {err}");
         json(&d.path().join("runs/column-collapse/summary.json"))
     };
@@ -466,7 +456,7 @@ fn a_3d_drum_slice_runs_on_cut_cells() {
             "boundary.y=[\"periodic\", \"periodic\"]",
         ],
     );
-    let (code, _, err) = run_in(d.path(), &args);
+    let (code, _, err) = run_full(d.path(), &args);
     assert_eq!(code, 0, "{err}");
     let s = json(&d.path().join("runs/drum-settling/summary.json"));
     assert!(s["mass_rel_drift"].as_f64().unwrap() < 1e-12);
@@ -498,7 +488,7 @@ fn short_drum_run(dir: &Path, scene: &str, out: &str) -> serde_json::Value {
         "--out",
         out,
     ];
-    let (code, _, err) = run_in(dir, &args);
+    let (code, _, err) = run_full(dir, &args);
     assert_eq!(code, 0, "{scene}: {err}");
     let s = json(&dir.join(out).join("summary.json"));
     let drift = s["mass_rel_drift"].as_f64().unwrap();
@@ -541,7 +531,7 @@ fn tumbler_75_fills_three_quarters_of_the_drum_and_conserves_both_phases() {
         "--out",
         "t",
     ];
-    let (code, _, err) = run_in(d.path(), &args);
+    let (code, _, err) = run_full(d.path(), &args);
     assert_eq!(code, 0, "{err}");
     let s = json(&d.path().join("t/summary.json"));
     let open = s["geometry"]["open_volume"].as_f64().unwrap();
@@ -574,7 +564,7 @@ fn psi_is_sampled_once_per_revolution() {
         "--out",
         "t",
     ];
-    let (code, _, err) = run_in(d.path(), &args);
+    let (code, _, err) = run_full(d.path(), &args);
     assert_eq!(code, 0, "{err}");
     let s = json(&d.path().join("t/summary.json"));
     let per_rev: Vec<f64> = s["frame"]["psi_per_revolution"]
@@ -668,7 +658,7 @@ fn three_d_tumblers_run_coupled_on_cut_cells_with_both_phases_to_round_off() {
             "--out",
             "t",
         ];
-        let (code, _, err) = run_in(d.path(), &args);
+        let (code, _, err) = run_full(d.path(), &args);
         assert_eq!(code, 0, "{scene}: {err}");
         let s = json(&d.path().join("t/summary.json"));
         assert_eq!(s["dims"], 3);
