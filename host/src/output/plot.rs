@@ -230,6 +230,26 @@ fn swatch(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
     move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style)
 }
 
+/// Draws each curve as a 2 px line in its palette colour, labelled for the legend; points
+/// whose x fails `keep` are left out (a log axis has no place for x <= 0).
+fn labelled_lines<'a, DB: DrawingBackend + 'a, CT: CoordTranslate<From = (f64, f64)>>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    curves: &[Curve],
+    keep: impl Fn(f64) -> bool,
+    path: &Path,
+) -> Result<()> {
+    for (j, (label, v)) in curves.iter().enumerate() {
+        let colour = PALETTE[j % PALETTE.len()];
+        let line: Vec<(f64, f64)> = v.iter().copied().filter(|&(x, _)| keep(x)).collect();
+        chart
+            .draw_series(LineSeries::new(line, colour.stroke_width(2)))
+            .map_err(fail(path))?
+            .label(label.clone())
+            .legend(swatch(colour.stroke_width(2)));
+    }
+    Ok(())
+}
+
 /// Draws the legend box of a chart.
 fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
     c: &mut ChartContext<'a, DB, CT>,
@@ -634,15 +654,7 @@ pub fn vertical_curves(
                 .axis_desc_style((FONT_NAME, 16))
                 .draw()
                 .map_err(fail(path))?;
-            for (j, (label, v)) in curves.iter().enumerate() {
-                let colour = PALETTE[j % PALETTE.len()];
-                let line: Vec<(f64, f64)> = v.iter().copied().filter(|&(x, _)| finite(x)).collect();
-                chart
-                    .draw_series(LineSeries::new(line, colour.stroke_width(2)))
-                    .map_err(fail(path))?
-                    .label(label.clone())
-                    .legend(swatch(colour.stroke_width(2)));
-            }
+            labelled_lines(&mut chart, curves, finite, path)?;
             // A legend with one entry only hides the curve: the title names it.
             if curves.len() > 1 {
                 legend(&mut chart, SeriesLabelPosition::UpperLeft).map_err(fail(path))?;
@@ -745,14 +757,7 @@ pub fn time_curves(path: &Path, title: &str, curves: &[Curve], threshold: f64) -
         .axis_desc_style((FONT_NAME, 17))
         .draw()
         .map_err(fail(path))?;
-    for (j, (label, v)) in curves.iter().enumerate() {
-        let colour = PALETTE[j % PALETTE.len()];
-        chart
-            .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
-            .map_err(fail(path))?
-            .label(label.clone())
-            .legend(swatch(colour.stroke_width(2)));
-    }
+    labelled_lines(&mut chart, curves, |_| true, path)?;
     chart
         .draw_series(LineSeries::new(
             vec![(0.0, threshold), (t_max, threshold)],
@@ -906,14 +911,7 @@ pub fn stacked_curves(path: &Path, title: &str, x_desc: &str, panels: &[Panel<'_
             .axis_desc_style((FONT_NAME, 16))
             .draw()
             .map_err(fail(path))?;
-        for (j, (label, v)) in curves.iter().enumerate() {
-            let colour = PALETTE[j % PALETTE.len()];
-            chart
-                .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
-                .map_err(fail(path))?
-                .label(label.clone())
-                .legend(swatch(colour.stroke_width(2)));
-        }
+        labelled_lines(&mut chart, curves, |_| true, path)?;
         if curves.len() > 1 {
             legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
         }
