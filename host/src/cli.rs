@@ -191,6 +191,12 @@ pub struct ReplayArgs {
     /// Unlike --fines-band it changes the estimate (and the state hash).
     #[arg(long = "shear-gain", value_name = "G", allow_negative_numbers = true)]
     pub shear_gain: Option<f64>,
+    /// Subtract L times the measured noise's own shear before T is derived from the
+    /// measured shear (0 <= L <= 10; the recording's value, 0, otherwise): keeps noisy frames
+    /// from heating a creeping bed (docs/soft-sensor.md "Noise in the measured shear").
+    /// Changes the estimate (and the state hash).
+    #[arg(long = "noise-term", value_name = "L", allow_negative_numbers = true)]
+    pub noise_term: Option<f64>,
     /// Replace the recorded velocity frames by the Nedderman-Tuzun kinematic velocity of a
     /// flat-bottomed silo with kinematic constant B [m], scaled by the discharge rate alone
     /// (a load cell; docs/soft-sensor.md). Silo recordings only.
@@ -653,6 +659,16 @@ pub fn execute(cli: Cli) -> Result<()> {
                     ));
                 }
             }
+            if let Some(l) = a.noise_term {
+                if !(l.is_finite() && (0.0..=10.0).contains(&l)) {
+                    return Err(Error::range(
+                        "command line",
+                        "--noise-term",
+                        l,
+                        "0 <= L <= 10",
+                    ));
+                }
+            }
             if let Some(b) = a.kinematic {
                 if !(b.is_finite() && b > 0.0 && b <= 1.0) {
                     return Err(Error::range(
@@ -666,11 +682,12 @@ pub fn execute(cli: Cli) -> Result<()> {
                     || a.fines_band.is_some()
                     || a.alarm_persist.is_some()
                     || a.shear_gain.is_some()
+                    || a.noise_term.is_some()
                 {
                     return Err(Error::at(
                         "command line",
                         "--kinematic",
-                        "--kinematic replays the rate alone: it takes no --faults, --fines-band, --alarm-persist or --shear-gain",
+                        "--kinematic replays the rate alone: it takes no --faults, --fines-band, --alarm-persist, --shear-gain or --noise-term",
                     ));
                 }
                 let bytes = std::fs::read(&a.file).map_err(|e| {
@@ -698,6 +715,9 @@ pub fn execute(cli: Cli) -> Result<()> {
                 if let Some(g) = a.shear_gain {
                     // S = S0 sqrt(T) (model.md 3.1): a gain on sqrt(T) is a gain on S0.
                     c.s0 *= g as f32;
+                }
+                if let Some(l) = a.noise_term {
+                    c.noise_term = l as f32;
                 }
                 Ok(())
             })

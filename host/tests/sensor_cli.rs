@@ -77,6 +77,26 @@ fn shear_gain_scales_the_segregation_and_one_changes_nothing() {
 }
 
 #[test]
+fn noise_term_zero_is_the_recorded_estimate_and_one_changes_it() {
+    // `--noise-term L` subtracts L times the noise's own kappa:kappa before T (docs/soft-
+    // sensor.md "Noise in the measured shear"): 0 is the recorded configuration bit for bit,
+    // 1 changes the estimate of the noisy committed recording.
+    let (clean, _) = golden();
+    let rec = recordings().join("shear-cell.rec");
+    let rec = rec.to_str().expect("utf-8 path");
+    let (code, out, err) = sieve(&["replay", rec, "--noise-term", "0"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(hash_line(&out), clean);
+    let (code, out, err) = sieve(&["replay", rec, "--noise-term", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert_ne!(hash_line(&out), clean);
+    // and with --kinematic (frames from the rate alone) it is refused like the others
+    let (code, _, err) = sieve(&["replay", rec, "--kinematic", "0.05", "--noise-term", "1"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--noise-term"), "{err}");
+}
+
+#[test]
 fn replay_of_the_committed_recording_prints_the_golden_hashes() {
     let (clean, faulted) = golden();
     let rec = recordings().join("shear-cell.rec");
@@ -361,6 +381,10 @@ fn bad_options_exit_2_with_one_line() {
         ("--shear-gain", "-2"),
         ("--shear-gain", "nan"),
         ("--shear-gain", "1e9"),
+        ("--noise-term", "-1"),
+        ("--noise-term", "nan"),
+        ("--noise-term", "11"),
+        ("--noise-term", "inf"),
     ] {
         assert_bad(&["replay", rec, flag, value], flag);
     }

@@ -48,6 +48,7 @@ fn config_phase<R: SensorReal>(max_substeps: u16, hold: u16, track_large: bool) 
         alarm_persist: c.alarm_persist,
         openings: Default::default(),
         outflow_window: c.outflow_window,
+        noise_term: r(c.noise_term),
         hold_ticks: hold,
         cells: c.cells,
         bc: c.bc,

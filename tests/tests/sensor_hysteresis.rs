@@ -67,6 +67,7 @@ fn config(persist: u16, h: f32) -> SensorConfig<f32> {
         alarm_persist: persist,
         openings,
         outflow_window: 1,
+        noise_term: 0.0,
     }
 }
 

@@ -212,6 +212,10 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     /// The same without the transport term `|u_a| / h_a`: the rate of the percolation stage
     /// alone ([`Self::stable_dt_percolation`]).
     percolation_rate: R,
+    /// Expected `kappa : kappa` of measurement noise alone (1/s^2), subtracted before T is
+    /// derived from the shear ([`TemperatureMode::FromShear`]; see
+    /// [`Self::set_shear_noise`]). 0 for a solved velocity.
+    shear_noise: R,
     /// Running maxima over cells and steps of `q - c` and `-q` (tracked phase), since setup.
     excess: [R; 2],
     /// Sum of the tracked fractions flushed to zero ([`SegregationConfig::flush_below`]),
@@ -254,6 +258,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             flux: [R::ZERO; N],
             rate: R::ZERO,
             percolation_rate: R::ZERO,
+            shear_noise: R::ZERO,
             excess: [R::ZERO; 2],
             flushed: R::ZERO,
             prepared: false,
@@ -316,6 +321,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.grid = grid;
         self.bc = bc;
         self.cfg = cfg;
+        self.shear_noise = R::ZERO;
         let n = grid.len();
         for a in [
             &mut self.q,
@@ -362,6 +368,19 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.q[i] = self.tracked(phi, c);
         self.carry[i] = R::ZERO;
         self.prepared = false;
+    }
+
+    /// The expected `kappa : kappa` (1/s^2) that noise alone gives a measured velocity's
+    /// gradient: the next [`Self::prepare_velocity`] derives T from `max(kappa:kappa - noise,
+    /// 0)` (docs/model.md 2.3, docs/soft-sensor.md "Noise in the measured shear"), so a
+    /// creeping bed seen through noisy frames is not heated by the noise. Negative or
+    /// non-finite values count as 0.
+    pub fn set_shear_noise(&mut self, noise: R) {
+        self.shear_noise = if noise.is_finite() && noise > R::ZERO {
+            noise
+        } else {
+            R::ZERO
+        };
     }
 
     /// Sets only the velocity of cell `i` (a new measured frame); call [`Self::prepare`] after.
@@ -585,6 +604,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
             _ => gravity_dir,
         };
+        let shear_noise = self.shear_noise;
         let needs_gradient = matches!(cfg.direction, DirectionMode::Flow)
             || matches!(cfg.temperature, TemperatureMode::FromShear { .. });
         let cells = self.grid.cells();
@@ -609,7 +629,15 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 eps0,
             } = cfg.temperature
             {
-                self.temp[i] = heating * eta0 / eps0 * direction::shear_rate_squared(&grad);
+                let kk = direction::shear_rate_squared(&grad);
+                // A noisy measured velocity adds its noise's kappa:kappa on average; with none
+                // (every solved flow) the branch keeps the bits of `kk` itself.
+                let kk = if shear_noise > R::ZERO {
+                    (kk - shear_noise).max(R::ZERO)
+                } else {
+                    kk
+                };
+                self.temp[i] = heating * eta0 / eps0 * kk;
             }
             let mut ui = [R::ZERO; D];
             for a in 0..D {
@@ -817,6 +845,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     #[inline]
     pub fn c(&self, i: usize) -> R {
         self.c[i]
+    }
+    /// The noise term subtracted from `kappa : kappa` ([`Self::set_shear_noise`]).
+    #[inline]
+    pub fn shear_noise(&self) -> R {
+        self.shear_noise
     }
     /// Temperature of cell `i` (derived once prepared, if from shear).
     #[inline]

@@ -4,6 +4,7 @@ use super::config::{ConfigError, CycleBudget, SensorConfig};
 use super::config::{MAX_OPENINGS, MAX_OUTFLOW_WINDOW};
 use super::entropy;
 use super::frame::{bump, Estimate, Reject, VelocityFrame};
+use super::noise::{self, NoiseModel};
 use super::{alarm, health, SensorReal, MAX_FRAME_VALUES};
 use crate::boundary::{Boundaries, Boundary, Opening, Openings};
 use crate::diagnostics::{self, state_hash};
@@ -114,6 +115,14 @@ pub struct SoftSensor<R: SensorReal, const N: usize> {
     pub(super) vel: [R; MAX_FRAME_VALUES],
     /// Scratch: the cleaned frame being smoothed (not state).
     work: [R; MAX_FRAME_VALUES],
+    /// The filter's and the map's noise gain of this configuration (not state: derived
+    /// from it).
+    noise: NoiseModel<R>,
+    /// EMA of the accepted frames' noise variance (`noise.rs`), with the EMA's weights.
+    pub(super) noise_variance: R,
+    /// The share of one frame's noise variance the EMA of the velocity keeps
+    /// (`sum_k w_k^2` of its weights): 1 after the first frame, `a / (2 - a)` in the end.
+    pub(super) noise_share: R,
     pub(super) have_velocity: bool,
     pub(super) last_seq: u32,
     /// Last frame period simulated (or held, or given up as lost).
@@ -207,6 +216,7 @@ const fn empty_config<R: SensorReal>() -> SensorConfig<R> {
         alarm_persist: 1,
         openings: heapless::Vec::new(),
         outflow_window: 1,
+        noise_term: R::ZERO,
     }
 }
 
@@ -218,6 +228,9 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             cfg: empty_config(),
             vel: [R::ZERO; MAX_FRAME_VALUES],
             work: [R::ZERO; MAX_FRAME_VALUES],
+            noise: NoiseModel::zeroed(),
+            noise_variance: R::ZERO,
+            noise_share: R::ZERO,
             have_velocity: false,
             last_seq: 0,
             covered: 0,
@@ -308,7 +321,19 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             self.seg.set_inflow(i, cfg.inflow_phihat * c);
         }
         self.cfg = cfg.clone();
+        self.noise = NoiseModel::configure(
+            [cfg.sensor[0] as usize, cfg.sensor[1] as usize],
+            cells,
+            [
+                cfg.bc[0][0] == Boundary::Periodic,
+                cfg.bc[1][0] == Boundary::Periodic,
+            ],
+            cfg.spatial_passes,
+            grid.spacing(),
+        );
         self.vel = [R::ZERO; MAX_FRAME_VALUES];
+        self.noise_variance = R::ZERO;
+        self.noise_share = R::ZERO;
         self.have_velocity = false;
         self.last_seq = 0;
         self.covered = 0;
@@ -483,6 +508,13 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             self.flags |= health::OUTLIERS_REPLACED;
             self.counters.outliers = self.counters.outliers.wrapping_add(replaced);
         }
+        // The frame's noise, measured before the smoothing correlates it (`noise.rs`); only
+        // when the configuration subtracts it (the default does not pay for it).
+        let variance = if self.cfg.noise_term > R::ZERO {
+            noise::frame_variance(&self.work, [nx, nz])
+        } else {
+            R::ZERO
+        };
         let periodic = [
             self.cfg.bc[0][0] == Boundary::Periodic,
             self.cfg.bc[1][0] == Boundary::Periodic,
@@ -495,6 +527,9 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         // is max(1/k, smoothing), so the start is not left with one frame's full noise.
         let k = self.counters.accepted.max(1);
         let alpha = (R::ONE / R::from_f64(k as f64)).max(self.cfg.smoothing);
+        let keep = R::ONE - alpha;
+        self.noise_share = keep * keep * self.noise_share + alpha * alpha;
+        self.noise_variance += alpha * (variance - self.noise_variance);
         for (p, &w) in self.vel[..2 * nx * nz]
             .iter_mut()
             .zip(self.work[..2 * nx * nz].iter())
@@ -548,8 +583,24 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
     /// that phi is in [0, c]: the state is never clamped, so the estimator stays exactly
     /// conservative even when a noisy measured velocity is not divergence-free.
     fn prepare_velocity(&mut self) {
-        let res = self.seg.prepare_velocity();
+        let res = self.prepare_measured();
         debug_assert!(res.is_ok(), "validated input must prepare: {res:?}");
+    }
+
+    /// `Segregation::prepare_velocity` with T from the measured shear less what the noise
+    /// left in the filtered field gives it (`noise.rs`; its two scalars are in snapshots, so a
+    /// restored sensor derives the same coefficients).
+    pub(super) fn prepare_measured(&mut self) -> Result<(), crate::segregation::SetupError> {
+        let noise = if self.have_velocity && self.cfg.noise_term > R::ZERO {
+            self.cfg.noise_term
+                * self
+                    .noise
+                    .shear_noise(self.noise_variance * self.noise_share)
+        } else {
+            R::ZERO
+        };
+        self.seg.set_shear_noise(noise);
+        self.seg.prepare_velocity()
     }
 
     /// Advances by `dt` within what is left of this tick's substep cap (from the cycle
@@ -965,7 +1016,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
 /// One pass of the 1-2-1 filter along `axis` of an interleaved two-component sensor field,
 /// in place. Points without two neighbours along the axis (the ends of a non-periodic axis)
 /// are left alone, so a linear profile stays exactly linear up to the walls.
-fn smooth_121<R: SensorReal>(v: &mut [R], n: [usize; 2], axis: usize, periodic: bool) {
+pub(super) fn smooth_121<R: SensorReal>(v: &mut [R], n: [usize; 2], axis: usize, periodic: bool) {
     let len = n[axis];
     if len < 3 {
         return;
@@ -1018,7 +1069,7 @@ fn median(a: &mut [f32]) -> f32 {
 /// second: sensor point `j` sits at `(j + 1/2) / ns` of the box, cell `i` at `(i + 1/2) / ne`,
 /// so the cell is at sensor coordinate `t = ((2i + 1) ns - ne) / (2 ne)`. Its floor is taken
 /// in integers: exact, and no soft-float f64 on the Cortex-M4F.
-fn axis_weights<R: SensorReal>(
+pub(super) fn axis_weights<R: SensorReal>(
     i: usize,
     ne: usize,
     ns: usize,

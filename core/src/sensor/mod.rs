@@ -26,6 +26,7 @@ pub mod estimator;
 pub mod feeder;
 pub mod frame;
 pub mod kinematic;
+mod noise;
 pub mod recording;
 pub mod snapshot;
 
@@ -95,6 +96,9 @@ pub trait SensorReal: Real + Serialize + DeserializeOwned {
     fn from_f32(x: f32) -> Self;
     /// `self` truncated towards zero to an integer, saturating (`as u32`; NaN gives 0).
     fn trunc_u32(self) -> u32;
+    /// For a positive normal `self = 2^e (1 + m)`: `e` and the two leading bits of `m` (a
+    /// quarter-octave histogram bin from the bits, no logarithm and no float conversion).
+    fn octave_quarter(self) -> (i32, u32);
 }
 impl SensorReal for f32 {
     #[inline(always)]
@@ -109,6 +113,11 @@ impl SensorReal for f32 {
     fn trunc_u32(self) -> u32 {
         self as u32
     }
+    #[inline(always)]
+    fn octave_quarter(self) -> (i32, u32) {
+        let b = self.to_bits();
+        (((b >> 23) & 0xff) as i32 - 127, (b >> 21) & 0x3)
+    }
 }
 impl SensorReal for f64 {
     #[inline(always)]
@@ -122,6 +131,11 @@ impl SensorReal for f64 {
     #[inline(always)]
     fn trunc_u32(self) -> u32 {
         self as u32
+    }
+    #[inline(always)]
+    fn octave_quarter(self) -> (i32, u32) {
+        let b = self.to_bits();
+        (((b >> 52) & 0x7ff) as i32 - 1023, ((b >> 50) & 0x3) as u32)
     }
 }
 

@@ -1,9 +1,10 @@
 //! Snapshots: the estimator state as postcard items plus a CRC-32, restored bit-identically.
 //!
-//! Layout (format 5): `postcard(SnapshotHeader)` (since format 5 with the latched fines
+//! Layout (format 6): `postcard(SnapshotHeader)` (since format 5 with the latched fines
 //! alarms, their persistence counters, the trend ring's length and head and the last
 //! off-spec prediction, so a restored sensor raises and clears its alarms on the same ticks
-//! as an uninterrupted one), then `cells` values of the carried volume
+//! as an uninterrupted one; since format 6 with the frames' noise variance and the share of
+//! it the velocity's EMA keeps, from which T's noise term is derived), then `cells` values of the carried volume
 //! fraction `c`, `cells` values of the tracked phase fraction `q` (phi for `Phase::Small`,
 //! c - phi for `Phase::Large`: the solver's own state, written and restored with
 //! `set_tracked`, so either phase round-trips bit-exactly), `cells` values of the rounding
@@ -28,7 +29,7 @@ use postcard::ser_flavors::Flavor;
 use serde::{Deserialize, Serialize};
 
 /// Snapshot format version.
-pub const SNAPSHOT_VERSION: u16 = 5;
+pub const SNAPSHOT_VERSION: u16 = 6;
 
 /// How far outside [0, c] a stored tracked fraction may be. The estimator carries c with the
 /// same face fluxes as phi, so phi stays in [0, c] up to the sub-ulp carry of its compensated
@@ -64,6 +65,8 @@ struct SnapshotHeader<R> {
     trend_len: u16,
     trend_head: u16,
     off_spec_in: Option<R>,
+    /// Since format 6: the frames' noise variance and the share the EMA keeps (`noise.rs`).
+    noise: [R; 2],
 }
 
 /// Why a snapshot was refused (the state is then unchanged).
@@ -131,6 +134,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             trend_len: self.trend_len,
             trend_head: self.trend_head,
             off_spec_in: self.off_spec_in,
+            noise: [self.noise_variance, self.noise_share],
         }
     }
 
@@ -214,7 +218,8 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             && matches!(h.fines_state, 0 | alarm::FINES_LOW | alarm::FINES_HIGH)
             && (h.trend_len as usize) <= window
             && (h.trend_head as usize) < window
-            && h.off_spec_in.is_none_or(|t| t.is_finite() && t >= R::ZERO);
+            && h.off_spec_in.is_none_or(|t| t.is_finite() && t >= R::ZERO)
+            && h.noise.iter().all(|&x| x.is_finite() && x >= R::ZERO);
         if !sane {
             return Err(SnapshotError::Value);
         }
@@ -272,6 +277,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.stale = h.stale;
         self.lag = h.lag;
         self.tick = h.tick;
+        [self.noise_variance, self.noise_share] = h.noise;
         // Derive u, T and the coefficients again; they depend on u and c only, not on q.
         if self.have_velocity {
             self.map_velocity();
@@ -280,7 +286,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
                 self.seg.set_velocity(i, [R::ZERO; 2]);
             }
         }
-        let ok = self.seg.prepare_velocity().is_ok();
+        let ok = self.prepare_measured().is_ok();
         debug_assert!(ok, "validated velocities must prepare");
         let mut r = k_bytes;
         for a in 0..2 {

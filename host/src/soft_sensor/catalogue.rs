@@ -471,6 +471,7 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
         alarm_persist: 3,
         openings: Default::default(),
         outflow_window: 10,
+        noise_term: 0.0,
     };
     if ne0 == 0 || ne1 == 0 {
         return Err(Error::range(
@@ -725,6 +726,7 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
         alarm_persist: 3,
         openings: Default::default(),
         outflow_window: 10,
+        noise_term: 0.0,
     };
     // The flow's outlets as openings of the estimator's walls; the estimator cells just
     // inside the first one are the "outlet" region.

@@ -218,6 +218,7 @@ impl Scene {
             alarm_persist: 3,
             openings: Default::default(),
             outflow_window: 10,
+            noise_term: 0.0,
         };
         for r in regions {
             // At most MAX_REGIONS (4) are defined above.
