@@ -238,7 +238,11 @@ fn damaged_files_say_what_is_damaged_in_words() {
     // Another version.
     let mut v = good.clone();
     v[8] = 9;
-    refused(dir.path(), "v.rec", &v, &["version 9", "allowed 4"]);
+    let allowed = format!(
+        "allowed {}",
+        sieve_core::sensor::recording::RECORDING_VERSION
+    );
+    refused(dir.path(), "v.rec", &v, &["version 9", &allowed]);
     refused(dir.path(), "empty.rec", b"", &["not a sieve recording"]);
 }
 
@@ -272,6 +276,34 @@ fn plot_inputs(dir: &Path) -> Vec<std::path::PathBuf> {
     vti.sort();
     v.extend(vti.into_iter().take(2));
     v
+}
+
+/// `sieve plot` on a series.csv whose time runs backwards: a row's t rewritten to
+/// 18446744073709551615 once made the plotting library overflow (found by
+/// `plot_reader_never_panics`); the reader now refuses it in one line, as for NaN.
+#[test]
+fn plot_refuses_a_series_out_of_time_order() {
+    let dir = run_dir("column-a", "series-order");
+    let csv = dir.join("series.csv");
+    let good = std::fs::read_to_string(&csv).expect("read");
+    let out = dir.to_str().expect("utf-8").to_owned();
+    for bad_t in ["18446744073709551615", "nan", "-1"] {
+        let mut lines: Vec<String> = good.lines().map(String::from).collect();
+        let row = &mut lines[5];
+        let rest = row.split_once(',').expect("a row").1.to_string();
+        *row = format!("{bad_t},{rest}");
+        std::fs::write(&csv, lines.join("\n") + "\n").expect("write");
+        let (code, _, err) = sieve(&["plot", &out]);
+        assert_eq!(code, 1, "t = {bad_t}: {err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(
+            err.contains("series.csv") && err.contains("in order"),
+            "{err}"
+        );
+    }
+    std::fs::write(&csv, &good).expect("restore");
+    let (code, _, err) = sieve(&["plot", &out]);
+    assert_eq!(code, 0, "restored: {err}");
 }
 
 /// `sieve plot` on run directories whose .vti once could not be trusted: a reversed extent

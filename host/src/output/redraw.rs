@@ -30,7 +30,7 @@ pub fn read_series(path: &Path) -> Result<Vec<SeriesRow>> {
             super::csv::SERIES_HEADER
         )));
     }
-    lines
+    let rows: Vec<SeriesRow> = lines
         .filter(|l| !l.trim().is_empty())
         .map(|l| {
             let v: Vec<f64> = l
@@ -51,7 +51,22 @@ pub fn read_series(path: &Path) -> Result<Vec<SeriesRow>> {
                 undershoot_max: v[4],
             })
         })
-        .collect()
+        .collect::<Result<_>>()?;
+    // sieve writes the rows in time order: a time that is not a number or runs backwards is
+    // a damaged file (and would stretch the time axis past what the plots can draw).
+    let mut last = 0.0f64;
+    for (k, r) in rows.iter().enumerate() {
+        if !(r.t.is_finite() && r.t >= last) {
+            return Err(Error::failure(format!(
+                "{}: row {}: t = {} does not follow {last} (times must be finite and in order); the file is damaged",
+                path.display(),
+                k + 1,
+                r.t
+            )));
+        }
+        last = r.t;
+    }
+    Ok(rows)
 }
 
 /// Header of `profiles.csv` (flow scenes): horizontally averaged profiles at the end of the
