@@ -257,7 +257,11 @@ fn broadcast(cmd: &Command) {
         Command::Load => [2, 0, 0, 0],
         Command::Output { k, dir } => [3, *k, 0, dir.len() as u64],
     };
-    root.broadcast_into(&mut w[..]);
+    // non-blocking on every rank (a non-blocking collective matches no blocking one): the
+    // followers wait for it asleep ([`receive`])
+    mpi::request::scope(|sc| {
+        root.immediate_broadcast_into(sc, &mut w[..]).wait();
+    });
     if let Command::Output { dir, .. } = cmd {
         let mut b = dir.as_bytes().to_vec();
         root.broadcast_into(&mut b[..]);
@@ -268,7 +272,22 @@ fn receive() -> Command {
     let world = comm();
     let root = world.process_at_rank(0);
     let mut w = [0u64; 4];
-    root.broadcast_into(&mut w[..]);
+    // Polled with short sleeps rather than MPI's busy wait: a follower waits for the next
+    // command while rank 0 computes diagnostics, writes files and draws the plots, and on a
+    // machine with more ranks than free cores a spinning follower takes CPU from rank 0.
+    // The sleep delays a chunk of steps by about 0.1 ms.
+    mpi::request::scope(|sc| {
+        let mut req = root.immediate_broadcast_into(sc, &mut w[..]);
+        loop {
+            match req.test() {
+                Ok(_) => break,
+                Err(r) => {
+                    req = r;
+                    std::thread::sleep(std::time::Duration::from_micros(50));
+                }
+            }
+        }
+    });
     match w[0] {
         1 => Command::Advance {
             target: f64::from_bits(w[1]),
@@ -378,6 +397,25 @@ struct Local<R: Real, const D: usize, const N: usize> {
     send: [Vec<f64>; 2],
     recv: [Vec<f64>; 2],
     buf: Vec<R>,
+}
+
+/// Waits for a halo message: polls at full speed for 100 us (a neighbour on its own core is
+/// that close behind in a balanced step), then with 20 us sleeps. MPI's own wait polls at
+/// full speed however long it takes, which on a machine with more processes than free
+/// cores takes the CPU the awaited rank needs (docs/parallel.md, measured there).
+fn wait_politely<'a, S: mpi::request::Scope<'a>>(mut req: mpi::request::Request<'a, [f64], S>) {
+    let start = std::time::Instant::now();
+    loop {
+        match req.test() {
+            Ok(_) => return,
+            Err(r) => req = r,
+        }
+        if start.elapsed() < std::time::Duration::from_micros(100) {
+            std::hint::spin_loop();
+        } else {
+            std::thread::sleep(std::time::Duration::from_micros(20));
+        }
+    }
 }
 
 /// What a rank's chunk of steps hands to rank 0.
@@ -490,11 +528,15 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
             for (side, r) in sides.into_iter().zip(recv.iter_mut()) {
                 if let Some(nb) = sub.neighbour(side) {
                     let p = world.process_at_rank(nb as i32);
-                    p.receive_into_with_tag(&mut r[..], side.opposite() as i32);
+                    pending.push(p.immediate_receive_into_with_tag(
+                        sc,
+                        &mut r[..],
+                        side.opposite() as i32,
+                    ));
                 }
             }
             for r in pending {
-                r.wait();
+                wait_politely(r);
             }
         });
         for side in sides {
