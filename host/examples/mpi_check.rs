@@ -84,7 +84,7 @@ fn main() {
         }
     };
     let result = sieve::scene::load(&name, &sets)
-        .and_then(|(scene, fields)| sieve::parallel_mpi::check_scene(&scene, &fields));
+        .and_then(|(scene, fields)| sieve::mpi_jobs::check_scene(&scene, &fields));
     let check = match &result {
         Ok(c) => Ok(Some(c.clone())),
         Err(e) => Err(e.clone()),

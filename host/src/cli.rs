@@ -550,7 +550,7 @@ fn run_command(a: &RunArgs) -> Result<()> {
         // the ranks > 0 serve rank 0's run (docs/parallel.md)
         crate::parallel_mpi::check_scope(&scene, a.resume.is_some())?;
         if crate::parallel_mpi::is_follower() {
-            return crate::parallel_mpi::follow(&scene, &fields);
+            return crate::mpi_jobs::follow(&scene, &fields);
         }
         if let (Some(n), Some((_, k)), false) = (a.threads, crate::parallel_mpi::world(), a.quiet) {
             eprintln!("note: --threads {n}: under mpirun each of the {k} ranks steps its rows on one thread");

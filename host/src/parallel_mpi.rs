@@ -28,21 +28,19 @@
 //! job (`MPI_Abort`).
 //!
 //! Messages carry f64 (an f32 state widens exactly and narrows back exactly), so the driver
-//! is generic over the precision without an MPI datatype per float type.
-//! [`check_scene`] (`host/examples/mpi_check.rs`) compares a run on the ranks with a serial
-//! run on rank 0 without any files.
+//! is generic over the precision without an MPI datatype per float type. The solver jobs of
+//! the followers and of the check without files (`host/examples/mpi_check.rs`) are in
+//! `crate::mpi_jobs`: they build solvers through `crate::run`, which calls this module.
 
 use crate::data::Snapshot;
 use crate::error::{Error, Result};
-use crate::run::{FlowJob, SolverJob};
 use crate::scene::validate::{Direction, Temperature};
-use crate::scene::{Equations, Fields, Scene};
+use crate::scene::{Equations, Scene};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use sieve_core::decomp::{self, Side, Subdomain};
-use sieve_core::flow::Flow;
 use sieve_core::segregation::snap_slack;
-use sieve_core::{state_hash, Real, Segregation};
+use sieve_core::{Real, Segregation};
 use std::cell::{Cell, RefCell};
 use std::ops::Range;
 use std::path::Path;
@@ -846,51 +844,11 @@ pub fn write_snapshot(
 // ---------------------------------------------------------------------------------------
 // Followers
 
-/// A follower's `sieve run`: builds the scene's solver as rank 0 does (a frozen flow spun up
-/// here too), its subdomain, agrees, then serves rank 0's commands until stop. Returns the
-/// stop's exit code as a silent error (rank 0 reports).
-pub fn follow(scene: &Scene, fields: &Fields) -> Result<()> {
-    let job = Follower { scene, fields };
-    if scene.flow.is_some() {
-        crate::run::with_flow_solvers(scene.precision, scene.dim, job)
-    } else {
-        crate::run::with_solver(scene.precision, scene.dim, job)
-    }
-}
-
-struct Follower<'a> {
-    scene: &'a Scene,
-    fields: &'a Fields,
-}
-
-impl SolverJob for Follower<'_> {
-    type Output = ();
-    fn run<R: Real, const D: usize, const N: usize>(
-        self,
-        s: &mut Segregation<R, D, N>,
-    ) -> Result<()> {
-        crate::run::load(s, self.scene, self.fields)?;
-        serve(s, self.scene, None)
-    }
-}
-
-impl FlowJob for Follower<'_> {
-    type Output = ();
-    fn run<R: Real, const D: usize, const N: usize>(
-        self,
-        s: &mut Segregation<R, D, N>,
-        f: &mut Flow<R, D, N>,
-    ) -> Result<()> {
-        // as rank 0's frozen-flow run (run.rs): the same spin-up, the same bits
-        crate::run::load(s, self.scene, self.fields)?;
-        let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
-        crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
-        serve(s, self.scene, Some(frozen.p))
-    }
-}
-
-/// The follower's loop (`p`: the frozen flow's pressure, written into the pieces).
-fn serve<R: Real, const D: usize, const N: usize>(
+/// A follower's part of `sieve run` after its global solver is prepared as rank 0's
+/// (`crate::mpi_jobs::follow`): builds its subdomain, agrees, then serves rank 0's commands
+/// until stop, whose exit code it returns as a silent error (`p`: the frozen flow's
+/// pressure, written into the pieces).
+pub fn serve<R: Real, const D: usize, const N: usize>(
     global: &mut Segregation<R, D, N>,
     scene: &Scene,
     p: Option<Vec<f64>>,
@@ -929,65 +887,5 @@ fn serve<R: Real, const D: usize, const N: usize>(
                 root.send_with_tag(&status[..], TAG_STATUS);
             }
         }
-    }
-}
-
-// ---------------------------------------------------------------------------------------
-// The check without files (host/examples/mpi_check.rs)
-
-/// What [`check_scene`] found.
-#[derive(Debug, Clone)]
-pub struct Check {
-    /// Number of ranks.
-    pub ranks: usize,
-    /// Steps taken.
-    pub steps: u64,
-    /// State hash of the ranks' gathered state (rank 0; 0 elsewhere).
-    pub hash: u64,
-    /// State hash of the serial run (rank 0; 0 elsewhere).
-    pub serial: u64,
-}
-
-struct Job<'a> {
-    scene: &'a Scene,
-    fields: &'a Fields,
-}
-
-/// Runs the scene's segregation from 0 to `t_end` on the MPI ranks (one subdomain each, split
-/// along the last axis; the run's [`Driver`] and followers in one call) and, on rank 0,
-/// serially; returns both state hashes on rank 0. Needs [`launch`] first (and [`finish`]).
-pub fn check_scene(scene: &Scene, fields: &Fields) -> Result<Check> {
-    crate::run::with_solver(scene.precision, scene.dim, Job { scene, fields })
-}
-
-impl SolverJob for Job<'_> {
-    type Output = Check;
-    fn run<R: Real, const D: usize, const N: usize>(
-        self,
-        s: &mut Segregation<R, D, N>,
-    ) -> Result<Check> {
-        let (rank, ranks) = world().ok_or_else(|| Error::failure("not an MPI run"))?;
-        crate::run::load(s, self.scene, self.fields)?;
-        if rank > 0 {
-            serve(s, self.scene, None)?;
-            return Ok(Check {
-                ranks,
-                steps: 0,
-                hash: 0,
-                serial: 0,
-            });
-        }
-        let t_end = R::from_f64(self.scene.t_end);
-        let driver = driver_for(s)?.ok_or_else(|| Error::failure("not rank 0"))?;
-        let steps = driver.advance(s, t_end, u64::MAX);
-        let hash = state_hash(s);
-        crate::run::load(s, self.scene, self.fields)?;
-        s.advance_to(t_end, u64::MAX);
-        Ok(Check {
-            ranks,
-            steps,
-            hash,
-            serial: state_hash(s),
-        })
     }
 }
