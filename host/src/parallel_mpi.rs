@@ -64,8 +64,10 @@ const DONE: u8 = 2;
 /// Rank 0 is inside a command's message exchange (an error there cannot be answered with
 /// a stop command: the followers wait for other messages).
 static BUSY: AtomicBool = AtomicBool::new(false);
-/// This rank's error has been reported by rank 0: do not print it again.
+/// This rank's error has been printed (by rank 0): do not print it again.
 static SILENT: AtomicBool = AtomicBool::new(false);
+/// The agreement found a failure.
+static FAILED: AtomicBool = AtomicBool::new(false);
 
 /// Processes of the launch as the launcher's environment says (OpenMPI's mpirun:
 /// `OMPI_COMM_WORLD_SIZE`; MPICH's hydra and Slurm's PMI: `PMI_SIZE`).
@@ -138,6 +140,11 @@ pub fn finish(result: Result<()>) -> Result<()> {
                 verdict
             }
             RUNNING if rank == 0 && !BUSY.load(Ordering::Relaxed) => {
+                // printed before the stop: mpirun ends the job as soon as a rank exits
+                // with a non-zero code, which could cut rank 0 off before its line
+                if let Err(e) = &result {
+                    report(e);
+                }
                 send_stop(result.as_ref().err().map_or(0, |e| e.exit_code()));
                 result
             }
@@ -145,9 +152,32 @@ pub fn finish(result: Result<()>) -> Result<()> {
             _ => result,
         },
     };
+    if FAILED.load(Ordering::Relaxed) {
+        // a failed agreement: rank 0 prints the verdict, the others wait for that (see
+        // above), then every rank exits with its code
+        if let (Some((0, _)), Err(e)) = (world(), &out) {
+            report(e);
+        }
+        comm().barrier();
+    }
     let universe = UNIVERSE.lock().unwrap_or_else(|e| e.into_inner()).take();
     drop(universe);
     out
+}
+
+/// Rank 0 prints an error as `main` would (one line per problem), before the other ranks
+/// may exit; `main` then prints nothing ([`silent`]).
+fn report(e: &Error) {
+    if SILENT.swap(true, Ordering::Relaxed) {
+        return;
+    }
+    let prefix = match e {
+        Error::Interrupted { .. } => "sieve",
+        _ => "error",
+    };
+    for line in e.lines() {
+        eprintln!("{prefix}: {line}");
+    }
 }
 
 /// An error that cannot be delivered through the protocol: printed here, then every rank
@@ -194,8 +224,9 @@ fn decode(b: &[u8]) -> Error {
 }
 
 /// Every rank reports whether its setup worked (`mine`); the first failure in rank order
-/// is every rank's result. Rank 0 prints it (a follower's prefixed with its rank); the
-/// followers return it silently. Called exactly once per rank.
+/// is every rank's result. Rank 0 prints it in [`finish`] (a follower's prefixed with its
+/// rank) before any rank exits; the followers return it silently. Called exactly once per
+/// rank.
 pub fn agree(mine: Option<&Error>) -> Result<()> {
     let (rank, ranks) = world().ok_or_else(|| Error::failure("not an MPI run"))?;
     let world = comm();
@@ -226,6 +257,7 @@ pub fn agree(mine: Option<&Error>) -> Result<()> {
     if len > 0 {
         root.broadcast_into(&mut verdict[..]);
         PHASE.store(DONE, Ordering::Relaxed);
+        FAILED.store(true, Ordering::Relaxed);
         SILENT.store(rank > 0, Ordering::Relaxed);
         return Err(decode(&verdict));
     }
