@@ -542,6 +542,69 @@ fn run_setup(a: &RunArgs) -> Result<(scene::Scene, scene::Fields, PathBuf, run::
     Ok((scene, fields, dir.clone(), resume))
 }
 
+/// `sieve run` (under mpirun on every rank: [`crate::parallel_mpi`]).
+fn run_command(a: &RunArgs) -> Result<()> {
+    let (mut scene, fields, out, resume) = run_setup(a)?;
+    scene.limits = estimate::Limits {
+        max_steps: a.max_steps,
+        max_cell_steps: a.max_cell_steps,
+        max_output: a.max_output,
+    };
+    #[cfg(feature = "mpi")]
+    {
+        // `mpirun -np K sieve run`: refused scenes end every rank before anything is built;
+        // the ranks > 0 serve rank 0's run (docs/parallel.md)
+        crate::parallel_mpi::check_scope(&scene, a.resume.is_some())?;
+        if crate::parallel_mpi::is_follower() {
+            return crate::mpi_jobs::follow(&scene, &fields);
+        }
+        if let (Some(n), Some((_, k)), false) = (a.threads, crate::parallel_mpi::world(), a.quiet) {
+            eprintln!("note: --threads {n}: under mpirun each of the {k} ranks steps its rows on one thread");
+        }
+    }
+    crate::parallel::request_threads(a.threads.and_then(|n| usize::try_from(n).ok()));
+    let summary = run::run_scene_with(
+        &scene,
+        &fields,
+        &RunOptions {
+            out: out.clone(),
+            quiet: a.quiet,
+        },
+        resume,
+    )?;
+    if !a.quiet {
+        println!(
+            "{}: {} steps on {:?} cells in {:.3} s ({:.3e} cell updates/s); psi_final = {:.4}, segregation_time = {}; wrote {}",
+            summary.scene,
+            summary.steps,
+            summary.cells,
+            summary.wall_seconds,
+            summary.cell_updates_per_second,
+            summary.psi_final,
+            summary
+                .segregation_time
+                .map_or_else(|| "not reached".into(), |t| format!("{t:.4}")),
+            out.display()
+        );
+        if let Some(f) = &summary.flow {
+            println!(
+                "flow ({}, back_coupling {}): {} flow steps on {:?} cells in {:.3} s (t = {:.4e} s), max c/c_rcp = {:.4}, T in [{:.3e}, {:.3e}], residual {:.3e} 1/s",
+                f.equations,
+                f.back_coupling,
+                f.flow_steps,
+                f.flow_cells,
+                f.flow_seconds,
+                f.flow_time,
+                f.max_packing,
+                f.t_min,
+                f.t_max,
+                f.residual
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Runs the parsed command line.
 pub fn execute(cli: Cli) -> Result<()> {
     match cli.command {
@@ -555,53 +618,12 @@ pub fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Run(a) => {
-            let (mut scene, fields, out, resume) = run_setup(&a)?;
-            scene.limits = estimate::Limits {
-                max_steps: a.max_steps,
-                max_cell_steps: a.max_cell_steps,
-                max_output: a.max_output,
-            };
-            crate::parallel::request_threads(a.threads.and_then(|n| usize::try_from(n).ok()));
-            let summary = run::run_scene_with(
-                &scene,
-                &fields,
-                &RunOptions {
-                    out: out.clone(),
-                    quiet: a.quiet,
-                },
-                resume,
-            )?;
-            if !a.quiet {
-                println!(
-                    "{}: {} steps on {:?} cells in {:.3} s ({:.3e} cell updates/s); psi_final = {:.4}, segregation_time = {}; wrote {}",
-                    summary.scene,
-                    summary.steps,
-                    summary.cells,
-                    summary.wall_seconds,
-                    summary.cell_updates_per_second,
-                    summary.psi_final,
-                    summary
-                        .segregation_time
-                        .map_or_else(|| "not reached".into(), |t| format!("{t:.4}")),
-                    out.display()
-                );
-                if let Some(f) = &summary.flow {
-                    println!(
-                        "flow ({}, back_coupling {}): {} flow steps on {:?} cells in {:.3} s (t = {:.4e} s), max c/c_rcp = {:.4}, T in [{:.3e}, {:.3e}], residual {:.3e} 1/s",
-                        f.equations,
-                        f.back_coupling,
-                        f.flow_steps,
-                        f.flow_cells,
-                        f.flow_seconds,
-                        f.flow_time,
-                        f.max_packing,
-                        f.t_min,
-                        f.t_max,
-                        f.residual
-                    );
-                }
+            #[cfg(feature = "mpi")]
+            if crate::parallel_mpi::launch()? {
+                let r = run_command(&a);
+                return crate::parallel_mpi::finish(r);
             }
-            Ok(())
+            run_command(&a)
         }
         Command::Record(a) => record(&a),
         Command::Fit(a) => {

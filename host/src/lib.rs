@@ -21,6 +21,8 @@ pub mod estimate;
 pub mod fit;
 pub mod flow;
 pub mod interrupt;
+#[cfg(feature = "mpi")]
+pub mod mpi_jobs;
 pub mod output;
 pub mod parallel;
 #[cfg(feature = "mpi")]

@@ -15,6 +15,11 @@ fn main() -> ExitCode {
                 sieve::error::Error::Interrupted { .. } => "sieve",
                 _ => "error",
             };
+            // under mpirun rank 0 prints an error every rank shares; the others stay silent
+            #[cfg(feature = "mpi")]
+            if sieve::parallel_mpi::silent() {
+                return ExitCode::from(e.exit_code() as u8);
+            }
             for line in e.lines() {
                 eprintln!("{prefix}: {line}");
             }

@@ -254,6 +254,12 @@ fn threaded_time_loop<R: Real, const D: usize, const N: usize>(
     quiet: bool,
     on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
+    // `mpirun -np K sieve run` (the `mpi` feature): rank 0 steps on the ranks instead
+    #[cfg(feature = "mpi")]
+    if let Some(d) = crate::parallel_mpi::driver_for(s)? {
+        let step = move |s: &mut _, t, n| d.advance(s, t, n);
+        return time_loop_driven(s, scene, progress, geo, ckpt, Some(&step), on_output);
+    }
     let driver = crate::parallel::driver_for(s, scene, quiet)?;
     let step = driver
         .as_ref()
@@ -546,6 +552,14 @@ impl RunJob<'_> {
         }
         if !self.scene.output.writes(k, self.outputs) {
             return Ok(()); // thinned ([output] vtk_every)
+        }
+        // under mpirun: one piece per rank and the .pvti naming them
+        #[cfg(feature = "mpi")]
+        if let Some(name) =
+            crate::parallel_mpi::write_snapshot(&self.fields_dir, k, self.scene, snap)?
+        {
+            pvd.push((t, name));
+            return Ok(());
         }
         let name = format!("state_{k:04}.vti");
         crate::output::vtk::write_vti(&self.fields_dir.join(&name), self.scene, snap)?;

@@ -14,6 +14,7 @@ use crate::error::Result;
 use crate::scene::validate::physical_axes;
 use crate::scene::Scene;
 use std::fmt::Write;
+use std::ops::Range;
 use std::path::Path;
 
 /// Writes one snapshot as `.vti`: the cell arrays of `[output] fields` among phihat, phi, c,
@@ -25,26 +26,56 @@ pub fn write_vti(path: &Path, scene: &Scene, snap: &Snapshot) -> Result<()> {
 
 /// The bytes of [`write_vti`].
 pub fn vti_bytes(scene: &Scene, snap: &Snapshot) -> Vec<u8> {
-    let mut cells = [0usize; 3];
+    piece_bytes(scene, snap, 0..scene.cells[scene.dim - 1])
+}
+
+/// The extent (VTK point indices per physical axis) of rows `rows` of the last scene axis
+/// (the axis the MPI ranks split, docs/parallel.md); the whole grid for all rows.
+fn extent(scene: &Scene, rows: &Range<usize>) -> [usize; 6] {
+    let mut e = [0usize; 6];
+    let axes = physical_axes(scene.dim);
+    for (a, &p) in axes.iter().enumerate() {
+        e[2 * p + 1] = scene.cells[a];
+    }
+    let p = axes[scene.dim - 1];
+    e[2 * p] = rows.start;
+    e[2 * p + 1] = rows.end;
+    e
+}
+
+fn extent_text(e: &[usize; 6]) -> String {
+    format!("{} {} {} {} {} {}", e[0], e[1], e[2], e[3], e[4], e[5])
+}
+
+/// Origin and spacing per physical axis (absent axes: 0 and 1).
+fn placement(scene: &Scene) -> ([f64; 3], [f64; 3]) {
     let mut origin = [0.0f64; 3];
     let mut spacing = [1.0f64; 3];
     let h = scene.spacing();
     for (a, &p) in physical_axes(scene.dim).iter().enumerate() {
-        cells[p] = scene.cells[a];
         origin[p] = scene.lower[a];
         spacing[p] = h[a];
     }
-    let extent = format!("0 {} 0 {} 0 {}", cells[0], cells[1], cells[2]);
-    let phihat = snap.phihat();
-    let u: Vec<f64> = snap.u.iter().flatten().copied().collect();
+    (origin, spacing)
+}
+
+/// The cell arrays a snapshot writes, `(name, components, values)` in file order: those of
+/// `[output] fields` among phihat, phi, c, T, u, p (scenes that solve a flow) and volume
+/// (scenes with a geometry).
+fn cell_arrays<'a>(
+    scene: &Scene,
+    snap: &'a Snapshot,
+    phihat: &'a [f64],
+    u: &'a [f64],
+) -> Vec<(&'static str, usize, &'a [f64])> {
     let out = &scene.output;
-    let mut arrays: Vec<(&str, usize, &[f64])> = Vec::new();
+    let mut arrays = Vec::new();
     for (name, comps, data) in [
-        ("phihat", 1, Some(&phihat[..])),
+        ("phihat", 1, Some(phihat)),
         ("phi", 1, Some(&snap.phi[..])),
         ("c", 1, Some(&snap.c[..])),
         ("T", 1, Some(&snap.temp[..])),
-        ("u", 3, Some(&u[..])),
+        ("u", 3, Some(u)),
         // scenes that solve a flow
         ("p", 1, snap.p.as_deref()),
         // Scenes with a geometry: the open volume fraction (0 = solid; threshold it at > 0 in
@@ -57,6 +88,20 @@ pub fn vti_bytes(scene: &Scene, snap: &Snapshot) -> Vec<u8> {
             }
         }
     }
+    arrays
+}
+
+/// A `.vti` of the cells of rows `rows` of the last scene axis, whose arrays `snap` holds
+/// (only those rows' cells): one piece of a parallel snapshot ([`pvti_bytes`]), extent in
+/// global indices (WholeExtent is the piece's own, so the file is also a valid image on its
+/// own). All rows give the serial snapshot, byte for byte.
+pub fn piece_bytes(scene: &Scene, snap: &Snapshot, rows: Range<usize>) -> Vec<u8> {
+    let (origin, spacing) = placement(scene);
+    let extent = extent_text(&extent(scene, &rows));
+    let phihat = snap.phihat();
+    let u: Vec<f64> = snap.u.iter().flatten().copied().collect();
+    let out = &scene.output;
+    let arrays = cell_arrays(scene, snap, &phihat, &u);
     // The data blocks first: with compression the offsets depend on the compressed sizes.
     let blocks: Vec<Vec<u8>> = arrays
         .iter()
@@ -189,6 +234,60 @@ pub fn write_pvd(path: &Path, entries: &[(f64, String)]) -> Result<()> {
     write_file(path, xml.as_bytes())
 }
 
+/// The `.pvti` of a parallel snapshot (docs/parallel.md): the whole grid's extent, origin and
+/// spacing, the cell arrays of `snap` (any piece: every piece has the same arrays), and one
+/// `(rows of the last scene axis, file relative to the .pvti)` entry per piece.
+pub fn pvti_bytes(scene: &Scene, snap: &Snapshot, pieces: &[(Range<usize>, String)]) -> Vec<u8> {
+    let (origin, spacing) = placement(scene);
+    let whole = extent_text(&extent(scene, &(0..scene.cells[scene.dim - 1])));
+    let phihat = snap.phihat();
+    let u: Vec<f64> = snap.u.iter().flatten().copied().collect();
+    let arrays = cell_arrays(scene, snap, &phihat, &u);
+    let mut xml = String::new();
+    let _ = writeln!(xml, "<?xml version=\"1.0\"?>");
+    let _ = writeln!(
+        xml,
+        "<VTKFile type=\"PImageData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">"
+    );
+    let _ = writeln!(
+        xml,
+        "  <PImageData WholeExtent=\"{whole}\" GhostLevel=\"0\" Origin=\"{} {} {}\" Spacing=\"{} {} {}\">",
+        origin[0], origin[1], origin[2], spacing[0], spacing[1], spacing[2]
+    );
+    let vectors = if scene.output.has("u") {
+        " Vectors=\"u\""
+    } else {
+        ""
+    };
+    let _ = writeln!(xml, "    <PCellData Scalars=\"phihat\"{vectors}>");
+    for (name, comps, _) in &arrays {
+        let _ = writeln!(
+            xml,
+            "      <PDataArray type=\"Float64\" Name=\"{name}\" NumberOfComponents=\"{comps}\"/>"
+        );
+    }
+    let _ = writeln!(xml, "    </PCellData>");
+    for (rows, file) in pieces {
+        let _ = writeln!(
+            xml,
+            "    <Piece Extent=\"{}\" Source=\"{file}\"/>",
+            extent_text(&extent(scene, rows))
+        );
+    }
+    let _ = writeln!(xml, "  </PImageData>\n</VTKFile>");
+    xml.into_bytes()
+}
+
+/// Writes [`pvti_bytes`].
+pub fn write_pvti(
+    path: &Path,
+    scene: &Scene,
+    snap: &Snapshot,
+    pieces: &[(Range<usize>, String)],
+) -> Result<()> {
+    write_file(path, &pvti_bytes(scene, snap, pieces))
+}
+
 /// A `.vti` written by [`write_vti`], read back (for `sieve plot`): the grid in physical axis
 /// order (x, y, z; 1 cell on absent axes), the time, and the named cell arrays.
 #[derive(Debug, Clone)]
@@ -231,9 +330,13 @@ fn three(s: &str) -> Option<[f64; 3]> {
 }
 
 /// Reads a `.vti` of [`write_vti`] (appended little-endian Float64, raw or zlib, UInt64
-/// headers).
+/// headers), or a `.pvti` of [`write_pvti`] with its pieces assembled into the whole grid
+/// ([`read_pvti`]).
 pub fn read_vti(path: &Path) -> Result<Vti> {
     use crate::error::Error;
+    if path.extension().is_some_and(|e| e == "pvti") {
+        return read_pvti(path);
+    }
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let bad =
         |why: &str| Error::failure(format!("{}: not a sieve .vti file: {why}", path.display()));
@@ -329,6 +432,142 @@ pub fn read_vti(path: &Path) -> Result<Vti> {
         origin,
         spacing,
         t,
+        arrays,
+    })
+}
+
+/// Most pieces and values a `.pvti` may claim (a hostile file must not allocate without
+/// bound): 2^16 pieces, 2^30 values per array.
+const PVTI_MAX_PIECES: usize = 1 << 16;
+const PVTI_MAX_VALUES: usize = 1 << 30;
+
+/// Reads a `.pvti` of [`write_pvti`]: every piece (a `.vti` beside it) read by [`read_vti`]
+/// and placed by its extent. Refused unless the pieces cover every cell of the whole extent
+/// exactly once, agree on the time and hold the same arrays: so a `sieve run` under mpirun
+/// reads back as the serial run's snapshot, value for value (`.ci/mpi-check`).
+pub fn read_pvti(path: &Path) -> Result<Vti> {
+    use crate::error::Error;
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let bad =
+        |why: String| Error::failure(format!("{}: not a sieve .pvti file: {why}", path.display()));
+    let numbers = |s: &str| -> Option<[usize; 6]> {
+        let v: Vec<usize> = s
+            .split_whitespace()
+            .map(|x| x.parse().ok())
+            .collect::<Option<_>>()?;
+        let e: [usize; 6] = v.try_into().ok()?;
+        (0..3).all(|a| e[2 * a] <= e[2 * a + 1]).then_some(e)
+    };
+    let image = text
+        .split('<')
+        .find(|t| t.starts_with("PImageData "))
+        .ok_or_else(|| bad("no PImageData".into()))?;
+    let whole = attr(image, "WholeExtent")
+        .and_then(numbers)
+        .ok_or_else(|| bad("no valid WholeExtent".into()))?;
+    let origin = attr(image, "Origin")
+        .and_then(three)
+        .ok_or_else(|| bad("no Origin".into()))?;
+    let spacing = attr(image, "Spacing")
+        .and_then(three)
+        .ok_or_else(|| bad("no Spacing".into()))?;
+    // cells per axis: an absent axis (extent 0 0) holds one layer of cells
+    let width = |e: &[usize; 6], a: usize| (e[2 * a + 1] - e[2 * a]).max(1);
+    let cells = [width(&whole, 0), width(&whole, 1), width(&whole, 2)];
+    let total = cells
+        .iter()
+        .try_fold(1usize, |n, &c| n.checked_mul(c))
+        .filter(|&n| n <= PVTI_MAX_VALUES)
+        .ok_or_else(|| bad("WholeExtent too large".into()))?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut covered = vec![0u8; total];
+    let mut arrays: Vec<(String, usize, Vec<f64>)> = Vec::new();
+    let mut t = None;
+    let pieces: Vec<&str> = text
+        .split('<')
+        .filter(|t| t.starts_with("Piece "))
+        .collect();
+    if pieces.is_empty() || pieces.len() > PVTI_MAX_PIECES {
+        return Err(bad(format!("{} pieces", pieces.len())));
+    }
+    for tag in pieces {
+        let ext = attr(tag, "Extent")
+            .and_then(numbers)
+            .ok_or_else(|| bad("a Piece without a valid Extent".into()))?;
+        let source = attr(tag, "Source").ok_or_else(|| bad("a Piece without Source".into()))?;
+        // a piece is a plain .vti beside the .pvti (no nesting, no other directory)
+        if source.ends_with(".pvti") || source.contains("..") || source.starts_with('/') {
+            return Err(bad(format!("piece {source} is not a .vti beside it")));
+        }
+        let inside = (0..3).all(|a| {
+            whole[2 * a] <= ext[2 * a]
+                && ext[2 * a + 1] <= whole[2 * a + 1]
+                && (ext[2 * a] < ext[2 * a + 1] || whole[2 * a] == whole[2 * a + 1])
+        });
+        if !inside {
+            return Err(bad(format!(
+                "piece {source}: extent outside the whole extent"
+            )));
+        }
+        let v = read_vti(&dir.join(source))?;
+        let pc = [width(&ext, 0), width(&ext, 1), width(&ext, 2)];
+        if v.cells != pc {
+            return Err(bad(format!(
+                "piece {source}: {:?} cells, its extent says {pc:?}",
+                v.cells
+            )));
+        }
+        if t.is_some_and(|t: f64| t.to_bits() != v.t.to_bits()) {
+            return Err(bad(format!(
+                "piece {source}: time {} differs from the first piece's",
+                v.t
+            )));
+        }
+        t = Some(v.t);
+        if arrays.is_empty() {
+            arrays = v
+                .arrays
+                .iter()
+                .map(|(n, c, _)| (n.clone(), *c, vec![0.0; total * c]))
+                .collect();
+        }
+        if v.arrays.len() != arrays.len() {
+            return Err(bad(format!(
+                "piece {source}: other arrays than the first piece"
+            )));
+        }
+        let o = [ext[0] - whole[0], ext[2] - whole[2], ext[4] - whole[4]];
+        let n = pc[0] * pc[1] * pc[2];
+        for l in 0..n {
+            let (i, j, k) = (l % pc[0], (l / pc[0]) % pc[1], l / (pc[0] * pc[1]));
+            let g = (o[0] + i) + cells[0] * ((o[1] + j) + cells[1] * (o[2] + k));
+            covered[g] = covered[g].saturating_add(1);
+        }
+        for ((name, comps, whole_values), (pname, pcomps, values)) in
+            arrays.iter_mut().zip(&v.arrays)
+        {
+            if name != pname || comps != pcomps || values.len() != n * *comps {
+                return Err(bad(format!("piece {source}: array {pname} does not match")));
+            }
+            for l in 0..n {
+                let (i, j, k) = (l % pc[0], (l / pc[0]) % pc[1], l / (pc[0] * pc[1]));
+                let g = (o[0] + i) + cells[0] * ((o[1] + j) + cells[1] * (o[2] + k));
+                whole_values[g * *comps..(g + 1) * *comps]
+                    .copy_from_slice(&values[l * *comps..(l + 1) * *comps]);
+            }
+        }
+    }
+    if let Some(g) = covered.iter().position(|&c| c != 1) {
+        return Err(bad(format!(
+            "the pieces cover cell {g} {} times (every cell exactly once expected)",
+            covered[g]
+        )));
+    }
+    Ok(Vti {
+        cells,
+        origin,
+        spacing,
+        t: t.unwrap_or(0.0),
         arrays,
     })
 }

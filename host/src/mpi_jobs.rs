@@ -1,0 +1,113 @@
+//! The solver jobs of MPI ranks (the `mpi` feature; docs/parallel.md, "MPI: sieve run under
+//! mpirun"): a follower's `sieve run` ([`follow`]) and the check without files
+//! ([`check_scene`], `host/examples/mpi_check.rs`). Kept apart from [`crate::parallel_mpi`]
+//! because they build solvers through [`crate::run`], which calls `parallel_mpi` for rank 0's
+//! stepper and snapshots: modules import no circle (host/tests/house.rs).
+
+use crate::error::{Error, Result};
+use crate::parallel_mpi::{driver_for, serve, world};
+use crate::run::{FlowJob, SolverJob};
+use crate::scene::{Fields, Scene};
+use sieve_core::flow::Flow;
+use sieve_core::{state_hash, Real, Segregation};
+
+/// A follower's `sieve run`: builds the scene's solver as rank 0 does (a frozen flow spun up
+/// here too), then [`serve`]s rank 0's commands until stop. Returns the
+/// stop's exit code as a silent error (rank 0 reports).
+pub fn follow(scene: &Scene, fields: &Fields) -> Result<()> {
+    let job = Follower { scene, fields };
+    if scene.flow.is_some() {
+        crate::run::with_flow_solvers(scene.precision, scene.dim, job)
+    } else {
+        crate::run::with_solver(scene.precision, scene.dim, job)
+    }
+}
+
+struct Follower<'a> {
+    scene: &'a Scene,
+    fields: &'a Fields,
+}
+
+impl SolverJob for Follower<'_> {
+    type Output = ();
+    fn run<R: Real, const D: usize, const N: usize>(
+        self,
+        s: &mut Segregation<R, D, N>,
+    ) -> Result<()> {
+        crate::run::load(s, self.scene, self.fields)?;
+        serve(s, self.scene, None)
+    }
+}
+
+impl FlowJob for Follower<'_> {
+    type Output = ();
+    fn run<R: Real, const D: usize, const N: usize>(
+        self,
+        s: &mut Segregation<R, D, N>,
+        f: &mut Flow<R, D, N>,
+    ) -> Result<()> {
+        // as rank 0's frozen-flow run (run.rs): the same spin-up, the same bits
+        crate::run::load(s, self.scene, self.fields)?;
+        let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
+        crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
+        serve(s, self.scene, Some(frozen.p))
+    }
+}
+
+/// What [`check_scene`] found.
+#[derive(Debug, Clone)]
+pub struct Check {
+    /// Number of ranks.
+    pub ranks: usize,
+    /// Steps taken.
+    pub steps: u64,
+    /// State hash of the ranks' gathered state (rank 0; 0 elsewhere).
+    pub hash: u64,
+    /// State hash of the serial run (rank 0; 0 elsewhere).
+    pub serial: u64,
+}
+
+struct Job<'a> {
+    scene: &'a Scene,
+    fields: &'a Fields,
+}
+
+/// Runs the scene's segregation from 0 to `t_end` on the MPI ranks (one subdomain each, split
+/// along the last axis; the run's [`Driver`] and followers in one call) and, on rank 0,
+/// serially; returns both state hashes on rank 0. Needs `parallel_mpi::launch` first (and
+/// `parallel_mpi::finish`).
+pub fn check_scene(scene: &Scene, fields: &Fields) -> Result<Check> {
+    crate::run::with_solver(scene.precision, scene.dim, Job { scene, fields })
+}
+
+impl SolverJob for Job<'_> {
+    type Output = Check;
+    fn run<R: Real, const D: usize, const N: usize>(
+        self,
+        s: &mut Segregation<R, D, N>,
+    ) -> Result<Check> {
+        let (rank, ranks) = world().ok_or_else(|| Error::failure("not an MPI run"))?;
+        crate::run::load(s, self.scene, self.fields)?;
+        if rank > 0 {
+            serve(s, self.scene, None)?;
+            return Ok(Check {
+                ranks,
+                steps: 0,
+                hash: 0,
+                serial: 0,
+            });
+        }
+        let t_end = R::from_f64(self.scene.t_end);
+        let driver = driver_for(s)?.ok_or_else(|| Error::failure("not rank 0"))?;
+        let steps = driver.advance(s, t_end, u64::MAX);
+        let hash = state_hash(s);
+        crate::run::load(s, self.scene, self.fields)?;
+        s.advance_to(t_end, u64::MAX);
+        Ok(Check {
+            ranks,
+            steps,
+            hash,
+            serial: state_hash(s),
+        })
+    }
+}
