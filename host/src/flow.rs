@@ -85,9 +85,15 @@ fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<
     cfg.gravity = core::array::from_fn(|a| R::from_f64(scene.gravity[a]));
     cfg.courant = R::from_f64(fm.courant);
     cfg.t_min = R::from_f64(fm.t_min);
+    // never below what the precision can reach (as the core's default); `cg_tolerance` sets
+    // every system unless the pressure has its own
+    let floor = R::EPSILON * R::from_f64(64.0);
     if let Some(tol) = fm.cg_tolerance {
-        // never below what the precision can reach (as the core's default)
-        cfg.cg_tolerance = R::from_f64(tol).max(R::EPSILON * R::from_f64(64.0));
+        cfg.cg_tolerance = R::from_f64(tol).max(floor);
+        cfg.cg_tolerance_pressure = cfg.cg_tolerance;
+    }
+    if let Some(tol) = fm.cg_tolerance_pressure {
+        cfg.cg_tolerance_pressure = R::from_f64(tol).max(floor);
     }
     // Only faded faces (next to a nearly empty cell) feel it: no effect on a filled box.
     cfg.free_surface_push = true;

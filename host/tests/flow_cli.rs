@@ -163,6 +163,10 @@ fn bad_flow_keys_exit_2_with_one_line_naming_file_key_and_range() {
     assert_bad(&["flow.courant=0.9"], &["flow.courant", "0.5"]);
     assert_bad(&["flow.cg_tolerance=0.01"], &["flow.cg_tolerance", "1e-3"]);
     assert_bad(&["flow.cg_tolerance=0"], &["flow.cg_tolerance", "1e-14"]);
+    assert_bad(
+        &["flow.cg_tolerance_pressure=0.01"],
+        &["flow.cg_tolerance_pressure", "1e-3"],
+    );
     // a moving wall moves tangentially only
     assert_bad(
         &["boundary.flow.z_high.velocity=[0.0055, 0.001]"],
@@ -337,7 +341,21 @@ fn cg_tolerance_key_reaches_the_flow_solver() {
         it(&t)
     );
     assert!(it(&l) < it(&t), "{} vs {}", it(&l), it(&t));
-    for s in [&l, &t] {
+    // the pressure's own key: only the implicit pressure solve is loosened (the tumbler
+    // runs implicit), still fewer iterations than at the default
+    let mut p = base.to_vec();
+    p.extend([
+        "--set",
+        "flow.cg_tolerance_pressure=1e-6",
+        "--out",
+        "pressure",
+    ]);
+    let (code, out, err) = run_in(d.path(), &p);
+    assert_eq!(code, 0, "{p:?}: {out} {err}");
+    let ps = json(&d.path().join("pressure/summary.json"));
+    println!("CG iterations: {} with the pressure at 1e-6", it(&ps));
+    assert!(it(&ps) < it(&t), "{} vs {}", it(&ps), it(&t));
+    for s in [&l, &t, &ps] {
         assert!(s["mass_rel_drift"].as_f64().unwrap().abs() < 1e-12);
         assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
         assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);

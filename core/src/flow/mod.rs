@@ -223,8 +223,11 @@ pub struct FlowConfig<R, const D: usize> {
     pub vacuum: R,
     /// Face pressures fade linearly to 0 (free surface) as the thinner side drops below this.
     pub surface: R,
-    /// Relative residual of the conjugate-gradient solves.
+    /// Relative residual of the conjugate-gradient solves of the viscous and temperature
+    /// stages (model.md 5.3 stages 2-3).
     pub cg_tolerance: R,
+    /// Relative residual of the implicit pressure solve ([`PressureMode::Implicit`]).
+    pub cg_tolerance_pressure: R,
     /// Iteration cap of one conjugate-gradient solve.
     pub cg_max_iterations: u32,
     /// Free-surface pressure push (off by default): a faded face (weight `w < 1`, see
@@ -267,6 +270,7 @@ impl<R: Real, const D: usize> FlowConfig<R, D> {
             vacuum: R::from_f64(1e-12),
             surface: R::from_f64(0.05),
             cg_tolerance: R::from_f64(1e-10).max(R::EPSILON * R::from_f64(64.0)),
+            cg_tolerance_pressure: R::from_f64(1e-10).max(R::EPSILON * R::from_f64(64.0)),
             cg_max_iterations: 2000,
             free_surface_push: false,
             frame: Frame::Lab,
@@ -431,6 +435,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 vacuum: R::VACUUM,
                 surface: R::VACUUM,
                 cg_tolerance: R::VACUUM,
+                cg_tolerance_pressure: R::VACUUM,
                 cg_max_iterations: 1,
                 free_surface_push: false,
                 frame: Frame::Lab,
@@ -502,6 +507,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             ("vacuum", cfg.vacuum),
             ("surface", cfg.surface),
             ("cg_tolerance", cfg.cg_tolerance),
+            ("cg_tolerance_pressure", cfg.cg_tolerance_pressure),
         ] {
             if !pos(v) {
                 return Err(FlowError::Parameter(name));

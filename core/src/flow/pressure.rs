@@ -167,7 +167,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 coarse: self.coarse.as_flattened_mut(),
             },
             Stop {
-                relative: self.cfg.cg_tolerance,
+                relative: self.cfg.cg_tolerance_pressure,
                 floor,
                 max_iterations: self.cfg.cg_max_iterations,
                 preconditioner: Preconditioner::Auto,

@@ -193,7 +193,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 let room = ((R::ONE - self.cfg.margin) * self.c_rcp[i] - self.c[i]).max(R::ZERO);
                 let inflow = self.inflow[i];
                 self.inflow[i] = if inflow > room { room / inflow } else { R::ONE };
-                let content = self.c[i].max(R::ZERO);
+                let content = spendable(self.c[i]);
                 let outflow = self.diag[i];
                 self.diag[i] = if outflow > content {
                     content / outflow
@@ -1041,6 +1041,30 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
 /// Whether the low side of an axis has boundary faces that move mass (inflow, outflow, or a
 /// wall with openings).
+/// What the donor limiter of the transport may hand out of a cell holding `c` (content
+/// units, or `c` itself on a plain grid): all but `SPARE_ULPS` machine epsilons of it.
+///
+/// Why not all of it: the limited outflows `df_k = fl(fl(lam f_k) * content / O)` (with `O`
+/// the rounded sum of the `lam f_k`) and the update `c - df_1 + g_1 - df_2 ...` (inflows in
+/// between, merge groups summed first and divided by the group volume) each round, and with
+/// the whole content handed out those few half-ulps were enough to leave the cell below 0
+/// (the implicit column collapse at `cg_tolerance = 1e-6`: c = 3.55e-12 drained to
+/// -2.0e-28). Each of those `k` roundings moves the result by at most half an ulp of the
+/// values involved (`<= c + inflows`), and the inflows only add, so a reserve of
+/// `SPARE_ULPS eps c` larger than the count of rounded operations on one cell or merge group
+/// (at most 7 members, 6 faces each in 3D, plus the sum and the division: well under 64)
+/// keeps `c >= 0` exact whatever the face velocities are (model.md 5.3, `0 <= c` by
+/// construction). The reserve also sets the threshold: an outflow within it of the content
+/// is limited too (its rounded sum may hide the excess). What stays behind is
+/// `~1.4e-14 c` (f64) or `~7.6e-6 c` (f32) of a cell that would have emptied.
+#[inline(always)]
+pub(super) fn spendable<R: Real>(c: R) -> R {
+    c.max(R::ZERO) * (R::ONE - R::from_f64(SPARE_ULPS) * R::EPSILON)
+}
+
+/// Machine epsilons of a cell's content the donor limiter keeps back ([`spendable`]).
+const SPARE_ULPS: f64 = 64.0;
+
 pub(super) fn open_low<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
     matches!(side.kind, Boundary::Inflow | Boundary::Outflow)
         || (side.kind == Boundary::Wall && !side.openings.is_empty())

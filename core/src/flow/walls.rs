@@ -533,7 +533,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let room = gv * (cmax - self.c[i]).max(R::ZERO);
             let inflow = self.inflow[i];
             self.inflow[i] = if inflow > room { room / inflow } else { R::ONE };
-            let content = gv * self.c[i].max(R::ZERO);
+            let content = super::step::spendable(gv * self.c[i]);
             let outflow = self.diag[i];
             self.diag[i] = if outflow > content {
                 content / outflow

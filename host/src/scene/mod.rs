@@ -390,6 +390,9 @@ pub struct FlowSpec {
     pub t_min: Option<f64>,
     /// Relative tolerance of the flow's CG solves, 1e-14 <= tol <= 1e-3 (default 1e-10).
     pub cg_tolerance: Option<f64>,
+    /// Relative tolerance of the implicit pressure solve alone, 1e-14 <= tol <= 1e-3
+    /// (default: `cg_tolerance` if given, else the core's default).
+    pub cg_tolerance_pressure: Option<f64>,
     /// Courant number of the flow, 0 < C <= 0.5.
     pub courant: Option<f64>,
     /// "auto" (default): spin the flow up on 4 columns and replicate when the scene is

@@ -292,6 +292,16 @@ pub(super) fn check(
             "1e-14 <= cg_tolerance <= 1e-3",
         ));
     }
+    let cg_tolerance_pressure = fs.cg_tolerance_pressure;
+    let cgp_ok = cg_tolerance_pressure.is_none_or(|x| (1e-14..=1e-3).contains(&x));
+    if !cgp_ok {
+        p.push(Error::range(
+            l,
+            "flow.cg_tolerance_pressure",
+            cg_tolerance_pressure.unwrap_or(f64::NAN),
+            "1e-14 <= cg_tolerance_pressure <= 1e-3",
+        ));
+    }
     let courant = fs.courant.unwrap_or(0.4);
     let courant_ok = courant.is_finite() && courant > 0.0 && courant <= 0.5;
     if !courant_ok {
@@ -322,7 +332,7 @@ pub(super) fn check(
             &format!("flow.min_steps = {min_steps} <= max_steps <= 100000000"),
         ));
     }
-    (packing_ok && courant_ok && min_ok && max_ok && cg_ok).then_some(())?;
+    (packing_ok && courant_ok && min_ok && max_ok && cg_ok && cgp_ok).then_some(())?;
     Some(FlowModel {
         equations: f.model.equations,
         back_coupling: f.model.back_coupling.unwrap_or_default(),
@@ -338,6 +348,7 @@ pub(super) fn check(
         max_steps: max_steps as u64,
         t_min: t_min?,
         cg_tolerance,
+        cg_tolerance_pressure,
         courant,
         spin_up: fs.spin_up.unwrap_or_default(),
         pressure: fs.pressure.unwrap_or_default(),

@@ -142,6 +142,9 @@ pub struct FlowModel {
     pub t_min: f64,
     /// Relative tolerance of the flow's CG solves (`None`: the core's default, 1e-10 in f64).
     pub cg_tolerance: Option<f64>,
+    /// Relative tolerance of the implicit pressure solve (`None`: `cg_tolerance`, else the
+    /// core's default).
+    pub cg_tolerance_pressure: Option<f64>,
     /// Flow Courant number.
     pub courant: f64,
     /// Spin-up policy.
