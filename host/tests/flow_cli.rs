@@ -350,7 +350,7 @@ fn cg_tolerance_key_reaches_the_flow_solver() {
         "--out",
         "pressure",
     ]);
-    let (code, out, err) = run_in(d.path(), &p);
+    let (code, out, err) = run_full(d.path(), &p);
     assert_eq!(code, 0, "{p:?}: {out} {err}");
     let ps = json(&d.path().join("pressure/summary.json"));
     println!("CG iterations: {} with the pressure at 1e-6", it(&ps));
