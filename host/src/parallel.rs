@@ -79,15 +79,16 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
     }
 }
 
-/// What one worker hands back after a chunk of steps.
-struct Chunk<R> {
-    taken: u64,
-    time: R,
-    steps: u64,
+/// What one worker (a thread here, a rank in `parallel_mpi`) hands back after a chunk of
+/// steps.
+pub(crate) struct Chunk<R> {
+    pub(crate) taken: u64,
+    pub(crate) time: R,
+    pub(crate) steps: u64,
     /// The bound maxima over the owned cells ([`Segregation::end_owned_step`]).
-    excess: [R; 2],
+    pub(crate) excess: [R; 2],
     /// (step number before the step, value) of every non-zero flushed fraction, in order.
-    flushed: Vec<(u64, R)>,
+    pub(crate) flushed: Vec<(u64, R)>,
 }
 
 /// Subdomains of a prepared box solver, stepped on threads.

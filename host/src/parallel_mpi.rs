@@ -34,6 +34,7 @@
 
 use crate::data::Snapshot;
 use crate::error::{Error, Result};
+use crate::parallel::Chunk;
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Equations, Scene};
 use mpi::topology::SimpleCommunicator;
@@ -446,16 +447,6 @@ fn wait_politely<'a, S: mpi::request::Scope<'a>>(mut req: mpi::request::Request<
             std::thread::sleep(std::time::Duration::from_micros(20));
         }
     }
-}
-
-/// What a rank's chunk of steps hands to rank 0.
-struct Chunk<R> {
-    taken: u64,
-    time: R,
-    steps: u64,
-    excess: [R; 2],
-    /// (step number before the step, value) of every non-zero flushed fraction, in order.
-    flushed: Vec<(u64, R)>,
 }
 
 impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
