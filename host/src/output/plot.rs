@@ -130,15 +130,31 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
         .collect();
     let over: Vec<(f64, f64)> = series.iter().map(|r| (r.t, r.overshoot_max)).collect();
     let under: Vec<(f64, f64)> = series.iter().map(|r| (r.t, r.undershoot_max)).collect();
-    let y_range = |v: &[(f64, f64)]| {
+    let y_pair = |v: &[(f64, f64)]| {
         let (lo, hi) = v
             .iter()
             .map(|p| p.1)
             .filter(|y| y.is_finite())
             .fold((0.0f64, 0.0f64), |(a, b), y| (a.min(y), b.max(y)));
         let pad = ((hi - lo) * 0.1).max(1e-16);
-        (lo - pad)..(hi + pad)
+        (lo - pad, hi + pad)
     };
+    let y_range = |v: &[(f64, f64)]| {
+        let (lo, hi) = y_pair(v);
+        lo..hi
+    };
+    let clamp_y = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
+        let r = y_pair(v);
+        v.iter().map(|&(t, y)| (t, near_axis(y, r))).collect()
+    };
+    check_axes(
+        path,
+        &[
+            (0.0, t_max),
+            y_pair(&drift),
+            y_pair(&over.iter().chain(&under).copied().collect::<Vec<_>>()),
+        ],
+    )?;
     // Psi.
     {
         let mut c = ChartBuilder::on(&panels[0])
@@ -155,7 +171,7 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
             .draw()
             .map_err(fail(path))?;
         c.draw_series(LineSeries::new(
-            series.iter().map(|r| (r.t, r.psi)),
+            series.iter().map(|r| (r.t, near_axis(r.psi, (0.0, 1.05)))),
             PALETTE[0].stroke_width(2),
         ))
         .map_err(fail(path))?
@@ -186,7 +202,7 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
             .axis_desc_style((FONT_NAME, 15))
             .draw()
             .map_err(fail(path))?;
-        c.draw_series(LineSeries::new(drift.clone(), PALETTE[2].stroke_width(2)))
+        c.draw_series(LineSeries::new(clamp_y(&drift), PALETTE[2].stroke_width(2)))
             .map_err(fail(path))?;
     }
     // Bound violations.
@@ -206,20 +222,26 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
             .axis_desc_style((FONT_NAME, 15))
             .draw()
             .map_err(fail(path))?;
-        c.draw_series(LineSeries::new(over, PALETTE[3].stroke_width(2)))
-            .map_err(fail(path))?
-            .label(format!(
-                "max(phi - c): above c (largest {:.1e})",
-                series.iter().map(|r| r.overshoot_max).fold(0.0, f64::max)
-            ))
-            .legend(swatch(PALETTE[3].stroke_width(2)));
-        c.draw_series(LineSeries::new(under, PALETTE[5].stroke_width(2)))
-            .map_err(fail(path))?
-            .label(format!(
-                "max(-phi): below 0 (largest {:.1e})",
-                series.iter().map(|r| r.undershoot_max).fold(0.0, f64::max)
-            ))
-            .legend(swatch(PALETTE[5].stroke_width(2)));
+        c.draw_series(LineSeries::new(
+            clamp_y(&both)[..over.len()].to_vec(),
+            PALETTE[3].stroke_width(2),
+        ))
+        .map_err(fail(path))?
+        .label(format!(
+            "max(phi - c): above c (largest {:.1e})",
+            series.iter().map(|r| r.overshoot_max).fold(0.0, f64::max)
+        ))
+        .legend(swatch(PALETTE[3].stroke_width(2)));
+        c.draw_series(LineSeries::new(
+            clamp_y(&both)[over.len()..].to_vec(),
+            PALETTE[5].stroke_width(2),
+        ))
+        .map_err(fail(path))?
+        .label(format!(
+            "max(-phi): below 0 (largest {:.1e})",
+            series.iter().map(|r| r.undershoot_max).fold(0.0, f64::max)
+        ))
+        .legend(swatch(PALETTE[5].stroke_width(2)));
         legend(&mut c, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
     }
     root.present().map_err(fail(path))
@@ -250,6 +272,51 @@ fn labelled_lines<'a, DB: DrawingBackend + 'a, CT: CoordTranslate<From = (f64, f
     Ok(())
 }
 
+/// `v` held within 100 axis widths of the axis `(lo, hi)`: the plotting library maps a
+/// point to pixels in `i32` and overflows on a value far outside its axis (a damaged file's
+/// 1e20 in a phihat of at most 1); such a point is drawn at the edge, off the chart as before.
+fn near_axis(v: f64, (lo, hi): (f64, f64)) -> f64 {
+    let w = hi - lo;
+    if v.is_finite() {
+        v.clamp(lo - 100.0 * w, hi + 100.0 * w)
+    } else if v > 0.0 {
+        hi + 100.0 * w
+    } else if v < 0.0 {
+        lo - 100.0 * w
+    } else {
+        v
+    }
+}
+
+/// Why the axis ranges `axes` (low, high) cannot be drawn, if they cannot: the plotting
+/// library's tick computation overflows or loops on spans that are not finite, vanish against
+/// their magnitude or exceed 1e150 (values read from a damaged file; found by the plot reader
+/// fuzz test). `None` when every range is fine.
+fn unplottable(axes: &[(f64, f64)]) -> Option<String> {
+    axes.iter().find_map(|&(lo, hi)| {
+        let mag = lo.abs().max(hi.abs());
+        let span = hi - lo;
+        let ok = lo.is_finite()
+            && hi.is_finite()
+            && span.is_finite()
+            && mag <= 1e150
+            && span > 0.0
+            && span >= 1e-15 * mag;
+        (!ok).then(|| format!("values out of the plottable range ({lo:e} .. {hi:e}); not drawn"))
+    })
+}
+
+/// [`unplottable`] as the error of a plot written to `path`.
+fn check_axes(path: &Path, axes: &[(f64, f64)]) -> Result<()> {
+    match unplottable(axes) {
+        Some(why) => Err(crate::error::Error::failure(format!(
+            "{}: {why}",
+            path.display()
+        ))),
+        None => Ok(()),
+    }
+}
+
 /// Draws the legend box of a chart.
 fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
     c: &mut ChartContext<'a, DB, CT>,
@@ -274,6 +341,7 @@ pub fn profiles(
     frames: &[(f64, Vec<f64>)],
 ) -> Result<()> {
     ensure_font()?;
+    check_axes(path, &[(z0, z1)])?;
     let root = BitMapBackend::new(path, (700, 700)).into_drawing_area();
     root.fill(&WHITE).map_err(fail(path))?;
     let mut chart = ChartBuilder::on(&root)
@@ -298,7 +366,7 @@ pub fn profiles(
             .iter()
             .zip(z)
             .filter(|(v, _)| v.is_finite())
-            .map(|(&v, &z)| (v, z))
+            .map(|(&v, &z)| (near_axis(v, (-0.02, 1.02)), z))
             .collect();
         let shape = j % 4;
         let offset = (j * marks / frames.len().max(1)) % marks;
@@ -362,6 +430,9 @@ pub fn draw_colour_map<DB: DrawingBackend>(
 ) -> std::result::Result<(), String> {
     let (nx, nz) = g.cells;
     let ((x0, x1), (z0, z1)) = (g.x, g.z);
+    if let Some(why) = unplottable(&[(x0, x1), (z0, z1)]) {
+        return Err(why);
+    }
     root.fill(&WHITE).map_err(text)?;
     let (w, _) = root.dim_in_pixel();
     let (main, bar) = root.split_horizontally(w.saturating_sub(170));
@@ -552,6 +623,7 @@ pub fn work_precision(
     let (h0, h1) = span(&mut pts.iter().map(|r| r.0));
     let (e0, e1) = span(&mut pts.iter().map(|r| r.1));
     let (w0, w1) = span(&mut pts.iter().map(|r| r.2));
+    check_axes(path, &[(h0, h1), (e0, e1), (w0, w1)])?;
     let label = format!("{norm} error of phihat");
     for (area, x_desc, xs, ix) in [
         (&left, "cell size h (vertical)", (h0, h1), 0usize),
@@ -661,6 +733,7 @@ pub fn vertical_curves(
             }
         }};
     }
+    check_axes(path, &[(x0, x1), (z0, z1)])?;
     if log_x {
         draw!(builder
             .build_cartesian_2d((x0..x1).log_scale(), z0..z1)
@@ -742,6 +815,7 @@ pub fn time_curves(path: &Path, title: &str, curves: &[Curve], threshold: f64) -
         .iter()
         .flat_map(|(_, v)| v.iter().map(|p| p.0))
         .fold(f64::MIN_POSITIVE, f64::max);
+    check_axes(path, &[(0.0, t_max)])?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, (FONT_NAME, 22))
         .margin(15)
@@ -799,15 +873,7 @@ pub fn xy_curves(
     let (y0, y1) = pad(y0, y1);
     // A non-finite value or a span past f64 (read from a damaged file) would make the mesh
     // loop without end: refuse it instead of hanging.
-    if ![x0, x1, y0, y1, x1 - x0, y1 - y0]
-        .iter()
-        .all(|v| v.is_finite())
-    {
-        return Err(crate::error::Error::failure(format!(
-            "{}: values out of the plottable range ({x0:e} .. {x1:e}, {y0:e} .. {y1:e}); not drawn",
-            path.display()
-        )));
-    }
+    check_axes(path, &[(x0, x1), (y0, y1)])?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, (FONT_NAME, 20))
         .margin(15)
@@ -889,13 +955,8 @@ pub fn stacked_curves(path: &Path, title: &str, x_desc: &str, panels: &[Panel<'_
         let pts = || curves.iter().flat_map(|(_, v)| v.iter().copied());
         let (y0, y1) = pts().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
         let (y0, y1) = if y0 <= y1 { pad(y0, y1) } else { (0.0, 1.0) };
-        if ![x0, x1, y0, y1, x1 - x0, y1 - y0]
-            .iter()
-            .all(|v| v.is_finite())
-        {
-            return refuse(format!(
-                "values out of the plottable range ({x0:e} .. {x1:e}, {y0:e} .. {y1:e})"
-            ));
+        if let Some(why) = unplottable(&[(x0, x1), (y0, y1)]) {
+            return refuse(why.trim_end_matches("; not drawn").to_string());
         }
         let mut chart = ChartBuilder::on(area)
             .margin(12)
