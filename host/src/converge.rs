@@ -10,7 +10,7 @@
 
 use crate::error::{Error, Result};
 use crate::output::{num, write_file, Staging};
-use crate::run::{load, time_loop, with_solver, SolverJob};
+use crate::run::{load, time_loop, SolverJob};
 use crate::scene::{self, Fields, Scene};
 use serde::Serialize;
 use sieve_core::{Real, Segregation};
@@ -308,11 +308,7 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
     for (scene, fields) in &loaded {
         let start = Instant::now();
         let job = ConvergeJob { scene, fields };
-        let r = if scene.flow.is_some() {
-            crate::run::with_flow_solvers(scene.precision, scene.dim, job)?
-        } else {
-            with_solver(scene.precision, scene.dim, job)?
-        };
+        let r = crate::run::with_scene_solvers(scene, job)?;
         let secs = start.elapsed().as_secs_f64();
         if !opts.quiet {
             eprintln!("level {:?}: {} steps, {:.3} s", scene.cells, r.steps, secs);

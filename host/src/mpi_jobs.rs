@@ -16,11 +16,7 @@ use sieve_core::{state_hash, Real, Segregation};
 /// stop's exit code as a silent error (rank 0 reports).
 pub fn follow(scene: &Scene, fields: &Fields) -> Result<()> {
     let job = Follower { scene, fields };
-    if scene.flow.is_some() {
-        crate::run::with_flow_solvers(scene.precision, scene.dim, job)
-    } else {
-        crate::run::with_solver(scene.precision, scene.dim, job)
-    }
+    crate::run::with_scene_solvers(scene, job)
 }
 
 struct Follower<'a> {

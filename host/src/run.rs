@@ -99,6 +99,19 @@ pub fn with_flow_solvers<J: FlowJob>(
     }
 }
 
+/// Runs `job` on the solvers the scene declares (model only what a scene needs): the coupled
+/// flow and segregation when it has a flow, the segregation solver alone otherwise.
+pub fn with_scene_solvers<O: Send, J: SolverJob<Output = O> + FlowJob<Output = O>>(
+    scene: &Scene,
+    job: J,
+) -> Result<O> {
+    if scene.flow.is_some() {
+        with_flow_solvers(scene.precision, scene.dim, job)
+    } else {
+        with_solver(scene.precision, scene.dim, job)
+    }
+}
+
 fn on_flow_thread<R: Real, const D: usize, const N: usize, J: FlowJob>(
     job: J,
 ) -> Result<J::Output> {
@@ -801,11 +814,7 @@ pub fn run_scene_with(
         outputs: output_times(scene.t_end, scene.output_interval).len(),
         ckpt,
     };
-    let out = if scene.flow.is_some() {
-        with_flow_solvers(scene.precision, scene.dim, job)?
-    } else {
-        with_solver(scene.precision, scene.dim, job)?
-    };
+    let out = with_scene_solvers(scene, job)?;
     let stats = &out.stats;
     output::csv::write_series(&staging.path().join("series.csv"), &stats.series)?;
     output::vtk::write_pvd(&fields_dir.join("series.pvd"), &out.pvd)?;

@@ -156,11 +156,7 @@ pub fn record_scene(
         fields,
         opts,
     };
-    if scene.flow.is_some() {
-        crate::run::with_flow_solvers(scene.precision, scene.dim, job)
-    } else {
-        crate::run::with_solver(scene.precision, scene.dim, job)
-    }
+    crate::run::with_scene_solvers(scene, job)
 }
 
 struct RecordJob<'a> {
