@@ -44,52 +44,11 @@ pub fn mixing_entropy_density<R: Real>(x: R) -> R {
 pub fn diagnose<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
 ) -> Diagnostics<R> {
-    let vol = s.grid().cell_volume();
-    let vacuum = s.config().vacuum;
-    let mut mass_small = R::ZERO;
-    let mut mass_total = R::ZERO;
-    let mut overshoot = R::ZERO;
-    let mut undershoot = R::ZERO;
-    let mut entropy = R::ZERO;
-    let mut phihat_min = R::ONE;
-    let mut phihat_max = R::ZERO;
+    let mut tally = Tally::new(s.config().vacuum);
     for i in 0..s.len() {
-        let (phi, c) = (s.phi(i), s.c(i));
-        mass_small += phi;
-        mass_total += c;
-        overshoot = overshoot.max(phi - c);
-        undershoot = undershoot.max(-phi);
-        if c > vacuum {
-            let ph = phi / c;
-            phihat_min = phihat_min.min(ph);
-            phihat_max = phihat_max.max(ph);
-            entropy += mixing_entropy_density(ph) * c;
-        }
+        tally.add(s.phi(i), s.c(i), |x| x);
     }
-    mass_small *= vol;
-    mass_total *= vol;
-    entropy *= vol;
-    let mixed = if mass_total > R::ZERO {
-        mixing_entropy_density(mass_small / mass_total) * mass_total
-    } else {
-        R::ZERO
-    };
-    let psi = if mixed > R::ZERO {
-        entropy / mixed
-    } else {
-        R::ZERO
-    };
-    Diagnostics {
-        mass_small,
-        mass_total,
-        overshoot,
-        undershoot,
-        entropy,
-        entropy_mixed: mixed,
-        psi,
-        phihat_min,
-        phihat_max,
-    }
+    tally.finish(s.grid().cell_volume())
 }
 
 /// [`diagnose`] on cut cells: every sum weighs cell `i` by its open volume fraction
@@ -100,55 +59,83 @@ pub fn diagnose_embedded<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
     geo: &CutCells<R, D, N>,
 ) -> Diagnostics<R> {
-    let vol = s.grid().cell_volume();
-    let vacuum = s.config().vacuum;
-    let mut mass_small = R::ZERO;
-    let mut mass_total = R::ZERO;
-    let mut overshoot = R::ZERO;
-    let mut undershoot = R::ZERO;
-    let mut entropy = R::ZERO;
-    let mut phihat_min = R::ONE;
-    let mut phihat_max = R::ZERO;
+    let mut tally = Tally::new(s.config().vacuum);
     for i in 0..s.len() {
         let v = geo.volume(i);
-        if v == R::ZERO {
-            continue;
-        }
-        let (phi, c) = (s.phi(i), s.c(i));
-        mass_small += phi * v;
-        mass_total += c * v;
-        overshoot = overshoot.max(phi - c);
-        undershoot = undershoot.max(-phi);
-        if c > vacuum {
-            let ph = phi / c;
-            phihat_min = phihat_min.min(ph);
-            phihat_max = phihat_max.max(ph);
-            entropy += mixing_entropy_density(ph) * c * v;
+        if v != R::ZERO {
+            tally.add(s.phi(i), s.c(i), |x| x * v);
         }
     }
-    mass_small *= vol;
-    mass_total *= vol;
-    entropy *= vol;
-    let mixed = if mass_total > R::ZERO {
-        mixing_entropy_density(mass_small / mass_total) * mass_total
-    } else {
-        R::ZERO
-    };
-    let psi = if mixed > R::ZERO {
-        entropy / mixed
-    } else {
-        R::ZERO
-    };
-    Diagnostics {
-        mass_small,
-        mass_total,
-        overshoot,
-        undershoot,
-        entropy,
-        entropy_mixed: mixed,
-        psi,
-        phihat_min,
-        phihat_max,
+    tally.finish(s.grid().cell_volume())
+}
+
+/// The running sums of [`diagnose`] in cell order (one pass, deterministic), shared by the
+/// box and the cut-cell diagnostics; `weigh` applies a cell's open volume fraction.
+struct Tally<R> {
+    vacuum: R,
+    mass_small: R,
+    mass_total: R,
+    overshoot: R,
+    undershoot: R,
+    entropy: R,
+    phihat_min: R,
+    phihat_max: R,
+}
+
+impl<R: Real> Tally<R> {
+    fn new(vacuum: R) -> Self {
+        Self {
+            vacuum,
+            mass_small: R::ZERO,
+            mass_total: R::ZERO,
+            overshoot: R::ZERO,
+            undershoot: R::ZERO,
+            entropy: R::ZERO,
+            phihat_min: R::ONE,
+            phihat_max: R::ZERO,
+        }
+    }
+
+    #[inline(always)]
+    fn add(&mut self, phi: R, c: R, weigh: impl Fn(R) -> R) {
+        self.mass_small += weigh(phi);
+        self.mass_total += weigh(c);
+        self.overshoot = self.overshoot.max(phi - c);
+        self.undershoot = self.undershoot.max(-phi);
+        if c > self.vacuum {
+            let ph = phi / c;
+            self.phihat_min = self.phihat_min.min(ph);
+            self.phihat_max = self.phihat_max.max(ph);
+            self.entropy += weigh(mixing_entropy_density(ph) * c);
+        }
+    }
+
+    /// Scales the sums by the cell volume and forms Psi (model.md 6).
+    fn finish(self, vol: R) -> Diagnostics<R> {
+        let mass_small = self.mass_small * vol;
+        let mass_total = self.mass_total * vol;
+        let entropy = self.entropy * vol;
+        let mixed = if mass_total > R::ZERO {
+            mixing_entropy_density(mass_small / mass_total) * mass_total
+        } else {
+            R::ZERO
+        };
+        let psi = if mixed > R::ZERO {
+            entropy / mixed
+        } else {
+            R::ZERO
+        };
+        Diagnostics {
+            mass_small,
+            mass_total,
+            overshoot: self.overshoot,
+            undershoot: self.undershoot,
+            entropy,
+            entropy_mixed: mixed,
+            psi,
+            phihat_min: self.phihat_min,
+            phihat_max: self.phihat_max,
+        }
     }
 }
 
