@@ -262,14 +262,14 @@ fn main() {
     }
     println!("column a, {CELLS} cells, Courant {COURANT}, t = {T_END}; best of {REPEATS} rounds\n");
     println!(
-        "{:<32} {:>6} {:>14} {:>12} {:>22}",
+        "{:<36} {:>6} {:>14} {:>12} {:>22}",
         "", "steps", "cell-updates/s", "L1 error", "checksum of final phi"
     );
     let rows: Vec<Row> = sieve.iter().map(|x| x.row()).collect();
     let c_rows: Vec<Row> = c.iter().map(|x| x.row()).collect();
     for r in rows.iter().chain(&c_rows) {
         println!(
-            "{:<32} {:>6} {:>14.3e} {:>12.4e} {:>22}",
+            "{:<36} {:>6} {:>14.3e} {:>12.4e} {:>22}",
             r.name,
             r.steps,
             r.rate(),
