@@ -790,6 +790,9 @@ pub fn run_scene_with(
     let start = Instant::now();
     // Run guard (issue 10): the output must fit the limit and the disk before anything runs.
     crate::estimate::check_output(scene, &opts.out)?;
+    if let Some(w) = crate::silo::implicit_outlet_warning(scene) {
+        eprintln!("{w}");
+    }
     let staging = Staging::new(&opts.out)?;
     let fields_dir = staging.subdir("fields")?;
     let plots_dir = staging.subdir("plots")?;

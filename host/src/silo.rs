@@ -36,6 +36,23 @@ pub fn has_outlets(scene: &Scene) -> bool {
         .is_some_and(|f| f.walls.iter().flatten().any(|w| w.outlet.is_some()))
 }
 
+/// The line a run prints before it starts when its outlet drains under the implicit pressure:
+/// there the discharge rate depends on the time step (docs/silo.md section 4: -57 % on a slow
+/// branch at Courant 0.4 on 5 mm cells, +6.6 / -1.1 / -8.2 % at 0.2 / 0.1 / 0.05), and nothing
+/// in such a run shows it (mass and bounds hold), so the user hears it before trusting a rate.
+pub fn implicit_outlet_warning(scene: &Scene) -> Option<String> {
+    let implicit = scene
+        .flow
+        .as_ref()
+        .is_some_and(|f| f.pressure == crate::scene::PressureKind::Implicit);
+    (implicit && has_outlets(scene)).then(|| {
+        format!(
+            "warning: {}: flow.pressure = implicit with an outlet: the discharge rate depends on the time step (within about 10 %, and less than half on a slow branch at large steps; docs/silo.md section 4); use the explicit pressure for rates",
+            scene.label
+        )
+    })
+}
+
 /// One row of `discharge.csv`, at an output time.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct DischargeRow {

@@ -26,6 +26,7 @@ fn coarse_silo_discharges_with_exact_mass_accounting() {
         ],
     );
     assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("warning"), "explicit silo warned: {err}");
     let dir = d.path().join("runs/silo");
     let s: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
@@ -91,4 +92,34 @@ fn orifice_wider_than_the_floor_is_rejected() {
     );
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("boundary.flow.z_low.outlet.width"), "{err}");
+}
+
+/// The implicit pressure with an outlet gives a rate that depends on the step (docs/silo.md
+/// section 4): the run says so in one line before it starts, and still runs (exit 0).
+#[test]
+fn implicit_silo_warns_that_its_rate_depends_on_the_step() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "silo",
+            "--grid",
+            "15x50",
+            "--t-end",
+            "0.02",
+            "--set",
+            "flow.pressure=implicit",
+            "--quiet",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(
+        warnings[0].contains("flow.pressure = implicit with an outlet")
+            && warnings[0].contains("docs/silo.md section 4"),
+        "{err}"
+    );
+    assert!(d.path().join("runs/silo/summary.json").is_file());
 }
