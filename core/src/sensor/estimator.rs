@@ -638,9 +638,11 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.seg.step_percolation(dt);
         let grid = *self.seg.grid();
         let open = &self.open;
+        // The packing cap: the bed's c at power-up (docs/soft-sensor.md "A packing cap").
+        let cap = self.cfg.c;
         let d = self
             .seg
-            .carry_own_velocity(dt, self.cfg.inflow_phihat, |a, high, i| {
+            .carry_own_velocity(dt, self.cfg.inflow_phihat, Some(cap), |a, high, i| {
                 open[a][high as usize].fraction(&grid, a, i)
             });
         let (mut total, mut small) = (R::ZERO, R::ZERO);
