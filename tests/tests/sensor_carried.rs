@@ -202,9 +202,9 @@ fn packing_cap_holds_exactly_and_conserves_mass() {
 }
 
 /// `sieve record shear-cell-mixed --frames 30` (5 % noise, 8 x 8 sensor, 32 x 32 estimator)
-/// then `sieve replay`: 2,008 cell excursions before c was carried, none now. The box is closed
-/// and its bed sits at the cap (0.64), so the cap holds c at the truth's exactly; the pool
-/// mixes a little (max |psi error| 0.029 before c was carried, 0.028 carried, 0.034 capped).
+/// then `sieve replay`: 2,008 cell excursions before c was carried, none now; the estimate
+/// stays as accurate as it was (max |psi error| 0.029 before, 0.028 carried and capped). The
+/// bed sits at 0.64; the cap (5 % above) bounds c from above, the drift within stays 0.008.
 #[test]
 fn shear_cell_mixed_replay_has_no_phi_excursions() {
     let (scene, fields) = sieve::scene::load("shear-cell-mixed", &[]).expect("scene");
@@ -219,18 +219,19 @@ fn shear_cell_mixed_replay_has_no_phi_excursions() {
         r.counters.phi_excursions, r.max_psi_error, r.max_c_error
     );
     assert_eq!(r.counters.phi_excursions, 0);
-    assert!(r.max_psi_error < 0.04, "{}", r.max_psi_error);
-    // The truth's c is uniform (0.64), the cap; a closed box holds exactly that much.
-    assert!(r.max_c_error < 1e-6, "{}", r.max_c_error);
+    assert!(r.max_psi_error < 0.03, "{}", r.max_psi_error);
+    // The truth's c is uniform (0.64); the carried c follows the noisy measured flow.
+    assert!(r.max_c_error < 0.02, "{}", r.max_c_error);
     assert!(r.mass_drift.abs() < 1e-6, "{}", r.mass_drift);
 }
 
 /// `sieve record gray-thornton-shear` (defaults: 200 x 100 truth, 32 x 32 estimator, 8 x 8
 /// sensor, 5 % noise, 534 frames over 8 s) then `sieve replay`, with the packing cap: max |psi
-/// error| 0.0695 (0.083 carried without the cap), mean L1 of phihat 0.0106 (0.0306), carried c
-/// against the truth's max 0.130 / mean 0.020 (0.24 / 0.057). The same recording with the truth
-/// on the estimator's 32 x 32 grid gives 0.025 (0.0019 without noise): the rest of the issue's
-/// gap to 0.05 is the first-order 32 x 32 estimator against a 200 x 100 truth, not the sensor.
+/// error| 0.0631 (0.083 carried without the cap), mean L1 of phihat 0.0140 (0.0306), carried c
+/// against the truth's max 0.132 / mean 0.031 (0.24 / 0.057). The same scene with the truth on
+/// the estimator's 32 x 32 grid replays at 0.022 (0.0019 without noise; 0.044 against the
+/// 200 x 100 truth without noise): the rest of the gap to 0.05 is the first-order
+/// 32 x 32 estimator against a fine truth, not the sensor (docs/soft-sensor.md).
 #[test]
 fn gray_thornton_shear_replays_within_the_stated_accuracy() {
     let replay = |sets: &[String]| {
@@ -245,10 +246,10 @@ fn gray_thornton_shear_replays_within_the_stated_accuracy() {
         r.max_psi_error, r.mean_l1, r.max_c_error, r.mean_c_error
     );
     assert_eq!(r.counters.phi_excursions, 0);
-    assert!(r.max_psi_error < 0.075, "{}", r.max_psi_error);
-    assert!(r.mean_l1 < 0.012, "{}", r.mean_l1);
+    assert!(r.max_psi_error < 0.068, "{}", r.max_psi_error);
+    assert!(r.mean_l1 < 0.016, "{}", r.mean_l1);
     assert!(r.max_c_error < 0.15, "{}", r.max_c_error);
-    assert!(r.mean_c_error < 0.025, "{}", r.mean_c_error);
+    assert!(r.mean_c_error < 0.035, "{}", r.mean_c_error);
     let coarse = replay(&["grid.cells=[32,32]".to_string()]);
     println!("32x32 truth: max psi error {}", coarse.max_psi_error);
     assert!(coarse.max_psi_error < 0.03, "{}", coarse.max_psi_error);
