@@ -693,7 +693,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// Mass: the pool leaves the givers and reaches the receivers up to the rounding of the
     /// sums (and the clips), i.e. to round-off. Expects `k` to hold `S` (pass D rescales).
     fn pool_packing(&mut self, cap: R) {
-        self.push_to_neighbours(cap);
+        if !self.push_to_neighbours(cap) {
+            return;
+        }
         let n = self.grid.len();
         let half = cap * R::HALF;
         let (mut excess, mut room_bed, mut room_all) = (R::ZERO, R::ZERO, R::ZERO);
@@ -762,26 +764,31 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// each neighbour `n` the part `r_v room_n / (2D)`, `r_v = min(1, (c_v - cap) / O_v)`,
     /// at the giver's tracked fraction. Givers and receivers are disjoint (a giver has no
     /// room), so three passes suffice: ratios and fractions into the scratch `rhs` / `flux`,
-    /// the givers, the receivers (reading only receivers' unchanged `c` and the givers'
-    /// stored ratios). Bounds and mass as in [`Self::pool_packing`]. What a giver could not
-    /// hand on (its neighbours full too) is left for the pool.
-    fn push_to_neighbours(&mut self, cap: R) {
+    /// the givers, the receivers face by face (reading only receivers' unchanged `c` and the
+    /// givers' stored ratios), then the receivers' new `c`. Bounds and mass as in
+    /// [`Self::pool_packing`]. What a giver could not hand on (its neighbours full too) is
+    /// left for the pool; returns whether any cell is still above the cap.
+    fn push_to_neighbours(&mut self, cap: R) -> bool {
         let n = self.grid.len();
         self.rhs[..n].fill(R::ZERO);
-        let mut any = false;
+        let (mut any, mut left) = (false, false);
         for i in 0..n {
             let c = self.c[i];
+            // `flux` of a receiver accumulates what it receives (below)
+            self.flux[i] = R::ZERO;
             if c > cap {
                 let offers = self.neighbour_offers(i, cap);
                 if offers > R::ZERO {
                     self.rhs[i] = ((c - cap) / offers).min(R::ONE);
                     self.flux[i] = (self.q[i] / c).min(R::ONE);
                     any = true;
+                } else {
+                    left = true;
                 }
             }
         }
         if !any {
-            return;
+            return left;
         }
         for i in 0..n {
             let ratio = self.rhs[i];
@@ -792,31 +799,61 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 } else {
                     (c - self.neighbour_offers(i, cap)).max(cap)
                 };
+                left |= cn > cap;
                 self.q[i] = (self.q[i] * (cn / c)).min(cn);
                 self.c[i] = cn;
             }
         }
+        // Face by face (no index arithmetic per cell): a receiver's `c` stays as it was until
+        // the last pass, so every giver sees the same room; its `c` part accumulates in
+        // `flux`, its tracked part in `q` directly.
         let share = R::ONE / R::from_usize(2 * D);
-        for i in 0..n {
-            let c = self.c[i];
-            if self.rhs[i] > R::ZERO || c >= cap {
-                continue;
-            }
-            let part = (cap - c) * share;
-            let (mut a, mut aq) = (R::ZERO, R::ZERO);
-            self.for_each_neighbour(i, |s, v| {
-                let r = s.rhs[v];
-                if r > R::ZERO {
-                    let f = r * part;
-                    a += f;
-                    aq += f * s.flux[v];
+        let grid = self.grid;
+        for a in 0..D {
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    self.pass_on(l, l + s, cap, share);
                 }
-            });
-            if a > R::ZERO {
-                let cn = (c + a).min(cap);
-                self.q[i] = (self.q[i] + aq).min(cn);
+            }
+            if self.bc[a][0] == Boundary::Periodic {
+                grid.for_each_boundary_cell(a, true, |last, first| {
+                    if last != first {
+                        self.pass_on(last, first, cap, share);
+                    }
+                });
+            }
+        }
+        for i in 0..n {
+            let a = self.flux[i];
+            if self.rhs[i] == R::ZERO && a > R::ZERO {
+                let cn = (self.c[i] + a).min(cap);
+                self.q[i] = self.q[i].min(cn);
                 self.c[i] = cn;
             }
+        }
+        left
+    }
+
+    /// One face of [`Self::push_to_neighbours`]: if one side gives and the other has room,
+    /// the receiver gets `ratio room / (2D)` at the giver's tracked fraction.
+    #[inline(always)]
+    fn pass_on(&mut self, l: usize, r: usize, cap: R, share: R) {
+        let (gl, gr) = (self.rhs[l], self.rhs[r]);
+        let (giver, to, ratio) = if gl > R::ZERO && gr == R::ZERO {
+            (l, r, gl)
+        } else if gr > R::ZERO && gl == R::ZERO {
+            (r, l, gr)
+        } else {
+            return;
+        };
+        let c = self.c[to];
+        if c < cap {
+            let f = ratio * ((cap - c) * share);
+            self.flux[to] += f;
+            self.q[to] += f * self.flux[giver];
         }
     }
 
