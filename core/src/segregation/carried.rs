@@ -465,9 +465,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     ///
     /// **Packing cap** (`cap = Some(c_max)`): after the transport, the part of `c` above
     /// `c_max` is taken out of every cell that has it (each phase by the cell's share, so
-    /// `q <= c` stays) and handed to the cells below `c_max`, each filled by the same
-    /// fraction `rho` of its room `c_max - c` at the pooled mix ([`Self::pool_packing`]),
-    /// so `c <= c_max` holds exactly and both phases are conserved to round-off.
+    /// `q <= c` stays) and handed first to its face neighbours with room, then, what they
+    /// cannot take, to the bed's cells below `c_max`, each filled by the same fraction of its
+    /// room at the pooled mix ([`Self::pool_packing`]), so `c <= c_max` holds exactly and both
+    /// phases are conserved to round-off (docs/soft-sensor.md "A packing cap on the carried
+    /// c"). `None`: no cap (the transport alone).
     pub fn carry_own_velocity(
         &mut self,
         dt: R,
