@@ -1,8 +1,10 @@
 //! The soft sensor carries c with the same face mass fluxes that move phi (issue 9; model.md
 //! 8): `Segregation::carry_own_velocity` on random, strongly compressive velocity fields keeps
-//! `0 <= q <= c` exactly and conserves both phases up to what leaves the box; the catalogue
-//! replay of `shear-cell-mixed` that used to count 2,008 cells outside `[0, c]` (30 frames,
-//! the defaults of `sieve record`) counts none.
+//! `0 <= q <= c` exactly and conserves both phases up to what leaves the box; with the packing
+//! cap it also keeps `c <= cap` exactly (and without it the same fields pile c far above);
+//! the catalogue replay of `shear-cell-mixed` that used to count 2,008 cells outside `[0, c]`
+//! (30 frames, the defaults of `sieve record`) counts none, and `gray-thornton-shear` replays
+//! within the accuracy docs/soft-sensor.md states ("A packing cap on the carried c").
 
 use sieve::soft_sensor::{record_scene, replay_bytes, ReplayOptions, SceneRecordOptions};
 use sieve_core::boundary::Boundary;
@@ -85,16 +87,25 @@ fn masses<R: Real>(s: &Segregation<R, 2, N>) -> [f64; 2] {
     m
 }
 
-/// Steps percolation + carried transport and checks bounds and mass after every step.
-fn run<R: Real>(bc: [[Boundary; 2]; 2], phase: Phase, seed: u64, open: bool) -> f64 {
+/// Steps percolation + carried transport (with the packing cap `cap` if given) and checks
+/// bounds and mass after every step; returns the worst relative mass error and the largest c.
+fn run<R: Real>(
+    bc: [[Boundary; 2]; 2],
+    phase: Phase,
+    seed: u64,
+    open: bool,
+    cap: Option<f64>,
+) -> (f64, f64) {
     let mut s = solver::<R>(bc, phase, seed);
+    let cap_r = cap.map(R::from_f64);
+    let mut c_max = 0.0f64;
     let m0 = masses(&*s);
     let mut out = [0.0f64; 2];
     let dt = s.stable_dt();
     let mut worst = 0.0f64;
     for _ in 0..60 {
         s.step_percolation(dt);
-        let d = s.carry_own_velocity(dt, R::from_f64(0.3), |axis, high, i| {
+        let d = s.carry_own_velocity(dt, R::from_f64(0.3), cap_r, |axis, high, i| {
             // an orifice in the floor: x in [0.04, 0.08] (cells 8..16 of 24)
             let ix = i % 24;
             if open && axis == 1 && !high && (8..16).contains(&ix) {
@@ -115,6 +126,10 @@ fn run<R: Real>(bc: [[Boundary; 2]; 2], phase: Phase, seed: u64, open: bool) -> 
             let (q, c) = (s.tracked_fraction(i), s.c(i));
             assert!(q >= R::ZERO && q <= c, "cell {i}: q {q:?} c {c:?}");
             assert!(c.is_finite());
+            if let Some(cap) = cap_r {
+                assert!(c <= cap, "cell {i}: c {c:?} above the cap {cap:?}");
+            }
+            c_max = c_max.max(c.to_f64());
         }
         let m = masses(&*s);
         // The percolation flux crosses inflow and outflow sides too (their ghost states,
@@ -128,7 +143,7 @@ fn run<R: Real>(bc: [[Boundary; 2]; 2], phase: Phase, seed: u64, open: bool) -> 
             worst = worst.max(e);
         }
     }
-    worst
+    (worst, c_max)
 }
 
 #[test]
@@ -142,8 +157,8 @@ fn carried_transport_keeps_bounds_exactly_and_conserves_mass() {
     ];
     for (k, (bc, open)) in cases.into_iter().enumerate() {
         for phase in [Phase::Small, Phase::Large] {
-            let e64 = run::<f64>(bc, phase, 11 + k as u64, open);
-            let e32 = run::<f32>(bc, phase, 11 + k as u64, open);
+            let (e64, _) = run::<f64>(bc, phase, 11 + k as u64, open, None);
+            let (e32, _) = run::<f32>(bc, phase, 11 + k as u64, open, None);
             println!("{bc:?} open={open} {phase:?}: mass error f64 {e64:.2e}, f32 {e32:.2e}");
             assert!(e64 < 1e-13, "{bc:?} {phase:?}: f64 {e64}");
             assert!(e32 < 2e-5, "{bc:?} {phase:?}: f32 {e32}");
@@ -151,9 +166,45 @@ fn carried_transport_keeps_bounds_exactly_and_conserves_mass() {
     }
 }
 
+/// The packing cap on the same random fields (c in [0, 0.64], velocities up to 1 m/s, far
+/// from divergence-free): `c <= 0.64` in every cell after every step, exactly, in f64 and f32,
+/// with `0 <= q <= c` and both phases conserved as without the cap; without the cap the same
+/// runs pile c to well above it, so the assertion can fail.
+#[test]
+fn packing_cap_holds_exactly_and_conserves_mass() {
+    use Boundary::*;
+    let cap = 0.64;
+    let cases = [
+        ([[Periodic, Periodic], [Wall, Wall]], false),
+        ([[Wall, Wall], [Wall, Wall]], true),
+        ([[Inflow, Outflow], [Wall, Wall]], false),
+        ([[Outflow, Inflow], [Outflow, Wall]], true),
+    ];
+    for (k, (bc, open)) in cases.into_iter().enumerate() {
+        for phase in [Phase::Small, Phase::Large] {
+            let seed = 31 + k as u64;
+            let (e64, c64) = run::<f64>(bc, phase, seed, open, Some(cap));
+            let (e32, c32) = run::<f32>(bc, phase, seed, open, Some(cap));
+            let (_, free) = run::<f64>(bc, phase, seed, open, None);
+            println!(
+                "{bc:?} open={open} {phase:?}: capped mass error f64 {e64:.2e}, f32 {e32:.2e}; \
+                 max c {c64} / {c32}; without the cap {free:.3}"
+            );
+            assert!(e64 < 1e-13, "{bc:?} {phase:?}: f64 {e64}");
+            assert!(e32 < 2e-5, "{bc:?} {phase:?}: f32 {e32}");
+            assert!(c64 <= cap && c32 <= cap as f32 as f64);
+            assert!(
+                free > 0.8,
+                "{bc:?} {phase:?}: the fields do not compress ({free})"
+            );
+        }
+    }
+}
+
 /// `sieve record shear-cell-mixed --frames 30` (5 % noise, 8 x 8 sensor, 32 x 32 estimator)
 /// then `sieve replay`: 2,008 cell excursions before c was carried, none now; the estimate
-/// stays as accurate as it was (max |psi error| 0.029 before, 0.028 now).
+/// stays as accurate as it was (max |psi error| 0.029 before, 0.028 carried and capped). The
+/// bed sits at 0.64; the cap (5 % above) bounds c from above, the drift within stays 0.008.
 #[test]
 fn shear_cell_mixed_replay_has_no_phi_excursions() {
     let (scene, fields) = sieve::scene::load("shear-cell-mixed", &[]).expect("scene");
@@ -172,4 +223,34 @@ fn shear_cell_mixed_replay_has_no_phi_excursions() {
     // The truth's c is uniform (0.64); the carried c follows the noisy measured flow.
     assert!(r.max_c_error < 0.02, "{}", r.max_c_error);
     assert!(r.mass_drift.abs() < 1e-6, "{}", r.mass_drift);
+}
+
+/// `sieve record gray-thornton-shear` (defaults: 200 x 100 truth, 32 x 32 estimator, 8 x 8
+/// sensor, 5 % noise, 534 frames over 8 s) then `sieve replay`, with the packing cap: max |psi
+/// error| 0.0631 (0.083 carried without the cap), mean L1 of phihat 0.0140 (0.0306), carried c
+/// against the truth's max 0.132 / mean 0.031 (0.24 / 0.057). The same scene with the truth on
+/// the estimator's 32 x 32 grid replays at 0.022 (0.0019 without noise; 0.044 against the
+/// 200 x 100 truth without noise): the rest of the issue's gap to 0.05 is the first-order
+/// 32 x 32 estimator against a fine truth, not the sensor (docs/soft-sensor.md).
+#[test]
+fn gray_thornton_shear_replays_within_the_stated_accuracy() {
+    let replay = |sets: &[String]| {
+        let (scene, fields) = sieve::scene::load("gray-thornton-shear", sets).expect("scene");
+        let (bytes, _) =
+            record_scene(&scene, &fields, &SceneRecordOptions::default()).expect("record");
+        replay_bytes(&bytes, &ReplayOptions::default()).expect("replay")
+    };
+    let r = replay(&[]);
+    println!(
+        "200x100 truth: max psi error {}, mean L1 {}, c error {} / {}",
+        r.max_psi_error, r.mean_l1, r.max_c_error, r.mean_c_error
+    );
+    assert_eq!(r.counters.phi_excursions, 0);
+    assert!(r.max_psi_error < 0.068, "{}", r.max_psi_error);
+    assert!(r.mean_l1 < 0.016, "{}", r.mean_l1);
+    assert!(r.max_c_error < 0.15, "{}", r.max_c_error);
+    assert!(r.mean_c_error < 0.035, "{}", r.mean_c_error);
+    let coarse = replay(&["grid.cells=[32,32]".to_string()]);
+    println!("32x32 truth: max psi error {}", coarse.max_psi_error);
+    assert!(coarse.max_psi_error < 0.03, "{}", coarse.max_psi_error);
 }

@@ -462,10 +462,19 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// c), so no `prepare` is needed: the next [`Self::step_percolation`] sees the new `c`
     /// with the same segregation velocity and the same stable step. A cell that was empty at
     /// the last `prepare` keeps `k = 0` until the next one. Does not advance the clock.
+    ///
+    /// **Packing cap** (`cap = Some(c_max)`): after the transport, the part of `c` above
+    /// `c_max` is taken out of every cell that has it (each phase by the cell's share, so
+    /// `q <= c` stays) and handed first to its face neighbours with room, then, what they
+    /// cannot take, to the bed's cells below `c_max`, each filled by the same fraction of its
+    /// room at the pooled mix ([`Self::pool_packing`]), so `c <= c_max` holds exactly and both
+    /// phases are conserved to round-off (docs/soft-sensor.md "A packing cap on the carried
+    /// c"). `None`: no cap (the transport alone).
     pub fn carry_own_velocity(
         &mut self,
         dt: R,
         inflow_phihat: R,
+        cap: Option<R>,
         open: impl Fn(usize, bool, usize) -> R,
     ) -> Discharge<R, D> {
         let n = self.grid.len();
@@ -635,6 +644,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 });
             }
         }
+        if let Some(cap) = cap {
+            self.pool_packing(cap);
+        }
         // Pass D: k = S / c for the new c; inflow values follow the new c.
         for i in 0..n {
             let c = self.c[i];
@@ -655,6 +667,231 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
         }
         out
+    }
+
+    /// The packing cap of [`Self::carry_own_velocity`] (issue 9; docs/soft-sensor.md "A
+    /// packing cap on the carried c"). A dense bed is nearly incompressible, but the measured
+    /// velocity is not divergence-free, so the carried `c` rises where it converges. A face
+    /// limiter ("the receiver takes what fits, the donor keeps the rest") cannot hold the cap
+    /// exactly in a bounded number of local passes without freezing a bed that sits at the
+    /// cap (a donor's room depends on what its own receivers accept, and so on along the
+    /// flow, around closed streamlines too). So the excess goes first to the face neighbours
+    /// ([`Self::push_to_neighbours`], local), and what they cannot take to a pool shared by
+    /// the bed (the incompressible bed's answer: its pressure acts at once everywhere):
+    ///
+    /// 1. Excess `P = sum (c - cap)^+`; room `sum (cap - c)^+` over the bed (`c >= cap/2`),
+    ///    or over every cell if the bed's is too small (a thin bed, a silo near empty).
+    ///    If `P` exceeds the room by more than round-off (only an inflow side that overfills
+    ///    the box can do this) each excess is removed in part: `theta = room / P`.
+    /// 2. Each cell above the cap drops to `cap` (`theta = 1`: exactly `cap`); its tracked
+    ///    part is scaled by the same share and clipped to the new `c` (round-off only). What
+    ///    left, `pool` and `pool_q <= pool`, is summed in cell order.
+    /// 3. Each eligible cell below the cap receives `a = rho (cap - c)` of `c` and
+    ///    `a phat` of `q`, `rho = min(1, pool / room)`, `phat = pool_q / pool` in `[0, 1]`;
+    ///    `c' = min(c + a, cap)` and `q' = min(q + a phat, c')` (both clips bind by round-off
+    ///    only, since `a <= cap - c` and `a phat <= a`).
+    ///
+    /// Bounds: `0 <= q' <= c' <= cap` by the clips and non-negative terms, in floating point.
+    /// Mass: the pool leaves the givers and reaches the receivers up to the rounding of the
+    /// sums (and the clips), i.e. to round-off. Expects `k` to hold `S` (pass D rescales).
+    fn pool_packing(&mut self, cap: R) {
+        if !self.push_to_neighbours(cap) {
+            return;
+        }
+        let n = self.grid.len();
+        let half = cap * R::HALF;
+        let (mut excess, mut room_bed, mut room_all) = (R::ZERO, R::ZERO, R::ZERO);
+        for i in 0..n {
+            let c = self.c[i];
+            if c > cap {
+                excess += c - cap;
+            } else {
+                room_all += cap - c;
+                if c >= half {
+                    room_bed += cap - c;
+                }
+            }
+        }
+        if excess == R::ZERO {
+            return;
+        }
+        let bed_only = excess <= room_bed;
+        let room = if bed_only { room_bed } else { room_all };
+        // Round-off of the sums above: a box that holds at most `cap` per cell must not
+        // leave an excess behind because its room came out an ulp short.
+        let slack = R::EPSILON * R::from_usize(4 * n) * cap;
+        let theta = if excess <= room + slack {
+            R::ONE
+        } else {
+            room / excess
+        };
+        let (mut pool, mut pool_q) = (R::ZERO, R::ZERO);
+        for i in 0..n {
+            let c = self.c[i];
+            if c > cap {
+                let cn = if theta == R::ONE {
+                    cap
+                } else {
+                    c - theta * (c - cap)
+                };
+                let q = self.q[i];
+                let qn = (q * (cn / c)).min(cn);
+                pool += c - cn;
+                pool_q += q - qn;
+                self.c[i] = cn;
+                self.q[i] = qn;
+            }
+        }
+        if room == R::ZERO || pool <= R::ZERO {
+            return;
+        }
+        let phat = (pool_q / pool).max(R::ZERO).min(R::ONE);
+        let rho = (pool / room).min(R::ONE);
+        for i in 0..n {
+            let c = self.c[i];
+            if c < cap && (c >= half || !bed_only) {
+                let a = rho * (cap - c);
+                let cn = (c + a).min(cap);
+                self.q[i] = (self.q[i] + a * phat).min(cn);
+                self.c[i] = cn;
+            }
+        }
+    }
+
+    /// The local first stage of the packing cap: every cell above `cap` hands its excess to
+    /// its face neighbours (interior and periodic faces; not through walls or open sides),
+    /// each of which offers the share `1/(2D)` of its room `cap - c` to each neighbour, so a
+    /// cell never receives more than its room whatever its neighbours do. A giver `v` with
+    /// offers `O_v` gives `min(c_v - cap, O_v)` (to `cap` exactly if the offers suffice),
+    /// each neighbour `n` the part `r_v room_n / (2D)`, `r_v = min(1, (c_v - cap) / O_v)`,
+    /// at the giver's tracked fraction. Givers and receivers are disjoint (a giver has no
+    /// room), so three passes suffice: ratios and fractions into the scratch `rhs` / `flux`,
+    /// the givers, the receivers face by face (reading only receivers' unchanged `c` and the
+    /// givers' stored ratios), then the receivers' new `c`. Bounds and mass as in
+    /// [`Self::pool_packing`]. What a giver could not hand on (its neighbours full too) is
+    /// left for the pool; returns whether any cell is still above the cap.
+    fn push_to_neighbours(&mut self, cap: R) -> bool {
+        let n = self.grid.len();
+        self.rhs[..n].fill(R::ZERO);
+        let (mut any, mut left) = (false, false);
+        for i in 0..n {
+            let c = self.c[i];
+            // `flux` of a receiver accumulates what it receives (below)
+            self.flux[i] = R::ZERO;
+            if c > cap {
+                let offers = self.neighbour_offers(i, cap);
+                if offers > R::ZERO {
+                    self.rhs[i] = ((c - cap) / offers).min(R::ONE);
+                    self.flux[i] = (self.q[i] / c).min(R::ONE);
+                    any = true;
+                } else {
+                    left = true;
+                }
+            }
+        }
+        if !any {
+            return left;
+        }
+        for i in 0..n {
+            let ratio = self.rhs[i];
+            if ratio > R::ZERO {
+                let c = self.c[i];
+                let cn = if ratio < R::ONE {
+                    cap
+                } else {
+                    (c - self.neighbour_offers(i, cap)).max(cap)
+                };
+                left |= cn > cap;
+                self.q[i] = (self.q[i] * (cn / c)).min(cn);
+                self.c[i] = cn;
+            }
+        }
+        // Face by face (no index arithmetic per cell): a receiver's `c` stays as it was until
+        // the last pass, so every giver sees the same room; its `c` part accumulates in
+        // `flux`, its tracked part in `q` directly.
+        let share = R::ONE / R::from_usize(2 * D);
+        let grid = self.grid;
+        for a in 0..D {
+            let fb = grid.face_blocks(a);
+            let s = fb.stride;
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    self.pass_on(l, l + s, cap, share);
+                }
+            }
+            if self.bc[a][0] == Boundary::Periodic {
+                grid.for_each_boundary_cell(a, true, |last, first| {
+                    if last != first {
+                        self.pass_on(last, first, cap, share);
+                    }
+                });
+            }
+        }
+        for i in 0..n {
+            let a = self.flux[i];
+            if self.rhs[i] == R::ZERO && a > R::ZERO {
+                let cn = (self.c[i] + a).min(cap);
+                self.q[i] = self.q[i].min(cn);
+                self.c[i] = cn;
+            }
+        }
+        left
+    }
+
+    /// One face of [`Self::push_to_neighbours`]: if one side gives and the other has room,
+    /// the receiver gets `ratio room / (2D)` at the giver's tracked fraction.
+    #[inline(always)]
+    fn pass_on(&mut self, l: usize, r: usize, cap: R, share: R) {
+        let (gl, gr) = (self.rhs[l], self.rhs[r]);
+        let (giver, to, ratio) = if gl > R::ZERO && gr == R::ZERO {
+            (l, r, gl)
+        } else if gr > R::ZERO && gl == R::ZERO {
+            (r, l, gr)
+        } else {
+            return;
+        };
+        let c = self.c[to];
+        if c < cap {
+            let f = ratio * ((cap - c) * share);
+            self.flux[to] += f;
+            self.q[to] += f * self.flux[giver];
+        }
+    }
+
+    /// The room `sum (cap - c_n) / (2D)` the face neighbours of cell `i` offer it (cells
+    /// that give in this pass, `rhs > 0`, offer none).
+    fn neighbour_offers(&self, i: usize, cap: R) -> R {
+        let share = R::ONE / R::from_usize(2 * D);
+        let mut offers = R::ZERO;
+        self.for_each_neighbour(i, |s, m| {
+            let c = s.c[m];
+            if s.rhs[m] == R::ZERO && c < cap {
+                offers += (cap - c) * share;
+            }
+        });
+        offers
+    }
+
+    /// Calls `f` with each face neighbour of cell `i` in a fixed order (low then high side of
+    /// each axis), across interior and periodic faces only.
+    #[inline(always)]
+    fn for_each_neighbour(&self, i: usize, mut f: impl FnMut(&Self, usize)) {
+        let cells = self.grid.cells();
+        for a in 0..D {
+            let (k, m, s) = (self.grid.coord(i, a), cells[a], self.grid.stride(a));
+            let periodic = self.bc[a][0] == Boundary::Periodic && m > 1;
+            if k > 0 {
+                f(self, i - s);
+            } else if periodic {
+                f(self, i + (m - 1) * s);
+            }
+            if k + 1 < m {
+                f(self, i + s);
+            } else if periodic {
+                f(self, i - (m - 1) * s);
+            }
+        }
     }
 
     /// Cell `i` receives the amount `f >= 0` of `c` with tracked fraction `qhat` in `[0, 1]`.

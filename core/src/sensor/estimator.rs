@@ -74,6 +74,12 @@ pub struct TickProfile {
     pub estimate: u64,
 }
 
+/// The carried c may rise this factor above the bed's configured `c` before the packing cap
+/// moves the excess away (docs/soft-sensor.md "A packing cap on the carried c", measured:
+/// 1.00 mixes phi through the pool on every substep of a bed at its packing, 1.02 / 1.05 bound
+/// the drift as well and leave closed boxes as they were).
+pub const PACKING_HEADROOM: f64 = 1.05;
+
 /// The soft sensor: a [`Segregation`] solver on the estimator grid plus the input filter
 /// state. `N` is the estimator capacity in cells (1024 for 32 x 32).
 ///
@@ -638,9 +644,12 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.seg.step_percolation(dt);
         let grid = *self.seg.grid();
         let open = &self.open;
+        // The packing cap: 5 % above the bed's c at power-up (docs/soft-sensor.md "A packing
+        // cap on the carried c": at the bed's c itself the cap's pool mixes too much).
+        let cap = self.cfg.c * R::from_f64(PACKING_HEADROOM);
         let d = self
             .seg
-            .carry_own_velocity(dt, self.cfg.inflow_phihat, |a, high, i| {
+            .carry_own_velocity(dt, self.cfg.inflow_phihat, Some(cap), |a, high, i| {
                 open[a][high as usize].fraction(&grid, a, i)
             });
         let (mut total, mut small) = (R::ZERO, R::ZERO);
