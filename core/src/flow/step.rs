@@ -35,7 +35,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             self.implicit_pressure(dt);
         }
         self.transport(dt);
-        if !implicit {
+        if implicit {
+            // the linearised pressure at the content the transport delivered
+            self.consistent_pressure();
+        } else {
             self.pressures(); // new c, old T: forward-backward acoustics
         }
         self.pressure_and_gravity(dt);
