@@ -404,6 +404,25 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
     coupled_loop_with(flow, seg, scene, fields, geo, progress, None, on_output)
 }
 
+/// A coupled run whose stable step has fallen below [`COLLAPSE`] of its first one cannot
+/// reach `t_end` (at 1e-9 of a millisecond step, a second takes 1e15 steps): a flow that ran
+/// away (the dilute cells of issue 8's loose pressure solve reached 1e51 m/s and steps of
+/// 5e-58 s, and the run never ended). Never hang: it stops as failed and keeps what it wrote.
+/// A real flow's step moves by a few orders of magnitude at most (a silo's jet, a collapse).
+/// `first` is the first stable step, at most `t_end` (a bed at rest may allow any step).
+fn collapsed_step(stable: f64, first: f64) -> Option<crate::interrupt::Reason> {
+    (stable < first * COLLAPSE).then(|| {
+        crate::interrupt::Reason::Core(format!(
+            "the stable time step fell to {} s, below {COLLAPSE:e} of the run's first step ({} s): the flow ran away and t_end cannot be reached",
+            crate::text::approx(stable),
+            crate::text::approx(first)
+        ))
+    })
+}
+
+/// See [`collapsed_step`].
+const COLLAPSE: f64 = 1e-9;
+
 /// [`coupled_loop_until_stop`] with checkpoints (`sieve run`; [`crate::checkpoint`]): resumes
 /// from the session's checkpoint if it has one, and writes one whenever the session says it
 /// is due (between steps; the step sequence does not depend on where a run was interrupted).
@@ -497,7 +516,9 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
             let stable = cpl.stable_dt();
             let dt = stable.min(target - cpl.seg.time());
             let t0 = Instant::now();
-            let stepped = match crate::interrupt::bad_dt(dt.to_f64()) {
+            let stepped = match crate::interrupt::bad_dt(dt.to_f64())
+                .or_else(|| collapsed_step(stable.to_f64(), stats.dt.min(scene.t_end)))
+            {
                 Some(r) => Err(r),
                 None => cpl.step_with(dt).map_err(|e| {
                     // The core names what it refused; a non-finite cell says more.
@@ -656,5 +677,23 @@ pub fn profiles(scene: &Scene, snap: &Snapshot) -> Profiles {
         t,
         shear,
         ratio_theory: fm.map_or(f64::NAN, |f| (f.heating * f.eta0 / f.eps0).sqrt()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::collapsed_step;
+
+    #[test]
+    fn a_step_a_billion_times_below_the_first_stops_the_run() {
+        // the runaway of issue 8's loose pressure solve: 2.6e-3 s at the start, 1.9e-17 s later
+        let r = collapsed_step(1.887e-17, 2.599e-3).expect("a collapsed step");
+        assert!(
+            format!("{r:?}").contains("t_end cannot be reached"),
+            "{r:?}"
+        );
+        // a silo's jet or a collapse moves the step by orders of magnitude, not nine
+        assert!(collapsed_step(2.6e-7, 2.6e-3).is_none());
+        assert!(collapsed_step(2.6e-3, 2.6e-3).is_none());
     }
 }

@@ -322,10 +322,25 @@ fn cg_tolerance_key_reaches_the_flow_solver() {
     let base = [
         "run", "tumbler", "--cells", "20", "--t-end", "0.5", "--quiet",
     ];
+    // the tumbler scene declares its own tolerances (1e-4 / 1e-6): every run sets both keys
     let mut loose = base.to_vec();
-    loose.extend(["--set", "flow.cg_tolerance=1e-6", "--out", "loose"]);
+    loose.extend([
+        "--set",
+        "flow.cg_tolerance=1e-6",
+        "--set",
+        "flow.cg_tolerance_pressure=1e-6",
+        "--out",
+        "loose",
+    ]);
     let mut tight = base.to_vec();
-    tight.extend(["--out", "tight"]);
+    tight.extend([
+        "--set",
+        "flow.cg_tolerance=1e-10",
+        "--set",
+        "flow.cg_tolerance_pressure=1e-10",
+        "--out",
+        "tight",
+    ]);
     for args in [&loose, &tight] {
         let (code, out, err) = run_full(d.path(), args);
         assert_eq!(code, 0, "{args:?}: {out} {err}");
@@ -345,6 +360,8 @@ fn cg_tolerance_key_reaches_the_flow_solver() {
     // runs implicit), still fewer iterations than at the default
     let mut p = base.to_vec();
     p.extend([
+        "--set",
+        "flow.cg_tolerance=1e-10",
         "--set",
         "flow.cg_tolerance_pressure=1e-6",
         "--out",

@@ -13,8 +13,9 @@
 //! 4e99, steps of 5e-58 s: the run never ended).
 //!
 //! Asserted at every output (every 5 ms, to catch a runaway as it starts; without the fix
-//! this run does not finish: the clock stalls at 0.58 s between two outputs, so the test
-//! runs until the harness stops it) and at the end (t = 0.65 s, past the blow-up): every value finite, `0 <= c`,
+//! the clock stalled at 0.58 s between two outputs, and now the coupled loop's collapse guard
+//! stops such a run: "the stable time step fell to 1.887e-17 s, below 1e-9 of the run's first
+//! step" at step 456, so this test fails in 3 s, checked by disabling the fix) and at the end (t = 0.65 s, past the blow-up): every value finite, `0 <= c`,
 //! `0 <= phi <= c` exactly in every cell, the speed of every faded cell (`0 < c < surface`,
 //! the dust over the free surface, where the runaway starts) below 10 m/s (free fall across
 //! the whole drum reaches `sqrt(2 g D)` = 1.4 m/s and the drum's wall moves at 0.03 m/s; the

@@ -283,24 +283,22 @@ pub(super) fn check(
         "[m^2/s^2]",
     ));
     let cg_tolerance = fs.cg_tolerance;
-    let cg_ok = cg_tolerance.is_none_or(|x| (1e-14..=1e-3).contains(&x));
-    if !cg_ok {
-        p.push(Error::range(
-            l,
-            "flow.cg_tolerance",
-            cg_tolerance.unwrap_or(f64::NAN),
-            "1e-14 <= cg_tolerance <= 1e-3",
-        ));
-    }
     let cg_tolerance_pressure = fs.cg_tolerance_pressure;
-    let cgp_ok = cg_tolerance_pressure.is_none_or(|x| (1e-14..=1e-3).contains(&x));
-    if !cgp_ok {
-        p.push(Error::range(
-            l,
-            "flow.cg_tolerance_pressure",
-            cg_tolerance_pressure.unwrap_or(f64::NAN),
-            "1e-14 <= cg_tolerance_pressure <= 1e-3",
-        ));
+    let mut tolerances_ok = true;
+    for (key, value, max) in [
+        ("cg_tolerance", cg_tolerance, "1e-3"),
+        ("cg_tolerance_pressure", cg_tolerance_pressure, "1e-3"),
+    ] {
+        let hi: f64 = max.parse().unwrap_or(0.0);
+        if value.is_some_and(|x| !(1e-14..=hi).contains(&x)) {
+            tolerances_ok = false;
+            p.push(Error::range(
+                l,
+                &format!("flow.{key}"),
+                value.unwrap_or(f64::NAN),
+                &format!("1e-14 <= {key} <= {max}"),
+            ));
+        }
     }
     let courant = fs.courant.unwrap_or(0.4);
     let courant_ok = courant.is_finite() && courant > 0.0 && courant <= 0.5;
@@ -332,7 +330,7 @@ pub(super) fn check(
             &format!("flow.min_steps = {min_steps} <= max_steps <= 100000000"),
         ));
     }
-    (packing_ok && courant_ok && min_ok && max_ok && cg_ok && cgp_ok).then_some(())?;
+    (packing_ok && courant_ok && min_ok && max_ok && tolerances_ok).then_some(())?;
     Some(FlowModel {
         equations: f.model.equations,
         back_coupling: f.model.back_coupling.unwrap_or_default(),
