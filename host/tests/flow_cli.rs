@@ -163,6 +163,11 @@ fn bad_flow_keys_exit_2_with_one_line_naming_file_key_and_range() {
     assert_bad(&["flow.courant=0.9"], &["flow.courant", "0.5"]);
     assert_bad(&["flow.cg_tolerance=0.01"], &["flow.cg_tolerance", "1e-3"]);
     assert_bad(&["flow.cg_tolerance=0"], &["flow.cg_tolerance", "1e-14"]);
+    // a word where a number belongs: said in the user's words, not Rust's type names
+    assert_bad(
+        &["flow.cg_tolerance_pressure=x"],
+        &["flow.cg_tolerance_pressure", "expected a number"],
+    );
     assert_bad(
         &["flow.cg_tolerance_pressure=0.01"],
         &["flow.cg_tolerance_pressure", "1e-3"],

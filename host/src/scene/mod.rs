@@ -693,9 +693,25 @@ pub fn deserialize(label: &str, table: toml::Table) -> Result<SceneFile> {
         {
             msg.truncate(cut);
         }
-        let msg = msg.trim_end();
-        Error::at(label, &key, msg)
+        Error::at(label, &key, plain_types(msg.trim_end()))
     })
+}
+
+/// serde names Rust's types (`invalid type: string "x", expected f64`); a user reads "a
+/// number" (hostile-inputs: errors in the user's words).
+fn plain_types(msg: &str) -> String {
+    let mut out = msg.to_string();
+    for (rust, user) in [
+        ("expected f64", "expected a number"),
+        ("expected f32", "expected a number"),
+        ("expected usize", "expected a whole number"),
+        ("expected u64", "expected a whole number"),
+        ("expected u32", "expected a whole number"),
+        ("expected i64", "expected a whole number"),
+    ] {
+        out = out.replace(rust, user);
+    }
+    out
 }
 
 /// Loads a scene: locate, parse, apply overrides in order, deserialise, validate and evaluate
