@@ -172,6 +172,20 @@ impl<R: Real, const D: usize> Grid<R, D> {
             blocks: self.len() / block_stride,
         }
     }
+    /// Calls `f(left, right)` for every interior face along `axis`, block by block in
+    /// [`Self::face_blocks`] order (the order of every face loop, so sums over faces keep
+    /// their bits). For loops that are not hot; the hot kernels slice the blocks themselves.
+    #[inline]
+    pub fn for_each_interior_face(&self, axis: usize, mut f: impl FnMut(usize, usize)) {
+        let fb = self.face_blocks(axis);
+        for b in 0..fb.blocks {
+            let l0 = b * fb.block_stride;
+            for l in l0..l0 + fb.block_len {
+                f(l, l + fb.stride);
+            }
+        }
+    }
+
     /// Iterates over the cells of the boundary plane at the low (`high = false`) or high end of
     /// `axis`; calls `f(cell, opposite_cell)` where `opposite_cell` is the cell at the other end
     /// of the same grid line (the periodic neighbour).

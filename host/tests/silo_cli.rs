@@ -7,24 +7,21 @@ mod common;
 
 use common::run_in;
 
+/// `sieve run silo` on the coarse 15 x 50 grid (~10 mm cells) to `t_end` with one `--set`.
+fn run_coarse_silo(dir: &std::path::Path, t_end: &str, set: &str) -> (i32, String) {
+    run_in(
+        dir,
+        &[
+            "run", "silo", "--grid", "15x50", "--t-end", t_end, "--set", set, "--quiet",
+        ],
+    )
+}
+
 #[test]
 fn coarse_silo_discharges_with_exact_mass_accounting() {
     let d = tempfile::tempdir().unwrap();
     // ~10 mm cells, a 4-cell orifice: discharging from ~0.4 s on
-    let (code, err) = run_in(
-        d.path(),
-        &[
-            "run",
-            "silo",
-            "--grid",
-            "15x50",
-            "--t-end",
-            "0.7",
-            "--set",
-            "boundary.flow.z_low.outlet.width=0.04",
-            "--quiet",
-        ],
-    );
+    let (code, err) = run_coarse_silo(d.path(), "0.7", "boundary.flow.z_low.outlet.width=0.04");
     assert_eq!(code, 0, "{err}");
     assert!(!err.contains("warning"), "explicit silo warned: {err}");
     let dir = d.path().join("runs/silo");
@@ -99,20 +96,7 @@ fn orifice_wider_than_the_floor_is_rejected() {
 #[test]
 fn implicit_silo_warns_that_its_rate_depends_on_the_step() {
     let d = tempfile::tempdir().unwrap();
-    let (code, err) = run_in(
-        d.path(),
-        &[
-            "run",
-            "silo",
-            "--grid",
-            "15x50",
-            "--t-end",
-            "0.02",
-            "--set",
-            "flow.pressure=implicit",
-            "--quiet",
-        ],
-    );
+    let (code, err) = run_coarse_silo(d.path(), "0.02", "flow.pressure=implicit");
     assert_eq!(code, 0, "{err}");
     let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
     assert_eq!(warnings.len(), 1, "{err}");

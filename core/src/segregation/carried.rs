@@ -812,14 +812,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let share = R::ONE / R::from_usize(2 * D);
         let grid = self.grid;
         for a in 0..D {
-            let fb = grid.face_blocks(a);
-            let s = fb.stride;
-            for b in 0..fb.blocks {
-                let l0 = b * fb.block_stride;
-                for l in l0..l0 + fb.block_len {
-                    self.pass_on(l, l + s, cap, share);
-                }
-            }
+            grid.for_each_interior_face(a, |l, r| self.pass_on(l, r, cap, share));
             if self.bc[a][0] == Boundary::Periodic {
                 grid.for_each_boundary_cell(a, true, |last, first| {
                     if last != first {
