@@ -359,14 +359,7 @@ pub struct SceneSource {
 impl SceneSource {
     /// Resolves the scene as `scene::load` does, from the stored text.
     pub fn load(&self) -> Result<(Scene, Fields)> {
-        let mut table = crate::scene::parse_table(&self.label, &self.text)?;
-        for s in &self.sets {
-            crate::scene::apply_set(&self.label, &mut table, s)?;
-        }
-        let file = crate::scene::deserialize(&self.label, table)?;
-        let scene = Scene::validate(&self.label, file)?;
-        let fields = scene.evaluate_fields()?;
-        Ok((scene, fields))
+        crate::scene::resolve(&self.label, &self.text, &self.sets)
     }
 }
 

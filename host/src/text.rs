@@ -5,6 +5,9 @@
 //! A leaf: used by [`crate::error`] on every message it builds and by the command line on
 //! clap's messages, so no caller has to remember it.
 
+/// A number is rewritten in the exponent form only when that saves this many characters.
+const SAVED: usize = 4;
+
 /// Longest echoed word (characters) before it is clipped.
 pub const CLIP: usize = 60;
 
@@ -33,18 +36,22 @@ fn shorten_word(word: &str) -> String {
     format!("{head}... ({n} chars)")
 }
 
-/// Rewrites each maximal run of number characters (`0-9 . e E + -`) longer than 17 characters
-/// that parses as a finite f64 in the `{:e}` form (the shortest that reads back the same).
+/// Rewrites each maximal run of number characters (`0-9 . e E + -`) that parses as a finite
+/// f64 in the `{:e}` form (the shortest that reads back the same) when that form is at least
+/// [`SAVED`] characters shorter: `{}` writes 1e-15 as `0.000000000000001` and 1e300 with 301
+/// digits, while `0.0123` or `123456789` read better as they are.
 fn short_numbers(word: &str) -> String {
     let is_num = |c: char| c.is_ascii_digit() || matches!(c, '.' | 'e' | 'E' | '+' | '-');
-    if word.len() <= 17 {
+    if word.len() < 8 {
         return word.to_string();
     }
     let mut out = String::with_capacity(word.len());
     let mut run = String::new();
     let flush = |run: &mut String, out: &mut String| {
         match run.parse::<f64>() {
-            Ok(x) if run.len() > 17 && x.is_finite() => out.push_str(&format!("{x:e}")),
+            Ok(x) if x.is_finite() && format!("{x:e}").len() + SAVED <= run.len() => {
+                out.push_str(&format!("{x:e}"))
+            }
             _ => out.push_str(run),
         }
         run.clear();

@@ -100,6 +100,17 @@ fn bad_input_exits_2_with_one_line_naming_file_key_and_range() {
             "cells",
         ],
     );
+    // A --set into a table the scene lacks (the flat silo has no [geometry]; its outlet width
+    // is boundary.flow.z_low.outlet.width) names the new table and what it still needs.
+    assert_bad_input(
+        &["run", "silo", "--set", "geometry.outlet_width=0.03"],
+        &[
+            "scenes/silo.toml",
+            "--set geometry.outlet_width",
+            "no [geometry] table",
+            "`shape`",
+        ],
+    );
     assert_bad_input(
         &["run", "column-a", "--set", "initial.c=nan"],
         &[

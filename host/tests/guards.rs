@@ -673,6 +673,13 @@ mod helpers {
             "grid.cells[0] = 0.125 ok"
         );
         assert_eq!(shorten("column-a 1..=65536"), "column-a 1..=65536");
+        // Display writes 1e-15 with fifteen zeros; the exponent form only where it is shorter
+        assert_eq!(
+            shorten(&format!("tol = {} is out", 1e-15)),
+            "tol = 1e-15 is out"
+        );
+        assert_eq!(shorten("x = 0.0123456789 y"), "x = 0.0123456789 y");
+        assert_eq!(shorten("steps 123456789"), "steps 123456789");
     }
 
     #[test]

@@ -718,12 +718,75 @@ fn plain_types(msg: &str) -> String {
 /// its fields on the grid.
 pub fn load(spec: &str, sets: &[String]) -> Result<(Scene, Fields)> {
     let src = locate(spec)?;
-    let mut table = parse_table(&src.label, &src.text)?;
+    resolve(&src.label, &src.text, sets)
+}
+
+/// Parses scene text, applies the `--set` overrides in order, deserialises, validates and
+/// evaluates the fields (what [`load`] and a checkpoint's stored scene share).
+pub fn resolve(label: &str, text: &str, sets: &[String]) -> Result<(Scene, Fields)> {
+    let mut table = parse_table(label, text)?;
+    let before = table_paths(&table);
     for s in sets {
-        apply_set(&src.label, &mut table, s)?;
+        apply_set(label, &mut table, s)?;
     }
-    let file = deserialize(&src.label, table)?;
-    let scene = Scene::validate(&src.label, file)?;
+    let file = deserialize(label, table).map_err(|e| started_by_set(e, &before, sets))?;
+    let scene = Scene::validate(label, file)?;
     let fields = scene.evaluate_fields()?;
     Ok((scene, fields))
+}
+
+/// The dotted paths of every table in `table` (the scene's own, before the overrides).
+fn table_paths(table: &toml::Table) -> Vec<String> {
+    fn walk(t: &toml::Table, prefix: &str, out: &mut Vec<String>) {
+        for (k, v) in t {
+            if let toml::Value::Table(inner) = v {
+                let path = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                walk(inner, &path, out);
+                out.push(path);
+            }
+        }
+    }
+    let mut out = Vec::new();
+    walk(table, "", &mut out);
+    out
+}
+
+/// A `--set` into a table the scene does not have starts a new, incomplete one, and serde then
+/// says only "missing field `shape`". Say what happened instead: which table is new, which
+/// `--set` made it, and what it still needs (a silo's outlet width, say, lives under
+/// `boundary.flow`, not under a `[geometry]` the flat silo does not have).
+fn started_by_set(err: Error, before: &[String], sets: &[String]) -> Error {
+    let Error::Input(line) = &err else {
+        return err;
+    };
+    let Some(field) = line
+        .split("missing field `")
+        .nth(1)
+        .and_then(|rest| rest.split('`').next())
+    else {
+        return err;
+    };
+    for set in sets {
+        let key = set.split_once('=').map_or(set.as_str(), |(k, _)| k).trim();
+        let parts: Vec<&str> = key.split('.').collect();
+        // The outermost table on the key's path that the scene did not have.
+        let new_table = (1..parts.len())
+            .map(|n| parts[..n].join("."))
+            .find(|p| !before.contains(p));
+        if let Some(table) = new_table {
+            let (file, _) = line.split_once(": ").unwrap_or((line.as_str(), ""));
+            return Error::Input(one_line_set(file, &table, key, field));
+        }
+    }
+    err
+}
+
+fn one_line_set(file: &str, table: &str, key: &str, field: &str) -> String {
+    format!(
+        "{file}: --set {key}: this scene has no [{table}] table, so the --set starts a new one, which also needs `{field}`: check the key's name against {file}"
+    )
 }
