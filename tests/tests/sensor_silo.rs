@@ -75,6 +75,16 @@ fn outlet_fines_fraction_of_a_discharging_silo() {
     );
     // Both discharged, and a mixed bed's discharge is close to its fines fraction 1/2.
     assert!(o.total_out[0] > 0.0 && o.total_out[1] > 0.0);
+    // The packing cap vents at the orifice (docs/soft-sensor.md, step 0 of the cap): the
+    // 2 x 7 sensor measures the jet too slow and too wide, and the excess that piled up above
+    // the orifice used to go back into the bed. Measured: 56 % of the truth's grains out
+    // (26 % when the cap sent it back into the bed).
+    assert!(
+        o.total_out[0] > 0.45 * o.total_out[1],
+        "estimator let out {:e} of the truth's {:e}",
+        o.total_out[0],
+        o.total_out[1]
+    );
     assert!((o.total_fines[1] - 0.5).abs() < 0.05, "{:?}", o.total_fines);
     // Bounds by construction, nothing held back by the budget.
     assert_eq!(r.counters.phi_excursions, 0);

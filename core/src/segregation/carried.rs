@@ -645,6 +645,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
         }
         if let Some(cap) = cap {
+            self.vent_at_openings(cap, &open, &mut out);
             self.pool_packing(cap);
         }
         // Pass D: k = S / c for the new c; inflow values follow the new c.
@@ -754,6 +755,50 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 let cn = (c + a).min(cap);
                 self.q[i] = (self.q[i] + a * phat).min(cn);
                 self.c[i] = cn;
+            }
+        }
+    }
+
+    /// The packing cap's first stage at an opening: a cell on an open wall part or an
+    /// outflow side whose measured velocity points out lets its excess above `cap` leave
+    /// there (each phase by its share; booked as outflow), as grains pushed into a cell at
+    /// the orifice of an incompressible bed leave through it. On a coarse sensor the flow
+    /// into the orifice is measured too slow and too wide, and c rose above the orifice to
+    /// make up for it; sent back into the bed, that excess held the outflow back.
+    fn vent_at_openings(
+        &mut self,
+        cap: R,
+        open: &impl Fn(usize, bool, usize) -> R,
+        out: &mut Discharge<R, D>,
+    ) {
+        let grid = self.grid;
+        let vol = grid.cell_volume();
+        let small = self.cfg.phase == Phase::Small;
+        for a in 0..D {
+            for high in [false, true] {
+                let kind = self.bc[a][high as usize];
+                let side = high as usize;
+                if matches!(kind, Boundary::Inflow | Boundary::Periodic) {
+                    continue;
+                }
+                grid.for_each_boundary_cell(a, high, |i, _| {
+                    let c = self.c[i];
+                    // Cheapest test first: a box without openings rarely has a wall cell above
+                    // the cap, so it pays a compare per boundary cell, not the opening lookup.
+                    if c > cap
+                        && outward(high, self.u[a][i]) > R::ZERO
+                        && (kind == Boundary::Outflow || open(a, high, i) > R::ZERO)
+                    {
+                        let q = self.q[i];
+                        let qn = (q * (cap / c)).min(cap);
+                        let e = c - cap;
+                        let qhat = (q / c).min(R::ONE);
+                        out.small[a][side] += small_part(small, e, qhat) * vol;
+                        out.total[a][side] += e * vol;
+                        self.c[i] = cap;
+                        self.q[i] = qn;
+                    }
+                });
             }
         }
     }
