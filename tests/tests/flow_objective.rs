@@ -112,10 +112,16 @@ struct DrumRun {
     bulk_t: f64,
 }
 
-/// A full drum of glass beads (c = 0.6, T = 0) turning at `omega`, run for `t_end` (started
-/// from rest). Lab: wall at `omega R`; rotating: wall at rest, frame turning at `omega`.
-/// `u_rigid` is `omega x r` in the lab and 0 in the rotating frame.
-fn full_drum(stress: Stress, rotating: bool, gravity: bool, omega: f64, t_end: f64) -> DrumRun {
+/// The full drum of glass beads (c = 0.6, T = 0, 32 x 32 cut cells, no-slip wall) ready to
+/// step. Lab: wall at `omega R`; rotating: wall at rest, frame turning at `omega`. Started
+/// from rest, or (`rigid`) in the lab's exact rigid rotation `u = omega x r` at every cell.
+fn drum(
+    stress: Stress,
+    rotating: bool,
+    gravity: bool,
+    omega: f64,
+    rigid: bool,
+) -> Box<Flow<f64, 2, DN>> {
     let n = CELLS;
     let h = 2.0 * RADIUS / (n as f64 - 2.0);
     let l = n as f64 * h;
@@ -145,9 +151,24 @@ fn full_drum(stress: Stress, rotating: bool, gravity: bool, omega: f64, t_end: f
     flow.set_geometry(&cut, wall).unwrap();
     for i in 0..grid.len() {
         let c = if flow.open_volume(i) > 0.0 { 0.6 } else { 0.0 };
-        flow.set_cell(i, c, [0.0; 2], 0.0);
+        let x = grid.center(i);
+        let u = if rigid {
+            [-omega * x[1], omega * x[0]]
+        } else {
+            [0.0; 2]
+        };
+        flow.set_cell(i, c, u, 0.0);
     }
     flow.prepare().unwrap();
+    flow
+}
+
+/// A full drum turning at `omega`, run for `t_end` (started from rest; [`drum`]).
+/// `u_rigid` is `omega x r` in the lab and 0 in the rotating frame.
+fn full_drum(stress: Stress, rotating: bool, gravity: bool, omega: f64, t_end: f64) -> DrumRun {
+    let n = CELLS;
+    let mut flow = drum(stress, rotating, gravity, omega, false);
+    let grid = *flow.grid();
     let m0 = flow.diagnostics().mass;
     let mut r = DrumRun {
         bulk: 0.0,
@@ -208,12 +229,15 @@ fn full_drum(stress: Stress, rotating: bool, gravity: bool, omega: f64, t_end: f
 ///
 /// | case | bulk max \|u - u_rigid\| / (omega R) | bulk mean T at the end |
 /// |---|---|---|
-/// | spec, no gravity | 1.8e-2 | 4.14e-5 (`2 a omega^2 eta0 / eps0` = 4.17e-5) |
-/// | objective, no gravity | 2.6e-4 | 1.9e-9 |
-/// | objective, rotating frame, gravity | 3.7e-6 (u = 0) | 7e-16 |
-/// | objective, gravity | 1.4e-3 | 1.1e-8 |
+/// | spec, no gravity | 2.2e-2 | 4.22e-5 (`2 a omega^2 eta0 / eps0` = 4.17e-5) |
+/// | objective, no gravity | 5.1e-5 | 1.3e-9 |
+/// | objective, rotating frame, gravity | 3.6e-6 (u = 0) | 6.6e-16 |
+/// | objective, gravity | 1.22e-3 | 1.3e-8 |
 ///
-/// With gravity the lab bulk misses the 1e-3 of issue 8 by 1.4x. It is not the time
+/// Before the merge groups carried the moving wall's rigid motion (`lab_drum_wall_ring_is_not_
+/// warmer_than_the_bed`, docs/frames.md) the lab rows were 1.8e-2 / 4.14e-5, 2.6e-4 / 1.9e-9
+/// and 1.4e-3 / 1.1e-8. With gravity the lab bulk misses the 1e-3 of issue 8 by 1.2x (the
+/// numbers below were measured before that fix). It is not the time
 /// splitting (Courant 0.2 instead of 0.4: 1.64e-3 against 1.61e-3 at 1 rev/s), nor the cut
 /// wall (48 x 48: 1.52e-3), nor the spin-up (a start in exact rigid rotation: 1.55e-3), nor
 /// the stress (without gravity 1.1e-4 at 1 rev/s): the bed is compressible, packed by its
@@ -271,19 +295,138 @@ fn full_drum_turns_rigidly_with_the_objective_stress() {
             out[0].bulk_t
         );
         assert!(out[0].bulk > 5e-3, "{}", out[0].bulk);
-        // the objective stress: rigid rotation within 1e-3, no heating
-        assert!(out[1].bulk < 1e-3, "{}", out[1].bulk);
+        // the objective stress: rigid rotation within 2e-4 (2.6e-4 before the moving wall's
+        // merge groups carried the rigid motion), no heating
+        assert!(out[1].bulk < 2e-4, "{}", out[1].bulk);
         assert!(out[1].bulk_t < 1e-3 * t_eq, "{}", out[1].bulk_t);
         // rotating frame: at rest
         assert!(out[2].bulk < 1e-3, "{}", out[2].bulk);
         assert!(out[2].bulk_t < 1e-6 * t_eq, "{}", out[2].bulk_t);
         // with gravity in the lab: the compaction flow (doc above), an order of magnitude
         // below the spec's lag
-        assert!(out[3].bulk < 2.5e-3, "{}", out[3].bulk);
+        assert!(out[3].bulk < 1.5e-3, "{}", out[3].bulk);
         assert!(out[3].bulk_t < 1e-3 * t_eq, "{}", out[3].bulk_t);
         // the lagged cross part needs no smaller step (same Courant limit)
         let ratio = out[1].steps as f64 / out[0].steps as f64;
         assert!(ratio < 1.02, "{ratio}");
+    });
+}
+
+/// Per ring of `r / R` (0-0.5, 0.5-0.625, 0.625-0.75, 0.75-0.875, 0.875-1: the last holds
+/// the cut and wall cells) over the cells with open volume >= 1/2 (the slivers hold too little
+/// volume to count): the open-volume-weighted mean T and the max `|u - omega x r| / (omega R)`.
+fn lab_rings(flow: &Flow<f64, 2, DN>, omega: f64) -> [(f64, f64); 5] {
+    let grid = flow.grid();
+    let mut out = [(0.0f64, 0.0f64); 5];
+    let mut vol = [0.0f64; 5];
+    for i in 0..grid.len() {
+        let v = flow.open_volume(i);
+        if v < 0.5 {
+            continue;
+        }
+        let x = grid.center(i);
+        let r = (x[0] * x[0] + x[1] * x[1]).sqrt() / RADIUS;
+        let k = if r < 0.5 {
+            0
+        } else {
+            (1 + ((r - 0.5) / 0.125) as usize).min(4)
+        };
+        let u = flow.velocity(i);
+        let e = ((u[0] + omega * x[1]).powi(2) + (u[1] - omega * x[0]).powi(2)).sqrt()
+            / (omega * RADIUS);
+        vol[k] += v;
+        out[k].0 += v * flow.temperature(i);
+        out[k].1 = out[k].1.max(e);
+    }
+    for (o, v) in out.iter_mut().zip(vol) {
+        o.0 /= v;
+    }
+    out
+}
+
+/// The discrete rigid rotation in the lab frame (full drum, no gravity, 2 rev/s, every cell
+/// started at `omega x r`) over one step of 1e-12 s: the objective stress must not heat it,
+/// at the moving cut wall as in the bulk. With the frozen-in field the step is the viscous
+/// operator's and the heating's answer to a rigid field (the transport's centripetal
+/// deviation is `omega dt` = 1.3e-11 of omega R). The spec's stress heats it by
+/// `2 eta omega^2` everywhere, the yardstick.
+///
+/// Measured (mean T per ring, objective / spec): before the merge groups carried the wall's
+/// rigid motion (`Flow::carry_rigid_offsets`) and the transposed traction's differences
+/// avoided merge members, the wall ring (0.875-1) had 9.0e-8 / 8.9e-7 (a tenth of the spec's
+/// heating) and the velocity there moved by 1.7e-2 of omega R in the one tiny step: each
+/// member started at its group's mean velocity, a cell's width off the rotation. Now: wall
+/// ring 4.0e-16 (4.5e-10 of the spec's; 6.6e-5 / 3.6e5 in the heating, flat in dt from 1e-14
+/// to 1e-12: the linear solves' tolerance), inner rings 9e-24 - 2e-23 (1e-17), the 0.75-0.875
+/// ring 3.7e-19; velocity error 1.7e-11 (the centripetal `omega dt`).
+#[test]
+fn rigid_rotation_does_not_heat_the_moving_cut_wall() {
+    run_big(|| {
+        let omega = 2.0 * PI * 2.0;
+        let dt = 1e-12;
+        let mut obj = drum(Stress::Objective, false, false, omega, true);
+        let mut spec = drum(Stress::Spec, false, false, omega, true);
+        obj.step(dt);
+        spec.step(dt);
+        let (ro, rs) = (lab_rings(&obj, omega), lab_rings(&spec, omega));
+        for k in 0..5 {
+            println!(
+                "ring {k}: mean T objective {:.2e}, spec {:.2e}; max error {:.2e} / {:.2e}",
+                ro[k].0, rs[k].0, ro[k].1, rs[k].1
+            );
+            assert!(rs[k].0 > 5e-7, "the spec must heat: {}", rs[k].0);
+            assert!(ro[k].0 >= 0.0);
+            // the wall ring at the linear solves' tolerance, the rest at round-off
+            let bound = if k == 4 { 1e-8 } else { 1e-12 };
+            assert!(
+                ro[k].0 < bound * rs[k].0,
+                "ring {k}: {} vs {}",
+                ro[k].0,
+                rs[k].0
+            );
+            assert!(ro[k].1 < 1e-9, "ring {k}: {}", ro[k].1);
+        }
+        for i in 0..obj.grid().len() {
+            assert!(obj.temperature(i) >= 0.0 && obj.temperature(i).is_finite());
+        }
+    });
+}
+
+/// The lab drum of [`rigid_rotation_does_not_heat_the_moving_cut_wall`] run for a
+/// revolution (0.5 s, no gravity, objective stress): what heat there is must not come from
+/// the moving wall. Measured (mean T per ring 0-0.5 ... 0.875-1; max error / (omega R)):
+///
+/// | | 0-0.5 | 0.5-0.625 | 0.625-0.75 | 0.75-0.875 | 0.875-1 (cut, wall) |
+/// |---|---|---|---|---|---|
+/// | before (stop 18) | 2.0e-10, 7.8e-5 | 5.4e-10, 1.0e-4 | 1.5e-9, 1.4e-4 | 4.2e-9, 1.9e-4 | 4.1e-8, 3.3e-4 |
+/// | now | 5.9e-11, 2.0e-5 | 1.4e-10, 2.5e-5 | 7.6e-10, 3.2e-5 | 3.5e-9, 5.5e-5 | 3.3e-9, 6.4e-5 |
+///
+/// The wall ring was 10x warmer than the next ring inwards; now it is not warmer at all.
+/// Mass to 3.5e-15.
+#[test]
+fn lab_drum_wall_ring_is_not_warmer_than_the_bed() {
+    run_big(|| {
+        let omega = 2.0 * PI * 2.0;
+        let mut flow = drum(Stress::Objective, false, false, omega, true);
+        let m0 = flow.diagnostics().mass;
+        let mut mass = 0.0f64;
+        while flow.time() < 0.5 {
+            let dt = flow.stable_dt().min(0.5 - flow.time());
+            flow.step(dt);
+            mass = mass.max((flow.diagnostics().mass - m0).abs() / m0);
+        }
+        let r = lab_rings(&flow, omega);
+        for (k, (t, e)) in r.iter().enumerate() {
+            println!("ring {k}: mean T {t:.2e}, max error {e:.2e}");
+        }
+        println!("mass {mass:.1e}");
+        assert!(mass < 1e-13, "{mass}");
+        assert!(r[4].0 < 1e-8, "wall ring T {}", r[4].0);
+        assert!(r[4].0 < 1.5 * r[3].0, "wall ring {} vs {}", r[4].0, r[3].0);
+        for (k, &(t, e)) in r.iter().enumerate() {
+            assert!((0.0..1e-8).contains(&t), "ring {k}: T {t}");
+            assert!(e < 1e-4, "ring {k}: error {e}");
+        }
     });
 }
 

@@ -41,7 +41,11 @@
 //! master again. Averaging the group after each implicit solve (content-conservative) was
 //! tried and dropped: the mean of a linear field over a group is not its value at the
 //! master's centre, which breaks the exactness above and tripled the rigid-rotation error of
-//! the drum (1.3e-2 against 4.4e-3 on 32 x 32, tests/tests/flow_drum.rs). Mass is conserved to
+//! the drum (1.3e-2 against 4.4e-3 on 32 x 32, tests/tests/flow_drum.rs). With a moving wall
+//! (lab frame) the master's momentum is handed to a member with the wall's rigid motion
+//! between their centres added ([`Flow::carry_rigid_offsets`]), so a rigid rotation passes
+//! the group update unchanged (a plain copy put every member `omega h` off it each step, and
+//! the implicit solve's correction heated the wall ring). Mass is conserved to
 //! round-off either way (c never leaves the group rule); momentum and `c T` are not conserved
 //! quantities next to a wall anyway. The time step is the box rule over the open cells
 //! ([`Flow::stable_dt`]): no tiny cell enters it, and the limiters keep `0 <= c <= c_max` of
@@ -235,6 +239,25 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
         let xb = x[b] + d * self.normal[b][i] - w.center[b];
         u[a] = -(w.omega * xb);
         u[b] = w.omega * xa;
+        u
+    }
+
+    /// Whether the cut wall moves and cells are merged: then a merge group carries the wall's
+    /// rigid motion across its members ([`Flow::carry_rigid_offsets`]).
+    #[inline(always)]
+    pub fn rigid_groups(&self) -> bool {
+        self.merged && self.wall.omega != R::ZERO && D >= 2
+    }
+
+    /// `u_R(x_j) - u_R(x_i)` of the wall's rigid motion `u_R = omega x (x - center)` between
+    /// the centres of cells `j` and `i` (0 off the rotation plane).
+    pub fn rigid_offset(&self, grid: &Grid<R, D>, j: usize, i: usize) -> [R; D] {
+        let mut u = [R::ZERO; D];
+        let w = &self.wall;
+        let (xj, xi) = (grid.center(j), grid.center(i));
+        let [a, b] = w.plane;
+        u[a] = -(w.omega * (xj[b] - xi[b]));
+        u[b] = w.omega * (xj[a] - xi[a]);
         u
     }
 }
@@ -484,7 +507,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 }
 
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
-    /// Empties the solid cells and gives each merge group its content-weighted mean state.
+    /// Empties the solid cells and gives each merge group its content-weighted mean state;
+    /// with a moving wall the mean of the momentum relative to the wall's rigid motion (taken
+    /// at the master), so a bed started in the rigid rotation keeps it exactly.
     pub(super) fn embedded_prepare(&mut self) {
         let n = self.grid.len();
         for i in 0..n {
@@ -498,11 +523,54 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
         }
+        let rigid = self.walls.rigid_groups();
+        if rigid {
+            // momentum relative to the wall's rigid motion taken at each member's master,
+            // so that the group mean below is the master's own rigid value
+            let grid = self.grid;
+            for i in 0..n {
+                let m = self.walls.master[i] as usize;
+                if m != i {
+                    let off = self.walls.rigid_offset(&grid, i, m);
+                    for a in 0..D {
+                        self.m[a][i] -= self.c[i] * off[a];
+                    }
+                }
+            }
+        }
         let w = &self.walls;
         w.group_mean(n, &mut self.c, &mut self.rhs);
         w.group_mean(n, &mut self.e, &mut self.rhs);
         for a in 0..D {
             w.group_mean(n, &mut self.m[a], &mut self.rhs);
+        }
+        if rigid {
+            self.carry_rigid_offsets();
+        }
+    }
+
+    /// A moving cut wall (lab frame): every member of a merge group takes its master's
+    /// momentum *plus* the wall's rigid motion between the two centres,
+    /// `m_k = m_M + c (u_R(x_k) - u_R(x_M))`, instead of the master's value alone. Why: a
+    /// group is one cell for the explicit stages, and copying the master's velocity to a
+    /// member a cell away puts it `omega h` off a rigid rotation every step; the implicit
+    /// viscous solve then pulls it back, and the discrete heating of that correction (linear
+    /// in it at cut faces) heated the wall ring to 10x the bed's T (docs/frames.md, "The
+    /// moving cut wall heated the bed"). With the offset a rigid rotation passes through the
+    /// group update unchanged. A resting wall (`omega = 0`: the rotating frame, silos,
+    /// hoppers) never calls this: the plain copy, same bits.
+    pub(super) fn carry_rigid_offsets(&mut self) {
+        let n = self.grid.len();
+        let grid = self.grid;
+        for i in 0..n {
+            let m = self.walls.master[i] as usize;
+            if m != i {
+                let off = self.walls.rigid_offset(&grid, i, m);
+                let c = self.c[i];
+                for a in 0..D {
+                    self.m[a][i] = self.m[a][m] + c * off[a];
+                }
+            }
         }
     }
 
@@ -576,6 +644,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let dm: [&mut [R; N]; 3] = [&mut self.pv, &mut self.ap, &mut self.pre];
         for (a, d) in dm.into_iter().enumerate().take(D) {
             w.apply_increment(n, &mut self.m[a], d);
+        }
+        if self.walls.rigid_groups() {
+            self.carry_rigid_offsets();
         }
     }
 
