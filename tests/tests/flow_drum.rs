@@ -242,8 +242,10 @@ fn full_drum_solid_body_rotation_cut_cells_vs_staircase() {
                 e[k] = [bulk, band];
             }
             let [cut, stair] = e;
-            assert!(cut[0] < 6e-3, "cut-cell bulk error {}", cut[0]);
-            assert!(cut[1] < 6e-3, "cut-cell near-wall error {}", cut[1]);
+            // 1.26e-3 / 2.41e-3 at 0.1 rev/s, 1.33e-3 in the bulk at 0.5 (4.4e-3 and 4.2e-3
+            // before the merge groups carried the wall's rigid motion, docs/flow-walls.md)
+            assert!(cut[0] < 2e-3, "cut-cell bulk error {}", cut[0]);
+            assert!(cut[1] < 3.5e-3, "cut-cell near-wall error {}", cut[1]);
             // the staircase drags and slips: an order of magnitude worse, most near the wall
             assert!(stair[0] > 10.0 * cut[0], "{stair:?} vs {cut:?}");
             assert!(stair[1] > 30.0 * cut[1], "{stair:?} vs {cut:?}");
