@@ -129,7 +129,7 @@ pub(super) fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
 pub const FLUSH_EVERY: u64 = 8;
 
 /// Independent running maxima of the bound check in [`Segregation::apply_increment`].
-const LANES: usize = 4;
+const LANES: usize = 8;
 
 /// `x`, with a zero of either sign returned as +0 (a running maximum split into lanes finds
 /// the same value as one chain, but not necessarily the same sign of zero).
@@ -307,6 +307,12 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     ) {
         let fb = self.grid.face_blocks(axis);
         let s = fb.stride;
+        // One axis (FIRST and LAST: 1D), plain update: the increment of a cell with a face
+        // above is minus that face's flux, which `flux` holds already (the high boundary
+        // face's too, at the last cell), so the face loop stores no increment and the update
+        // reads the flux twice instead (`Update`, FUSED): a store and a load per cell fewer,
+        // the C loop's memory traffic (core/benches/column_a_vs_c.rs), the same operations.
+        let fused = FIRST && LAST && !self.cfg.compensated;
         // Interior faces, block by block: left cells l0..l0+len, right cells shifted by s.
         for b in 0..fb.blocks {
             let l0 = b * fb.block_stride;
@@ -329,14 +335,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                     q: &self.q[l0 + s..l0 + s + len],
                     side,
                 };
-                I::run(InteriorBlock::<R, K, DIFFUSE, FIRST, _> {
-                    out,
-                    rhs,
-                    left,
-                    right,
-                    ax,
-                    kernel: PhantomData,
-                });
+                interior::<I, R, K, DIFFUSE, FIRST, _>(fused, out, rhs, left, right, ax);
             } else {
                 let slices = |at| {
                     Slices::new(
@@ -349,15 +348,19 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                         len,
                     )
                 };
-                I::run(InteriorBlock::<R, K, DIFFUSE, FIRST, _> {
+                interior::<I, R, K, DIFFUSE, FIRST, _>(
+                    fused,
                     out,
                     rhs,
-                    left: slices(l0),
-                    right: slices(l0 + s),
+                    slices(l0),
+                    slices(l0 + s),
                     ax,
-                    kernel: PhantomData,
-                });
+                );
             }
+        }
+        if fused && fb.block_len > 0 {
+            // the increment of cell 0, which the boundary faces complete below
+            self.rhs[0] = -self.flux[0];
         }
         // High boundary faces, stored at the last cell of each line (periodic low faces reuse them).
         let high = self.bc[axis][1];
@@ -400,7 +403,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // ... and every other cell the flux of the interior face below it.
         if LAST {
             debug_assert_eq!(fb.blocks, 1);
-            self.apply_increment::<I>(s);
+            self.apply_increment::<I>(s, fused);
         } else {
             for b in 0..fb.blocks {
                 let l0 = b * fb.block_stride;
@@ -416,7 +419,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// The last axis's lower-face fluxes, added to the increment, and the increment to q, in
     /// one pass; tracks the running bound violations on the way. `s` is the stride of the
     /// outermost axis: cells `s..n` have an interior face below, cells `0..s` do not.
-    fn apply_increment<I: Isa>(&mut self, s: usize) {
+    fn apply_increment<I: Isa>(&mut self, s: usize, fused: bool) {
         if self.cfg.compensated {
             return self.apply_increment_compensated(s);
         }
@@ -431,19 +434,56 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
         }
         let len = n - s;
-        let (q, dq, c, f) = (
-            &mut self.q[s..n],
-            &self.rhs[s..n],
+        let start = [above, below];
+        // Uniform coefficients on the last axis (`detect_uniform`): c is one value, bit for
+        // bit, so the bound check reads it once instead of an array.
+        let uniform = self.uniform[D - 1];
+        let (q, c0) = (&mut self.q[s..n], self.c[0]);
+        // `dq` of the fused update: the flux of each cell's own upper face (see
+        // `axis_increment`); `f`: the face below.
+        let (dq, c, f) = (
+            if fused {
+                &self.flux[s..n]
+            } else {
+                &self.rhs[s..n]
+            },
             &self.c[s..n],
             &self.flux[..len],
         );
-        self.excess = I::run(Update {
-            q,
-            dq,
-            f,
-            c,
-            start: [above, below],
-        });
+        self.excess = match (fused, uniform) {
+            (false, false) => I::run(Update::<R, false, false> {
+                q,
+                dq,
+                f,
+                c,
+                c0,
+                start,
+            }),
+            (false, true) => I::run(Update::<R, false, true> {
+                q,
+                dq,
+                f,
+                c,
+                c0,
+                start,
+            }),
+            (true, false) => I::run(Update::<R, true, false> {
+                q,
+                dq,
+                f,
+                c,
+                c0,
+                start,
+            }),
+            (true, true) => I::run(Update::<R, true, true> {
+                q,
+                dq,
+                f,
+                c,
+                c0,
+                start,
+            }),
+        };
         // The flush (docs/model.md 5.6) every FLUSH_EVERY steps, in a pass of its own: in the
         // update loop above it cost 12 % of the 1D step (a third reduction); here < 2 %.
         if self.cfg.flush_below > R::ZERO && self.steps % FLUSH_EVERY == 0 {
@@ -606,7 +646,9 @@ impl<R: Real> Cells<R> for Uniform<'_, R> {
 /// The hot loop: stores each face flux and subtracts it from its left cell at once (the
 /// right cell gains it in a separate pass: doing both here would chain iterations along x and
 /// stop vectorisation). All slices have the length of `out`, so bounds checks vanish.
-struct InteriorBlock<'a, R, K, const DIFFUSE: bool, const FIRST: bool, S> {
+/// `RHS`: whether the increment is written at all (not in the fused 1D update, which reads
+/// `out` instead: `Segregation::axis_increment`).
+struct InteriorBlock<'a, R, K, const DIFFUSE: bool, const FIRST: bool, const RHS: bool, S> {
     out: &'a mut [R],
     rhs: &'a mut [R],
     left: S,
@@ -615,8 +657,14 @@ struct InteriorBlock<'a, R, K, const DIFFUSE: bool, const FIRST: bool, S> {
     kernel: PhantomData<K>,
 }
 
-impl<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool, S: Cells<R>> HotLoop
-    for InteriorBlock<'_, R, K, DIFFUSE, FIRST, S>
+impl<
+        R: Real,
+        K: Kernel<R>,
+        const DIFFUSE: bool,
+        const FIRST: bool,
+        const RHS: bool,
+        S: Cells<R>,
+    > HotLoop for InteriorBlock<'_, R, K, DIFFUSE, FIRST, RHS, S>
 {
     type Out = ();
     #[inline(always)]
@@ -628,12 +676,45 @@ impl<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool, S: Cells<R>>
         for j in 0..len {
             let f = face::<R, K, DIFFUSE>(left.get(j), right.get(j), ax);
             out[j] = f;
-            if FIRST {
-                rhs[j] = -f;
-            } else {
-                rhs[j] -= f;
+            if RHS {
+                if FIRST {
+                    rhs[j] = -f;
+                } else {
+                    rhs[j] -= f;
+                }
             }
         }
+    }
+}
+
+/// One block of interior faces through `I`, with (`fused` false) or without the increment.
+#[inline(always)]
+fn interior<I: Isa, R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool, S: Cells<R>>(
+    fused: bool,
+    out: &mut [R],
+    rhs: &mut [R],
+    left: S,
+    right: S,
+    ax: AxisConst<R>,
+) {
+    if fused {
+        I::run(InteriorBlock::<R, K, DIFFUSE, FIRST, false, S> {
+            out,
+            rhs,
+            left,
+            right,
+            ax,
+            kernel: PhantomData,
+        })
+    } else {
+        I::run(InteriorBlock::<R, K, DIFFUSE, FIRST, true, S> {
+            out,
+            rhs,
+            left,
+            right,
+            ax,
+            kernel: PhantomData,
+        })
     }
 }
 
@@ -655,45 +736,55 @@ impl<R: Real> HotLoop for Gain<'_, R> {
 
 /// The update of the cells with an interior face below on the last axis
 /// ([`Segregation::apply_increment`]): `q += dq + f`, with the running bound maxima
-/// `[max(q - c), max(-q)]` from `start`.
-struct Update<'a, R> {
+/// `[max(q - c), max(-q)]` from `start`. `FUSED`: `dq` holds the flux of each cell's upper
+/// face and the increment is `-dq` (the same value the face loop would have stored).
+/// `UNIFORM`: every c is `c0` (the array is not read).
+struct Update<'a, R, const FUSED: bool, const UNIFORM: bool> {
     q: &'a mut [R],
     dq: &'a [R],
     f: &'a [R],
     c: &'a [R],
+    c0: R,
     start: [R; 2],
 }
 
-impl<R: Real> HotLoop for Update<'_, R> {
+impl<R: Real, const FUSED: bool, const UNIFORM: bool> HotLoop for Update<'_, R, FUSED, UNIFORM> {
     type Out = [R; 2];
     #[inline(always)]
     fn run(self) -> [R; 2] {
         let len = self.q.len();
         let (q, dq, f, c) = (self.q, &self.dq[..len], &self.f[..len], &self.c[..len]);
+        let c0 = self.c0;
+        let inc = |dq: R, f: R| if FUSED { -dq + f } else { dq + f };
+        let c_at = |c: R| if UNIFORM { c0 } else { c };
+        // The update first, in a loop of its own (vectorised as the C loop's), then the bound
+        // maxima over the updated q: fused into one loop, the vectoriser packed each cell's
+        // two maxima into one vector and left the loop scalar (0.54x the C loop).
+        for i in 0..len {
+            q[i] += inc(dq[i], f[i]);
+        }
         // The running maxima in LANES independent chains: one chain of `max` costs a
         // floating-point latency per cell and held this loop at half the C loop's rate
         // (core/benches/column_a_vs_c.rs). A maximum is exact, so the lanes give the same value
         // in any order; only the sign of a zero maximum could differ, and it is made +0.
         let (mut hi, mut lo) = ([self.start[0]; LANES], [self.start[1]; LANES]);
         let whole = len - len % LANES;
-        for ((q, dq), (f, c)) in q[..whole]
-            .chunks_exact_mut(LANES)
-            .zip(dq[..whole].chunks_exact(LANES))
-            .zip(
-                f[..whole]
-                    .chunks_exact(LANES)
-                    .zip(c[..whole].chunks_exact(LANES)),
-            )
+        // one pass per maximum: in one pass the vectoriser paired the two maxima of a cell
+        for (q, c) in q[..whole]
+            .chunks_exact(LANES)
+            .zip(c[..whole].chunks_exact(LANES))
         {
             for l in 0..LANES {
-                q[l] += dq[l] + f[l];
-                hi[l] = hi[l].max(q[l] - c[l]);
+                hi[l] = hi[l].max(q[l] - c_at(c[l]));
+            }
+        }
+        for q in q[..whole].chunks_exact(LANES) {
+            for l in 0..LANES {
                 lo[l] = lo[l].max(-q[l]);
             }
         }
         for i in whole..len {
-            q[i] += dq[i] + f[i];
-            hi[0] = hi[0].max(q[i] - c[i]);
+            hi[0] = hi[0].max(q[i] - c_at(c[i]));
             lo[0] = lo[0].max(-q[i]);
         }
         [
