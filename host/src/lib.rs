@@ -21,6 +21,7 @@ pub mod estimate;
 pub mod fit;
 pub mod flow;
 pub mod interrupt;
+pub mod isa;
 #[cfg(feature = "mpi")]
 pub mod mpi_jobs;
 pub mod output;

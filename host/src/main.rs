@@ -3,6 +3,13 @@ use std::process::ExitCode;
 
 fn main() -> ExitCode {
     let cli = sieve::cli::parse_args();
+    // The step's instruction set (SIEVE_ISA, docs/simd.md): a bad value exits 2 before any work.
+    if let Err(e) = sieve::isa::init() {
+        for line in e.lines() {
+            eprintln!("error: {line}");
+        }
+        return ExitCode::from(e.exit_code() as u8);
+    }
     // SIGINT/SIGTERM stop the step loops, which keep what was written (host/src/interrupt.rs).
     if let Err(e) = sieve::interrupt::install() {
         eprintln!("warning: cannot handle SIGINT/SIGTERM ({e}); a signal ends sieve at once");

@@ -232,10 +232,10 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
             let before = l.steps();
             let remaining = target - l.time();
             if remaining <= dt || remaining - dt <= slack {
-                l.step(remaining);
+                crate::isa::step(l, remaining);
                 l.set_clock(target, l.steps());
             } else {
-                l.step(dt);
+                crate::isa::step(l, dt);
             }
             l.end_owned_step(own.clone(), self.floor, before, &mut excess, |_, v| {
                 if v != R::ZERO {

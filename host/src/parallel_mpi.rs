@@ -494,10 +494,10 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
             let before = self.s.steps();
             let remaining = target - self.s.time();
             if remaining <= self.dt || remaining - self.dt <= slack {
-                self.s.step(remaining);
+                crate::isa::step(&mut *self.s, remaining);
                 self.s.set_clock(target, self.s.steps());
             } else {
-                self.s.step(self.dt);
+                crate::isa::step(&mut *self.s, self.dt);
             }
             self.s
                 .end_owned_step(own.clone(), self.floor, before, &mut self.excess, |_, v| {

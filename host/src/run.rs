@@ -337,7 +337,7 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
     let advance = |s: &mut Segregation<R, D, N>, target: R, n: u64| match (stepper, geo) {
         (Some(d), _) => d(s, target, n),
         (None, Some(g)) => s.advance_to_embedded(target, n, g),
-        (None, None) => s.advance_to(target, n),
+        (None, None) => crate::isa::advance_to(s, target, n),
     };
     if dt == 0.0 {
         // Nothing would ever move the clock: refused before the start (exit 2), not a

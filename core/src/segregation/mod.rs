@@ -17,6 +17,7 @@ mod step;
 pub use carried::{Discharge, MassFluxes};
 pub use flux::Scheme;
 pub use limited::Transport;
+pub use step::{Baseline, HotLoop, Isa};
 
 use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};
 use crate::grid::Grid;
@@ -732,23 +733,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// clock 10-20 ulps below an output time, and a separate step of that length (a zero-length
     /// step in all but name) is pure overhead (610 steps instead of 600 on column a).
     pub fn advance_to(&mut self, t_end: R, max_steps: u64) -> u64 {
-        if !t_end.is_finite() {
-            return 0;
-        }
-        let dt = self.stable_dt();
-        let slack = snap_slack(t_end);
-        let mut taken = 0;
-        while self.time < t_end && taken < max_steps {
-            let remaining = t_end - self.time;
-            if remaining <= dt || remaining - dt <= slack {
-                self.step(remaining);
-                self.time = t_end;
-            } else {
-                self.step(dt);
-            }
-            taken += 1;
-        }
-        taken
+        self.advance_to_on::<Baseline>(t_end, max_steps)
     }
 
     /// Largest `(phi - c, -phi)` seen in any cell after any step since setup (0 if never

@@ -129,7 +129,7 @@ pub(super) fn face<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
 pub const FLUSH_EVERY: u64 = 8;
 
 /// Independent running maxima of the bound check in [`Segregation::apply_increment`].
-const LANES: usize = 4;
+const LANES: usize = 8;
 
 /// `x`, with a zero of either sign returned as +0 (a running maximum split into lanes finds
 /// the same value as one chain, but not necessarily the same sign of zero).
@@ -142,21 +142,60 @@ pub(super) fn positive_zero<R: Real>(x: R) -> R {
     }
 }
 
+/// One hot loop of the step, packaged as a value so that an [`Isa`] can run it inside a
+/// function of its choosing. `run` is `#[inline(always)]` in every implementation: the loop
+/// is compiled into the caller, at the caller's target features.
+pub trait HotLoop {
+    /// What the loop returns.
+    type Out;
+    /// Runs the loop.
+    fn run(self) -> Self::Out;
+}
+
+/// How the step runs its hot loops ([`Segregation::step_on`]): the instruction set they are
+/// compiled for. The core has no `unsafe` and is compiled at the crate's target features
+/// ([`Baseline`]); a host that detects a wider vector unit at run time supplies a runner
+/// whose `run` calls a `#[target_feature]` function into which the loop is inlined (sieve's
+/// host/src/isa.rs, docs/simd.md). The arithmetic is the same IEEE operations in the same
+/// order either way (Rust never contracts `a*b+c` into an FMA, and every sum has a fixed
+/// order), so every runner gives the same bits.
+pub trait Isa {
+    /// Runs `hot`, compiled for this instruction set.
+    fn run<H: HotLoop>(hot: H) -> H::Out;
+}
+
+/// The crate's own target features: exactly the step's code without a runner (each hot
+/// loop one out-of-line function, as `interior_block` was).
+pub struct Baseline;
+
+impl Isa for Baseline {
+    #[inline(never)]
+    fn run<H: HotLoop>(hot: H) -> H::Out {
+        hot.run()
+    }
+}
+
 impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// One explicit step of length `dt` (at most [`Self::stable_dt`]); the caller owns the clock
     /// only through [`Self::advance_to`]: this adds `dt` to the time itself.
     pub fn step(&mut self, dt: R) {
+        self.step_on::<Baseline>(dt);
+    }
+
+    /// [`Self::step`] with its hot loops run by `I` (compiled for its instruction set): the
+    /// same bits as `step` for every `I`.
+    pub fn step_on<I: Isa>(&mut self, dt: R) {
         debug_assert!(
             self.prepared,
             "prepare() must follow any change of u, c or T"
         );
         match (self.cfg.scheme, self.cfg.diffusion > R::ZERO) {
-            (Scheme::Modified, false) => self.step_with::<Modified, false>(dt),
-            (Scheme::Modified, true) => self.step_with::<Modified, true>(dt),
-            (Scheme::Godunov, false) => self.step_with::<Godunov, false>(dt),
-            (Scheme::Godunov, true) => self.step_with::<Godunov, true>(dt),
-            (Scheme::Upwind, false) => self.step_with::<Upwind, false>(dt),
-            (Scheme::Upwind, true) => self.step_with::<Upwind, true>(dt),
+            (Scheme::Modified, false) => self.step_with::<I, Modified, false>(dt),
+            (Scheme::Modified, true) => self.step_with::<I, Modified, true>(dt),
+            (Scheme::Godunov, false) => self.step_with::<I, Godunov, false>(dt),
+            (Scheme::Godunov, true) => self.step_with::<I, Godunov, true>(dt),
+            (Scheme::Upwind, false) => self.step_with::<I, Upwind, false>(dt),
+            (Scheme::Upwind, true) => self.step_with::<I, Upwind, true>(dt),
         }
         self.time += dt;
         self.steps += 1;
@@ -167,23 +206,28 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// moves phi with the flow's own face mass fluxes instead. Keeps `0 <= phi <= c` under
     /// the same Courant condition as [`Self::step`]. Adds `dt` to the clock.
     pub fn step_percolation(&mut self, dt: R) {
+        self.step_percolation_on::<Baseline>(dt);
+    }
+
+    /// [`Self::step_percolation`] with its hot loops run by `I` (same bits for every `I`).
+    pub fn step_percolation_on<I: Isa>(&mut self, dt: R) {
         debug_assert!(
             self.prepared,
             "prepare() must follow any change of u, c or T"
         );
         match (self.cfg.scheme, self.cfg.diffusion > R::ZERO) {
-            (Scheme::Modified, false) => self.step_with::<Percolation<Modified>, false>(dt),
-            (Scheme::Modified, true) => self.step_with::<Percolation<Modified>, true>(dt),
-            (Scheme::Godunov, false) => self.step_with::<Percolation<Godunov>, false>(dt),
-            (Scheme::Godunov, true) => self.step_with::<Percolation<Godunov>, true>(dt),
-            (Scheme::Upwind, false) => self.step_with::<Percolation<Upwind>, false>(dt),
-            (Scheme::Upwind, true) => self.step_with::<Percolation<Upwind>, true>(dt),
+            (Scheme::Modified, false) => self.step_with::<I, Percolation<Modified>, false>(dt),
+            (Scheme::Modified, true) => self.step_with::<I, Percolation<Modified>, true>(dt),
+            (Scheme::Godunov, false) => self.step_with::<I, Percolation<Godunov>, false>(dt),
+            (Scheme::Godunov, true) => self.step_with::<I, Percolation<Godunov>, true>(dt),
+            (Scheme::Upwind, false) => self.step_with::<I, Percolation<Upwind>, false>(dt),
+            (Scheme::Upwind, true) => self.step_with::<I, Percolation<Upwind>, true>(dt),
         }
         self.time += dt;
         self.steps += 1;
     }
 
-    fn step_with<K: Kernel<R>, const DIFFUSE: bool>(&mut self, dt: R) {
+    fn step_with<I: Isa, K: Kernel<R>, const DIFFUSE: bool>(&mut self, dt: R) {
         let h = self.grid.spacing();
         for axis in 0..D {
             let ax = AxisConst {
@@ -194,10 +238,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             // The first axis initialises the increment (no zeroing pass); the last one applies
             // it to q while it adds its own lower-face fluxes (no separate update pass).
             match (axis == 0, axis + 1 == D) {
-                (true, true) => self.axis_increment::<K, DIFFUSE, true, true>(axis, ax),
-                (true, false) => self.axis_increment::<K, DIFFUSE, true, false>(axis, ax),
-                (false, true) => self.axis_increment::<K, DIFFUSE, false, true>(axis, ax),
-                (false, false) => self.axis_increment::<K, DIFFUSE, false, false>(axis, ax),
+                (true, true) => self.axis_increment::<I, K, DIFFUSE, true, true>(axis, ax),
+                (true, false) => self.axis_increment::<I, K, DIFFUSE, true, false>(axis, ax),
+                (false, true) => self.axis_increment::<I, K, DIFFUSE, false, true>(axis, ax),
+                (false, false) => self.axis_increment::<I, K, DIFFUSE, false, false>(axis, ax),
             }
         }
     }
@@ -224,17 +268,51 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         s
     }
 
+    /// [`Self::advance_to`] with its steps' hot loops run by `I` ([`Self::step_on`]): the same
+    /// steps and bits as `advance_to` for every `I`.
+    pub fn advance_to_on<I: Isa>(&mut self, t_end: R, max_steps: u64) -> u64 {
+        if !t_end.is_finite() {
+            return 0;
+        }
+        let dt = self.stable_dt();
+        let slack = super::snap_slack(t_end);
+        let mut taken = 0;
+        while self.time < t_end && taken < max_steps {
+            let remaining = t_end - self.time;
+            if remaining <= dt || remaining - dt <= slack {
+                self.step_on::<I>(remaining);
+                self.time = t_end;
+            } else {
+                self.step_on::<I>(dt);
+            }
+            taken += 1;
+        }
+        taken
+    }
+
     /// Adds the flux differences along `axis` to the increment. `FIRST`: the increment is
     /// assigned rather than accumulated. `LAST`: the axis is the outermost (its interior faces
     /// form one block), and q is updated in the same pass. Per cell, the additions happen in
     /// the same order either way, so the result does not depend on this fusion.
-    fn axis_increment<K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool, const LAST: bool>(
+    fn axis_increment<
+        I: Isa,
+        K: Kernel<R>,
+        const DIFFUSE: bool,
+        const FIRST: bool,
+        const LAST: bool,
+    >(
         &mut self,
         axis: usize,
         ax: AxisConst<R>,
     ) {
         let fb = self.grid.face_blocks(axis);
         let s = fb.stride;
+        // One axis (FIRST and LAST: 1D), plain update: the increment of a cell with a face
+        // above is minus that face's flux, which `flux` holds already (the high boundary
+        // face's too, at the last cell), so the face loop stores no increment and the update
+        // reads the flux twice instead (`Update`, FUSED): a store and a load per cell fewer,
+        // the C loop's memory traffic (core/benches/column_a_vs_c.rs), the same operations.
+        let fused = FIRST && LAST && !self.cfg.compensated;
         // Interior faces, block by block: left cells l0..l0+len, right cells shifted by s.
         for b in 0..fb.blocks {
             let l0 = b * fb.block_stride;
@@ -257,7 +335,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                     q: &self.q[l0 + s..l0 + s + len],
                     side,
                 };
-                interior_block::<R, K, DIFFUSE, FIRST, _>(out, rhs, left, right, ax);
+                interior::<I, R, K, DIFFUSE, FIRST, _>(fused, out, rhs, left, right, ax);
             } else {
                 let slices = |at| {
                     Slices::new(
@@ -270,8 +348,19 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                         len,
                     )
                 };
-                interior_block::<R, K, DIFFUSE, FIRST, _>(out, rhs, slices(l0), slices(l0 + s), ax);
+                interior::<I, R, K, DIFFUSE, FIRST, _>(
+                    fused,
+                    out,
+                    rhs,
+                    slices(l0),
+                    slices(l0 + s),
+                    ax,
+                );
             }
+        }
+        if fused && fb.block_len > 0 {
+            // the increment of cell 0, which the boundary faces complete below
+            self.rhs[0] = -self.flux[0];
         }
         // High boundary faces, stored at the last cell of each line (periodic low faces reuse them).
         let high = self.bc[axis][1];
@@ -314,18 +403,15 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // ... and every other cell the flux of the interior face below it.
         if LAST {
             debug_assert_eq!(fb.blocks, 1);
-            self.apply_increment(s);
+            self.apply_increment::<I>(s, fused);
         } else {
             for b in 0..fb.blocks {
                 let l0 = b * fb.block_stride;
                 let len = fb.block_len;
-                let (src, dst) = (
-                    &self.flux[l0..l0 + len],
-                    &mut self.rhs[l0 + s..l0 + s + len],
-                );
-                for (dq, f) in dst.iter_mut().zip(src.iter()) {
-                    *dq += *f;
-                }
+                I::run(Gain {
+                    dst: &mut self.rhs[l0 + s..l0 + s + len],
+                    src: &self.flux[l0..l0 + len],
+                });
             }
         }
     }
@@ -333,7 +419,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// The last axis's lower-face fluxes, added to the increment, and the increment to q, in
     /// one pass; tracks the running bound violations on the way. `s` is the stride of the
     /// outermost axis: cells `s..n` have an interior face below, cells `0..s` do not.
-    fn apply_increment(&mut self, s: usize) {
+    fn apply_increment<I: Isa>(&mut self, s: usize, fused: bool) {
         if self.cfg.compensated {
             return self.apply_increment_compensated(s);
         }
@@ -348,59 +434,74 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             }
         }
         let len = n - s;
-        let (q, dq, c, f) = (
-            &mut self.q[s..n],
-            &self.rhs[s..n],
+        let start = [above, below];
+        // Uniform coefficients on the last axis (`detect_uniform`): c is one value, bit for
+        // bit, so the bound check reads it once instead of an array.
+        let uniform = self.uniform[D - 1];
+        let (q, c0) = (&mut self.q[s..n], self.c[0]);
+        // `dq` of the fused update: the flux of each cell's own upper face (see
+        // `axis_increment`); `f`: the face below.
+        let (dq, c, f) = (
+            if fused {
+                &self.flux[s..n]
+            } else {
+                &self.rhs[s..n]
+            },
             &self.c[s..n],
             &self.flux[..len],
         );
-        // The running maxima in LANES independent chains: one chain of `max` costs a
-        // floating-point latency per cell and held this loop at half the C loop's rate
-        // (core/benches/column_a_vs_c.rs). A maximum is exact, so the lanes give the same value
-        // in any order; only the sign of a zero maximum could differ, and it is made +0.
-        let (mut hi, mut lo) = ([above; LANES], [below; LANES]);
-        let whole = len - len % LANES;
-        for ((q, dq), (f, c)) in q[..whole]
-            .chunks_exact_mut(LANES)
-            .zip(dq[..whole].chunks_exact(LANES))
-            .zip(
-                f[..whole]
-                    .chunks_exact(LANES)
-                    .zip(c[..whole].chunks_exact(LANES)),
-            )
-        {
-            for l in 0..LANES {
-                q[l] += dq[l] + f[l];
-                hi[l] = hi[l].max(q[l] - c[l]);
-                lo[l] = lo[l].max(-q[l]);
-            }
-        }
-        for i in whole..len {
-            q[i] += dq[i] + f[i];
-            hi[0] = hi[0].max(q[i] - c[i]);
-            lo[0] = lo[0].max(-q[i]);
-        }
-        above = positive_zero(hi.iter().fold(hi[0], |m, &x| m.max(x)));
-        below = positive_zero(lo.iter().fold(lo[0], |m, &x| m.max(x)));
-        self.excess = [above, below];
+        self.excess = match (fused, uniform) {
+            (false, false) => I::run(Update::<R, false, false> {
+                q,
+                dq,
+                f,
+                c,
+                c0,
+                start,
+            }),
+            (false, true) => I::run(Update::<R, false, true> {
+                q,
+                dq,
+                f,
+                c,
+                c0,
+                start,
+            }),
+            (true, false) => I::run(Update::<R, true, false> {
+                q,
+                dq,
+                f,
+                c,
+                c0,
+                start,
+            }),
+            (true, true) => I::run(Update::<R, true, true> {
+                q,
+                dq,
+                f,
+                c,
+                c0,
+                start,
+            }),
+        };
         // The flush (docs/model.md 5.6) every FLUSH_EVERY steps, in a pass of its own: in the
         // update loop above it cost 12 % of the 1D step (a third reduction); here < 2 %.
         if self.cfg.flush_below > R::ZERO && self.steps % FLUSH_EVERY == 0 {
-            self.flush_box();
+            self.flush_box::<I>();
         }
     }
 
     /// Sets tracked fractions with `0 < |q| < flush_below` to zero, in cell order, adding them
     /// to the flushed counter (docs/model.md 5.6).
-    fn flush_box(&mut self) {
+    fn flush_box<I: Isa>(&mut self) {
         let floor = self.cfg.flush_below;
         // Most passes find nothing to flush. A branch-free scan (vectorised) finds out first;
         // the in-order pass below, whose sum is a chain, runs only if it has work. A +0 cell
         // is a no-op there (the counter never holds -0: it starts at +0 and a rounded sum of
         // two values is -0 only if both are), so it does not count as work.
-        let q = &self.q[..self.grid.len()];
-        let work = q.iter().fold(false, |w, x| {
-            w | ((x.abs() < floor) & (x.to_bits_u64() != 0))
+        let work = I::run(FlushScan {
+            q: &self.q[..self.grid.len()],
+            floor,
         });
         if !work {
             return;
@@ -545,25 +646,168 @@ impl<R: Real> Cells<R> for Uniform<'_, R> {
 /// The hot loop: stores each face flux and subtracts it from its left cell at once (the
 /// right cell gains it in a separate pass: doing both here would chain iterations along x and
 /// stop vectorisation). All slices have the length of `out`, so bounds checks vanish.
-#[inline(never)]
-fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool, S: Cells<R>>(
+/// `RHS`: whether the increment is written at all (not in the fused 1D update, which reads
+/// `out` instead: `Segregation::axis_increment`).
+struct InteriorBlock<'a, R, K, const DIFFUSE: bool, const FIRST: bool, const RHS: bool, S> {
+    out: &'a mut [R],
+    rhs: &'a mut [R],
+    left: S,
+    right: S,
+    ax: AxisConst<R>,
+    kernel: PhantomData<K>,
+}
+
+impl<
+        R: Real,
+        K: Kernel<R>,
+        const DIFFUSE: bool,
+        const FIRST: bool,
+        const RHS: bool,
+        S: Cells<R>,
+    > HotLoop for InteriorBlock<'_, R, K, DIFFUSE, FIRST, RHS, S>
+{
+    type Out = ();
+    #[inline(always)]
+    fn run(self) {
+        let (out, ax) = (self.out, self.ax);
+        let len = out.len();
+        let rhs = &mut self.rhs[..len];
+        let (left, right) = (self.left.truncated(len), self.right.truncated(len));
+        for j in 0..len {
+            let f = face::<R, K, DIFFUSE>(left.get(j), right.get(j), ax);
+            out[j] = f;
+            if RHS {
+                if FIRST {
+                    rhs[j] = -f;
+                } else {
+                    rhs[j] -= f;
+                }
+            }
+        }
+    }
+}
+
+/// One block of interior faces through `I`, with (`fused` false) or without the increment.
+#[inline(always)]
+fn interior<I: Isa, R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool, S: Cells<R>>(
+    fused: bool,
     out: &mut [R],
     rhs: &mut [R],
     left: S,
     right: S,
     ax: AxisConst<R>,
 ) {
-    let len = out.len();
-    let rhs = &mut rhs[..len];
-    let (left, right) = (left.truncated(len), right.truncated(len));
-    for j in 0..len {
-        let f = face::<R, K, DIFFUSE>(left.get(j), right.get(j), ax);
-        out[j] = f;
-        if FIRST {
-            rhs[j] = -f;
-        } else {
-            rhs[j] -= f;
+    if fused {
+        I::run(InteriorBlock::<R, K, DIFFUSE, FIRST, false, S> {
+            out,
+            rhs,
+            left,
+            right,
+            ax,
+            kernel: PhantomData,
+        })
+    } else {
+        I::run(InteriorBlock::<R, K, DIFFUSE, FIRST, true, S> {
+            out,
+            rhs,
+            left,
+            right,
+            ax,
+            kernel: PhantomData,
+        })
+    }
+}
+
+/// The right cells of one block of interior faces gain their fluxes (axes before the last).
+struct Gain<'a, R> {
+    dst: &'a mut [R],
+    src: &'a [R],
+}
+
+impl<R: Real> HotLoop for Gain<'_, R> {
+    type Out = ();
+    #[inline(always)]
+    fn run(self) {
+        for (dq, f) in self.dst.iter_mut().zip(self.src.iter()) {
+            *dq += *f;
         }
+    }
+}
+
+/// The update of the cells with an interior face below on the last axis
+/// ([`Segregation::apply_increment`]): `q += dq + f`, with the running bound maxima
+/// `[max(q - c), max(-q)]` from `start`. `FUSED`: `dq` holds the flux of each cell's upper
+/// face and the increment is `-dq` (the same value the face loop would have stored).
+/// `UNIFORM`: every c is `c0` (the array is not read).
+struct Update<'a, R, const FUSED: bool, const UNIFORM: bool> {
+    q: &'a mut [R],
+    dq: &'a [R],
+    f: &'a [R],
+    c: &'a [R],
+    c0: R,
+    start: [R; 2],
+}
+
+impl<R: Real, const FUSED: bool, const UNIFORM: bool> HotLoop for Update<'_, R, FUSED, UNIFORM> {
+    type Out = [R; 2];
+    #[inline(always)]
+    fn run(self) -> [R; 2] {
+        let len = self.q.len();
+        let (q, dq, f, c) = (self.q, &self.dq[..len], &self.f[..len], &self.c[..len]);
+        let c0 = self.c0;
+        let inc = |dq: R, f: R| if FUSED { -dq + f } else { dq + f };
+        let c_at = |c: R| if UNIFORM { c0 } else { c };
+        // The update first, in a loop of its own (vectorised as the C loop's), then the bound
+        // maxima over the updated q: fused into one loop, the vectoriser packed each cell's
+        // two maxima into one vector and left the loop scalar (0.54x the C loop).
+        for i in 0..len {
+            q[i] += inc(dq[i], f[i]);
+        }
+        // The running maxima in LANES independent chains: one chain of `max` costs a
+        // floating-point latency per cell and held this loop at half the C loop's rate
+        // (core/benches/column_a_vs_c.rs). A maximum is exact, so the lanes give the same value
+        // in any order; only the sign of a zero maximum could differ, and it is made +0.
+        let (mut hi, mut lo) = ([self.start[0]; LANES], [self.start[1]; LANES]);
+        let whole = len - len % LANES;
+        // one pass per maximum: in one pass the vectoriser paired the two maxima of a cell
+        for (q, c) in q[..whole]
+            .chunks_exact(LANES)
+            .zip(c[..whole].chunks_exact(LANES))
+        {
+            for l in 0..LANES {
+                hi[l] = hi[l].max(q[l] - c_at(c[l]));
+            }
+        }
+        for q in q[..whole].chunks_exact(LANES) {
+            for l in 0..LANES {
+                lo[l] = lo[l].max(-q[l]);
+            }
+        }
+        for i in whole..len {
+            hi[0] = hi[0].max(q[i] - c_at(c[i]));
+            lo[0] = lo[0].max(-q[i]);
+        }
+        [
+            positive_zero(hi.iter().fold(hi[0], |m, &x| m.max(x))),
+            positive_zero(lo.iter().fold(lo[0], |m, &x| m.max(x))),
+        ]
+    }
+}
+
+/// Whether the flush has work: some `0 < |q| < floor` (a branch-free scan).
+struct FlushScan<'a, R> {
+    q: &'a [R],
+    floor: R,
+}
+
+impl<R: Real> HotLoop for FlushScan<'_, R> {
+    type Out = bool;
+    #[inline(always)]
+    fn run(self) -> bool {
+        let floor = self.floor;
+        self.q.iter().fold(false, |w, x| {
+            w | ((x.abs() < floor) & (x.to_bits_u64() != 0))
+        })
     }
 }
 
