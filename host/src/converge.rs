@@ -136,7 +136,7 @@ fn cells_for(level: usize, base: &[usize], label: &str) -> Result<Vec<usize>> {
     let last = *base.last().unwrap_or(&1);
     base.iter()
         .map(|&b| {
-            if (level * b) % last != 0 {
+            if !(level * b).is_multiple_of(last) {
                 Err(Error::at(
                     label,
                     "--levels",

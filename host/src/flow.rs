@@ -578,7 +578,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
                     crate::checkpoint::put_totals(e, &cpl.totals());
                 })?;
             }
-            if stats.steps % 256 == 0 {
+            if stats.steps.is_multiple_of(256) {
                 progress.update(cpl.seg.time().to_f64(), stats.steps);
             }
         }

@@ -41,7 +41,7 @@ impl OutputModel {
 
     /// Whether output `k` of `count` (0-based) gets a snapshot.
     pub fn writes(&self, k: usize, count: usize) -> bool {
-        k % self.vtk_every == 0 || k + 1 >= count
+        k.is_multiple_of(self.vtk_every) || k + 1 >= count
     }
 }
 
