@@ -573,7 +573,7 @@ fn run_command(a: &RunArgs) -> Result<()> {
         resume,
     )?;
     if !a.quiet {
-        println!(
+        crate::outln!(
             "{}: {} steps on {:?} cells in {:.3} s ({:.3e} cell updates/s); psi_final = {:.4}, segregation_time = {}; wrote {}",
             summary.scene,
             summary.steps,
@@ -585,9 +585,9 @@ fn run_command(a: &RunArgs) -> Result<()> {
                 .segregation_time
                 .map_or_else(|| "not reached".into(), |t| format!("{t:.4}")),
             out.display()
-        );
+        )?;
         if let Some(f) = &summary.flow {
-            println!(
+            crate::outln!(
                 "flow ({}, back_coupling {}): {} flow steps on {:?} cells in {:.3} s (t = {:.4e} s), max c/c_rcp = {:.4}, T in [{:.3e}, {:.3e}], residual {:.3e} 1/s",
                 f.equations,
                 f.back_coupling,
@@ -599,7 +599,7 @@ fn run_command(a: &RunArgs) -> Result<()> {
                 f.t_min,
                 f.t_max,
                 f.residual
-            );
+            )?;
         }
     }
     Ok(())
@@ -613,7 +613,7 @@ pub fn execute(cli: Cli) -> Result<()> {
                 // Schema only: listing needs no field evaluation.
                 let src = scene::locate(b.name)?;
                 let f = scene::deserialize(&src.label, scene::parse_table(&src.label, &src.text)?)?;
-                println!("{}\t{}D\t{}", f.name, f.dim, f.description);
+                crate::outln!("{}\t{}D\t{}", f.name, f.dim, f.description)?;
             }
             Ok(())
         }
@@ -639,9 +639,9 @@ pub fn execute(cli: Cli) -> Result<()> {
                     quiet: a.quiet,
                 },
             )?;
-            print!("{}", crate::fit::table(&fit));
+            crate::out!("{}", crate::fit::table(&fit))?;
             if !a.quiet {
-                println!("wrote {}", dir.display());
+                crate::outln!("wrote {}", dir.display())?;
             }
             Ok(())
         }
@@ -750,7 +750,7 @@ pub fn execute(cli: Cli) -> Result<()> {
         Command::Sweep(a) => sweep(&a),
         Command::Plot(a) => {
             let (dir, written) = crate::output::redraw::replot(&a.dir)?;
-            println!("{}: {}", dir.display(), written.join(", "));
+            crate::outln!("{}: {}", dir.display(), written.join(", "))?;
             Ok(())
         }
         Command::Converge(a) => {
@@ -770,9 +770,9 @@ pub fn execute(cli: Cli) -> Result<()> {
                     quiet: a.quiet,
                 },
             )?;
-            print!("{}", converge::table(&study));
+            crate::out!("{}", converge::table(&study))?;
             if !a.quiet {
-                println!("wrote {}", dir.display());
+                crate::outln!("wrote {}", dir.display())?;
             }
             Ok(())
         }
@@ -784,7 +784,7 @@ fn sweep(a: &SweepArgs) -> Result<()> {
     use crate::sweep;
     let (axes, fixed) = sweep::parse_sets(&a.set)?;
     if a.list {
-        print!("{}", sweep::list(&axes));
+        crate::out!("{}", sweep::list(&axes))?;
         return Ok(());
     }
     // The scene must exist and every combination's keys must apply before anything runs.
@@ -816,7 +816,7 @@ fn sweep(a: &SweepArgs) -> Result<()> {
     };
     if a.collect {
         let missing = sweep::collect(&opts)?;
-        println!(
+        crate::outln!(
             "{}: sweep.csv, sweep.json{}",
             opts.out.display(),
             if missing > 0 {
@@ -824,7 +824,7 @@ fn sweep(a: &SweepArgs) -> Result<()> {
             } else {
                 String::new()
             }
-        );
+        )?;
         return Ok(());
     }
     let failed = sweep::sweep(&opts)?;
@@ -840,7 +840,7 @@ fn sweep(a: &SweepArgs) -> Result<()> {
         )));
     }
     if !a.quiet {
-        println!("{}: {n} runs", opts.out.display());
+        crate::outln!("{}: {n} runs", opts.out.display())?;
     }
     Ok(())
 }
@@ -999,7 +999,7 @@ fn record_legacy(
         )
     })?;
     crate::output::write_file_atomically(&a.out, &bytes)?;
-    println!(
+    crate::outln!(
         "recorded {} frames ({} bytes) of {} to {}; period {} s, truth {}x{}, estimator {}x{}, sensor {}x{}; final truth psi = {:.4}; {:.2} s",
         report.frames,
         report.file_bytes,
@@ -1014,7 +1014,7 @@ fn record_legacy(
         sensor[1],
         report.final_truth_psi,
         start.elapsed().as_secs_f64()
-    );
+    )?;
     Ok(())
 }
 
@@ -1069,13 +1069,13 @@ fn record_catalogue(
         eprintln!("note: {}: {n}", sc.name);
     }
     if let Some(f) = &report.flow {
-        println!(
+        crate::outln!(
             "flow ({}): {} flow steps on {:?} cells in {:.3} s (t = {:.4e} s), frozen; max speed {:.4e} m/s, T in [{:.3e}, {:.3e}]",
             f.equations, f.flow_steps, f.flow_cells, f.flow_seconds, f.flow_time, f.max_speed, f.t_min, f.t_max
-        );
+        )?;
     }
     let r = &report.record;
-    println!(
+    crate::outln!(
         "recorded {} frames ({} bytes) of {} to {}; period {:.4e} s ({:.2} estimator substeps), t = {:.4e} s, truth {}x{}, estimator {}x{}, sensor {}x{}, c = {:.4}, S0 = {:.4e}; final truth psi = {:.4}; {:.2} s",
         r.frames,
         r.file_bytes,
@@ -1094,7 +1094,7 @@ fn record_catalogue(
         report.sensor_s0,
         r.final_truth_psi,
         start.elapsed().as_secs_f64()
-    );
+    )?;
     Ok(())
 }
 

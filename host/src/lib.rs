@@ -33,6 +33,7 @@ pub mod run;
 pub mod scene;
 pub mod silo;
 pub mod soft_sensor;
+pub mod stdout;
 pub mod sweep;
 pub mod text;
 

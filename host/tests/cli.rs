@@ -726,3 +726,54 @@ fn converge_draws_error_against_cell_size_and_wall_time() {
     let png = std::fs::read(d.path().join("c/converge.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
 }
+
+/// `sieve sweep --list | head -1`: the reader goes away while sieve still writes. `println!`
+/// panicked there (exit 101 and a backtrace); now sieve exits at once with 141 (128 + SIGPIPE,
+/// what a C tool killed by the signal reports) and prints nothing (host/src/stdout.rs).
+#[test]
+fn a_reader_that_goes_away_is_not_a_panic() {
+    use std::io::Read;
+    use std::process::{Command, Stdio};
+    // 60 x 60 combinations, ~150 kB: more than a pipe buffer, so the write must meet the
+    // closed pipe whatever the timing.
+    let values = |n: usize| {
+        (1..=n)
+            .map(|k| format!("{}", k as f64 * 1e-3))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    let mut child = Command::new(assert_cmd::cargo::cargo_bin("sieve"))
+        .args([
+            "sweep",
+            "column-a",
+            "--list",
+            "--set",
+            &format!("numerics.courant={}", values(60)),
+            "--set",
+            &format!("initial.T={}", values(60)),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // read the first line, then hang up
+    let mut stdout = child.stdout.take().unwrap();
+    let mut first = [0u8; 16];
+    stdout.read_exact(&mut first).unwrap();
+    drop(stdout);
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    let status = child.wait().unwrap();
+    assert!(
+        first.starts_with(b"0\t"),
+        "{:?}",
+        String::from_utf8_lossy(&first)
+    );
+    assert_eq!(status.code(), Some(141), "stderr: {err}");
+    assert!(err.is_empty(), "stderr: {err}");
+}
