@@ -721,8 +721,11 @@ pub fn execute(cli: Cli) -> Result<()> {
                 })?;
                 let report = soft_sensor::replay_kinematic(&bytes, b)
                     .map_err(|e| Error::at(&a.file.display().to_string(), "", e))?;
-                return soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
-                    .map_err(|e| Error::failure(format!("stdout: {e}")));
+                return crate::stdout::checked(soft_sensor::print_report(
+                    &report,
+                    a.every.max(1),
+                    &mut std::io::stdout(),
+                ));
             }
             // The replay's messages say what is wrong with the file; the file goes in front.
             let report = soft_sensor::replay_with(&a.file, &opts, |c| {
@@ -744,8 +747,11 @@ pub fn execute(cli: Cli) -> Result<()> {
                 Ok(())
             })
             .map_err(|e| Error::at(&a.file.display().to_string(), "", e))?;
-            soft_sensor::print_report(&report, a.every.max(1), &mut std::io::stdout())
-                .map_err(|e| Error::failure(format!("stdout: {e}")))
+            crate::stdout::checked(soft_sensor::print_report(
+                &report,
+                a.every.max(1),
+                &mut std::io::stdout(),
+            ))
         }
         Command::Sweep(a) => sweep(&a),
         Command::Plot(a) => {

@@ -20,7 +20,13 @@ pub const BROKEN_PIPE_EXIT: i32 = 141;
 /// Writes `args` to stdout and flushes; see the module docs for a reader that has gone.
 pub fn write(args: fmt::Arguments<'_>) -> Result<()> {
     let mut out = io::stdout().lock();
-    match out.write_fmt(args).and_then(|()| out.flush()) {
+    checked(out.write_fmt(args).and_then(|()| out.flush()))
+}
+
+/// The outcome of a write to stdout done elsewhere (a report written through `&mut impl
+/// Write`): a reader that has gone exits as in the module docs, any other error is a failure.
+pub fn checked(r: io::Result<()>) -> Result<()> {
+    match r {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == io::ErrorKind::BrokenPipe => std::process::exit(BROKEN_PIPE_EXIT),
         Err(e) => Err(Error::Failure(format!(
