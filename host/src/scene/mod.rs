@@ -729,7 +729,7 @@ pub fn resolve(label: &str, text: &str, sets: &[String]) -> Result<(Scene, Field
     for s in sets {
         apply_set(label, &mut table, s)?;
     }
-    let file = deserialize(label, table).map_err(|e| started_by_set(e, &before, sets))?;
+    let file = deserialize(label, table).map_err(|e| started_by_set(label, e, &before, sets))?;
     let scene = Scene::validate(label, file)?;
     let fields = scene.evaluate_fields()?;
     Ok((scene, fields))
@@ -759,34 +759,37 @@ fn table_paths(table: &toml::Table) -> Vec<String> {
 /// says only "missing field `shape`". Say what happened instead: which table is new, which
 /// `--set` made it, and what it still needs (a silo's outlet width, say, lives under
 /// `boundary.flow`, not under a `[geometry]` the flat silo does not have).
-fn started_by_set(err: Error, before: &[String], sets: &[String]) -> Error {
+fn started_by_set(label: &str, err: Error, before: &[String], sets: &[String]) -> Error {
+    // `deserialize` wrote "label: path: missing field `name`"
     let Error::Input(line) = &err else {
         return err;
     };
-    let Some(field) = line
-        .split("missing field `")
-        .nth(1)
-        .and_then(|rest| rest.split('`').next())
+    let Some((path, field)) = line
+        .strip_prefix(label)
+        .and_then(|rest| rest.strip_prefix(": "))
+        .and_then(|rest| rest.split_once(": missing field `"))
+        .and_then(|(path, rest)| Some((path, rest.split('`').next()?)))
     else {
         return err;
     };
     for set in sets {
         let key = set.split_once('=').map_or(set.as_str(), |(k, _)| k).trim();
         let parts: Vec<&str> = key.split('.').collect();
-        // The outermost table on the key's path that the scene did not have.
+        // The outermost table on the key's path that the scene did not have, if the missing
+        // field is in it.
         let new_table = (1..parts.len())
             .map(|n| parts[..n].join("."))
-            .find(|p| !before.contains(p));
+            .find(|p| !before.contains(p))
+            .filter(|t| path == t || path.starts_with(&format!("{t}.")));
         if let Some(table) = new_table {
-            let (file, _) = line.split_once(": ").unwrap_or((line.as_str(), ""));
-            return Error::Input(one_line_set(file, &table, key, field));
+            return Error::at(
+                label,
+                "",
+                format!(
+                    "--set {key}: this scene has no [{table}] table, so the --set starts a new one, which also needs `{field}`: check the key's name against {label}"
+                ),
+            );
         }
     }
     err
-}
-
-fn one_line_set(file: &str, table: &str, key: &str, field: &str) -> String {
-    format!(
-        "{file}: --set {key}: this scene has no [{table}] table, so the --set starts a new one, which also needs `{field}`: check the key's name against {file}"
-    )
 }
