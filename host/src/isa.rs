@@ -12,8 +12,8 @@
 //! Same bits on every level: the loops are the same IEEE additions, multiplications,
 //! divisions, square roots and exact maxima in the same order. Rust never contracts `a*b+c`
 //! into an FMA (with or without the `fma` feature), and the core's sums have a fixed order, so
-//! the wider code computes lane by lane what the SSE2 code computes (tests/tests/isa.rs and
-//! host/tests/isa.rs compare the state hashes).
+//! the wider code computes lane by lane what the SSE2 code computes (host/tests/isa.rs
+//! compares the state hashes level by level).
 
 use crate::error::{Error, Result};
 use sieve_core::segregation::{Baseline, HotLoop, Isa};
