@@ -79,23 +79,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.prepared = false;
     }
 
-    /// Moves both phases with the flow's face mass fluxes of one step (module docs), sets
-    /// `c` to the carried `phi + psi`, and returns what left through each side. Does not
-    /// advance the clock (the percolation stage does: [`Self::step_percolation`]). The face
-    /// coefficients are used as scratch: call [`Self::prepare`] before the next step.
-    pub fn carry_mass_fluxes(&mut self, fx: MassFluxes<'_, R, D, N>) -> Discharge<R, D> {
-        if self.transport == Transport::Limited {
-            return self.carry_limited(fx, None);
-        }
+    /// Pass A of the carried transport (box and cut cells alike): `O_i`, the amount the face
+    /// mass fluxes take out of each cell (through its faces and open box sides), into `rhs`.
+    fn outflow_into_rhs(&mut self, fx: MassFluxes<'_, R, D, N>) {
         let n = self.grid.len();
         let grid = self.grid;
-        let vol = grid.cell_volume();
-        let mut out = Discharge {
-            small: [[R::ZERO; 2]; D],
-            total: [[R::ZERO; 2]; D],
-            guarded: R::ZERO,
-        };
-        // Pass A: O_i, the amount leaving each cell, into `rhs`.
         self.rhs[..n].fill(R::ZERO);
         for a in 0..D {
             let fb = grid.face_blocks(a);
@@ -130,6 +118,26 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 });
             }
         }
+    }
+
+    /// Moves both phases with the flow's face mass fluxes of one step (module docs), sets
+    /// `c` to the carried `phi + psi`, and returns what left through each side. Does not
+    /// advance the clock (the percolation stage does: [`Self::step_percolation`]). The face
+    /// coefficients are used as scratch: call [`Self::prepare`] before the next step.
+    pub fn carry_mass_fluxes(&mut self, fx: MassFluxes<'_, R, D, N>) -> Discharge<R, D> {
+        if self.transport == Transport::Limited {
+            return self.carry_limited(fx, None);
+        }
+        let n = self.grid.len();
+        let grid = self.grid;
+        let vol = grid.cell_volume();
+        let mut out = Discharge {
+            small: [[R::ZERO; 2]; D],
+            total: [[R::ZERO; 2]; D],
+            guarded: R::ZERO,
+        };
+        // Pass A: O_i, the amount leaving each cell, into `rhs`.
+        self.outflow_into_rhs(fx);
         // Pass B: each cell keeps the share s_i of both phases. Tracked fraction q (phi or
         // psi) stays in `q`, the untracked one `c - q` goes to `k[0]` (scratch), the donor's
         // qhat to `flux`.
@@ -150,7 +158,28 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
         out.guarded = guarded * vol;
         // Pass C: what each cell receives, in the same face order.
+        self.receive_faces(fx, &mut out, |i| i);
+        // Pass D: c = tracked + untracked.
+        for i in 0..n {
+            self.c[i] = self.q[i] + self.k[0][i];
+        }
+        self.prepared = false;
+        out
+    }
+
+    /// Pass C of the carried transport: every receiving cell gets, face by face in a fixed
+    /// order, `F qhat_donor` and `F (1 - qhat_donor)` (at `to(cell)`: the cell itself in a
+    /// box, its merge group's master on cut cells); what crosses the box's open sides is
+    /// booked into `out`.
+    fn receive_faces(
+        &mut self,
+        fx: MassFluxes<'_, R, D, N>,
+        out: &mut Discharge<R, D>,
+        to: impl Fn(usize) -> usize,
+    ) {
+        let grid = self.grid;
         let small = self.cfg.phase == Phase::Small;
+        let vol = grid.cell_volume();
         for a in 0..D {
             let fb = grid.face_blocks(a);
             let s = fb.stride;
@@ -160,9 +189,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 for l in l0..l0 + fb.block_len {
                     let f = fx.faces[a][l];
                     if f > R::ZERO {
-                        self.receive(l + s, f, self.flux[l]);
+                        self.receive(to(l + s), f, self.flux[l]);
                     } else if f < R::ZERO {
-                        self.receive(l, -f, self.flux[l + s]);
+                        self.receive(to(l), -f, self.flux[l + s]);
                     }
                 }
             }
@@ -170,16 +199,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 let f = fx.faces[a][last];
                 if periodic {
                     if f > R::ZERO {
-                        self.receive(first, f, self.flux[last]);
+                        self.receive(to(first), f, self.flux[last]);
                     } else if f < R::ZERO {
-                        self.receive(last, -f, self.flux[first]);
+                        self.receive(to(last), -f, self.flux[first]);
                     }
                 } else if f > R::ZERO {
                     out.small[a][1] += small_part(small, f, self.flux[last]) * vol;
                     out.total[a][1] += f * vol;
                 } else if f < R::ZERO {
                     let qhat = self.inflow_fraction(last);
-                    self.receive(last, -f, qhat);
+                    self.receive(to(last), -f, qhat);
                     out.small[a][1] -= small_part(small, -f, qhat) * vol;
                     out.total[a][1] += f * vol;
                 }
@@ -192,19 +221,13 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                         out.total[a][0] -= g * vol;
                     } else if g > R::ZERO {
                         let qhat = self.inflow_fraction(first);
-                        self.receive(first, g, qhat);
+                        self.receive(to(first), g, qhat);
                         out.small[a][0] -= small_part(small, g, qhat) * vol;
                         out.total[a][0] -= g * vol;
                     }
                 });
             }
         }
-        // Pass D: c = tracked + untracked.
-        for i in 0..n {
-            self.c[i] = self.q[i] + self.k[0][i];
-        }
-        self.prepared = false;
-        out
     }
 
     /// Cell `i` receives `f >= 0` of donor fraction `qhat` in `[0, 1]`.
@@ -280,46 +303,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             guarded: R::ZERO,
         };
         // Outflow of every cell (content per full cell), gathered at the masters below.
-        self.rhs[..n].fill(R::ZERO);
-        for a in 0..D {
-            let fb = grid.face_blocks(a);
-            let s = fb.stride;
-            let periodic = self.bc[a][0] == Boundary::Periodic;
-            for b in 0..fb.blocks {
-                let l0 = b * fb.block_stride;
-                for l in l0..l0 + fb.block_len {
-                    let f = fx.faces[a][l];
-                    if f > R::ZERO {
-                        self.rhs[l] += f;
-                    } else if f < R::ZERO {
-                        self.rhs[l + s] -= f;
-                    }
-                }
-            }
-            let rhs = &mut self.rhs;
-            grid.for_each_boundary_cell(a, true, |last, first| {
-                let f = fx.faces[a][last];
-                if f > R::ZERO {
-                    rhs[last] += f;
-                } else if f < R::ZERO && periodic {
-                    rhs[first] -= f;
-                }
-            });
-            if !periodic {
-                grid.for_each_boundary_cell(a, false, |first, _| {
-                    let g = fx.low[a][first];
-                    if g < R::ZERO {
-                        rhs[first] -= g;
-                    }
-                });
-            }
-        }
-        for i in 0..n {
-            let m = geo.master(i);
-            if m != i {
-                self.rhs[m] += self.rhs[i];
-            }
-        }
+        self.outflow_into_rhs(fx);
+        self.gather_outflow_at_masters(geo);
         // Keep the share of each group, as content at the master; members hold nothing
         // until the end. `flux` holds every cell's tracked fraction (uniform in a group).
         let mut guarded = R::ZERO;
@@ -347,61 +332,24 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             self.k[0][i] = vg * (c - q) * keep;
         }
         out.guarded = guarded * vol;
-        let small = self.cfg.phase == Phase::Small;
-        for a in 0..D {
-            let fb = grid.face_blocks(a);
-            let s = fb.stride;
-            let periodic = self.bc[a][0] == Boundary::Periodic;
-            for b in 0..fb.blocks {
-                let l0 = b * fb.block_stride;
-                for l in l0..l0 + fb.block_len {
-                    let f = fx.faces[a][l];
-                    if f > R::ZERO {
-                        self.receive(geo.master(l + s), f, self.flux[l]);
-                    } else if f < R::ZERO {
-                        self.receive(geo.master(l), -f, self.flux[l + s]);
-                    }
-                }
-            }
-            grid.for_each_boundary_cell(a, true, |last, first| {
-                let f = fx.faces[a][last];
-                if periodic {
-                    if f > R::ZERO {
-                        self.receive(geo.master(first), f, self.flux[last]);
-                    } else if f < R::ZERO {
-                        self.receive(geo.master(last), -f, self.flux[first]);
-                    }
-                } else if f > R::ZERO {
-                    out.small[a][1] += small_part(small, f, self.flux[last]) * vol;
-                    out.total[a][1] += f * vol;
-                } else if f < R::ZERO {
-                    let qhat = self.inflow_fraction(last);
-                    self.receive(geo.master(last), -f, qhat);
-                    out.small[a][1] -= small_part(small, -f, qhat) * vol;
-                    out.total[a][1] += f * vol;
-                }
-            });
-            if !periodic {
-                grid.for_each_boundary_cell(a, false, |first, _| {
-                    let g = fx.low[a][first];
-                    if g < R::ZERO {
-                        out.small[a][0] += small_part(small, -g, self.flux[first]) * vol;
-                        out.total[a][0] -= g * vol;
-                    } else if g > R::ZERO {
-                        let qhat = self.inflow_fraction(first);
-                        self.receive(geo.master(first), g, qhat);
-                        out.small[a][0] -= small_part(small, g, qhat) * vol;
-                        out.total[a][0] -= g * vol;
-                    }
-                });
-            }
-        }
+        self.receive_faces(fx, &mut out, |i| geo.master(i));
         self.spread_group_content(geo);
         for i in 0..n {
             self.c[i] = self.q[i] + self.k[0][i];
         }
         self.prepared = false;
         out
+    }
+
+    /// Cut cells: each member's outflow (in `rhs`) added to its merge group's master, which
+    /// keeps the group's share. Shared by the donor and the limited rule.
+    pub(super) fn gather_outflow_at_masters(&mut self, geo: &CutCells<R, D, N>) {
+        for i in 0..self.grid.len() {
+            let m = geo.master(i);
+            if m != i {
+                self.rhs[m] += self.rhs[i];
+            }
+        }
     }
 
     /// Cut cells, after a carried transport: the tracked (`q`) and untracked (`k[0]`)

@@ -258,12 +258,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             self.rhs[i] = o;
         }
         if let Some(g) = geo {
-            for i in 0..n {
-                let m = g.master(i);
-                if m != i {
-                    self.rhs[m] += self.rhs[i];
-                }
-            }
+            self.gather_outflow_at_masters(g);
         }
         // Pass B1: the tracked fraction into [0, c] (round-off guard, as the donor rule), the
         // carry folded in, qhat of every cell into `flux`.

@@ -538,21 +538,8 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
                 k as f64 * period
             )));
         }
-        let d = diagnose(s);
-        final_psi = d.psi.to_f64();
-        let coarse = coarsen(
-            |i| {
-                let ci = s.c(i).to_f64();
-                if ci > 0.0 {
-                    s.phi(i).to_f64() / ci
-                } else {
-                    0.0
-                }
-            },
-            nf,
-            ns,
-        );
-        let coarse_c = coarsen(|i| s.c(i).to_f64(), nf, ns);
+        let (psi, coarse, coarse_c) = truth_on_sensor(s, nf, ns);
+        final_psi = psi;
         writer
             .truth(
                 k,
@@ -804,21 +791,8 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
     crate::flow::coupled_loop(f, s, &truth_scene, fields, None, &bar, |k, t, seg, _| {
         crate::interrupt::check("sieve record")?;
         if k >= 1 {
-            let d = diagnose(seg);
-            final_psi = d.psi.to_f64();
-            let coarse = coarsen(
-                |i| {
-                    let ci = seg.c(i).to_f64();
-                    if ci > 0.0 {
-                        seg.phi(i).to_f64() / ci
-                    } else {
-                        0.0
-                    }
-                },
-                nf,
-                ns,
-            );
-            let coarse_c = coarsen(|i| seg.c(i).to_f64(), nf, ns);
+            let (psi, coarse, coarse_c) = truth_on_sensor(seg, nf, ns);
+            final_psi = psi;
             let m = mass(seg);
             writer
                 .truth(
@@ -927,6 +901,31 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
         flow: None,
     };
     Ok((bytes, report))
+}
+
+/// What a recording stores of the truth at a frame: its psi (full grid) and its phihat and c
+/// averaged onto the sensor grid (`nf` truth cells, `ns` sensor cells; empty cells count as
+/// phihat 0).
+fn truth_on_sensor<R: Real, const D: usize, const N: usize>(
+    s: &Segregation<R, D, N>,
+    nf: [usize; 2],
+    ns: [usize; 2],
+) -> (f64, Vec<f64>, Vec<f64>) {
+    let psi = diagnose(s).psi.to_f64();
+    let phihat = coarsen(
+        |i| {
+            let ci = s.c(i).to_f64();
+            if ci > 0.0 {
+                s.phi(i).to_f64() / ci
+            } else {
+                0.0
+            }
+        },
+        nf,
+        ns,
+    );
+    let c = coarsen(|i| s.c(i).to_f64(), nf, ns);
+    (psi, phihat, c)
 }
 
 #[cfg(test)]
