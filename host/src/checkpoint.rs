@@ -13,7 +13,8 @@
 //!
 //! **Where.** Next to the target DIR, in `.DIR.checkpoint/` (never a `.DIR.tmp-*` name, so the
 //! clean-up of staging debris after a SIGKILL leaves it alone): `checkpoint.bin` plus
-//! `fields/state_KKKK.vti`, hard links (copies across file systems) of the snapshots written so
+//! `fields/state_KKKK.vti` (under mpirun `fields/state_KKKK.pvti` and its pieces
+//! `state_KKKK_R.vti`), hard links (copies across file systems) of the snapshots written so
 //! far, so that outputs written before a kill survive the loss of the staging directory. A
 //! finished run removes it after DIR is committed; a fresh run into DIR refuses (exit 2) while
 //! it holds a checkpoint.
@@ -316,6 +317,26 @@ pub fn snapshot_name(k: usize) -> String {
     format!("state_{k:04}.vti")
 }
 
+/// Name of the parallel VTK snapshot of output `k` (as `sieve run` writes it under mpirun).
+pub fn pvti_name(k: usize) -> String {
+    format!("state_{k:04}.pvti")
+}
+
+/// Name of rank `rank`'s piece of the parallel snapshot of output `k` (beside the `.pvti`).
+pub fn piece_name(k: usize, rank: usize) -> String {
+    format!("state_{k:04}_{rank}.vti")
+}
+
+/// The files of output `k`: its `.vti`, or (with `pieces` > 0) its `.pvti` and the pieces.
+fn snapshot_files(k: usize, pieces: usize) -> Vec<String> {
+    if pieces == 0 {
+        return vec![snapshot_name(k)];
+    }
+    std::iter::once(pvti_name(k))
+        .chain((0..pieces).map(|r| piece_name(k, r)))
+        .collect()
+}
+
 /// The sieve build: the package version and a CRC-64 of the running executable, so that a
 /// checkpoint is never continued by a build whose numerics may differ.
 pub fn build_id() -> String {
@@ -365,6 +386,21 @@ impl SceneSource {
 
 /// The (length, CRC) of an output whose snapshot was thinned away (`[output] vtk_every`).
 const NOT_WRITTEN: (u64, u64) = (u64::MAX, u64::MAX);
+
+/// A kept snapshot: the (length, CRC-64) of its file and, for a `.pvti` written under
+/// mpirun, of its pieces in rank order (none for a `.vti`).
+#[derive(Debug, Clone, PartialEq)]
+struct Kept {
+    file: (u64, u64),
+    pieces: Vec<(u64, u64)>,
+}
+
+impl Kept {
+    const THINNED: Kept = Kept {
+        file: NOT_WRITTEN,
+        pieces: Vec::new(),
+    };
+}
 
 /// A checkpoint read back from disk, verified against its kept files.
 #[derive(Debug, Clone)]
@@ -427,6 +463,11 @@ impl Stored {
                 .into(),
             sets,
         })
+    }
+
+    /// A checkpoint whose contents do not fit the scene (exit 2, one line).
+    pub fn incompatible(&self, why: Error) -> Error {
+        refuse(&self.dir, why)
     }
 
     /// Refuses (exit 2) a checkpoint of another build or of another scene.
@@ -517,8 +558,8 @@ pub struct Session {
     source: SceneSource,
     fingerprint: u64,
     fields_src: PathBuf,
-    /// (length, CRC-64) of the snapshots already kept in `dir/fields`.
-    kept: Vec<(u64, u64)>,
+    /// The snapshots already kept in `dir/fields`.
+    kept: Vec<Kept>,
     resumed: Option<Entries>,
     written: u64,
 }
@@ -583,27 +624,63 @@ impl Session {
         let n = e.u64("progress.next").map_err(bad)? as usize;
         let lens = e.u64s("kept.len", n).map_err(bad)?;
         let sums = e.u64s("kept.crc", n).map_err(bad)?;
+        // Pieces per output (0: a `.vti`; P: a `.pvti` and P pieces, written under mpirun);
+        // absent when every kept output is a `.vti`.
+        let zeros = vec![0; n];
+        let pieces = match e.0.contains_key("kept.pieces") {
+            true => e.u64s("kept.pieces", n).map_err(bad)?,
+            false => &zeros[..],
+        };
+        let total = pieces
+            .iter()
+            .try_fold(0u64, |a, &p| a.checked_add(p))
+            .filter(|&t| t <= u64::from(MAX_ENTRIES))
+            .ok_or_else(|| refuse(&self.dir, "kept.pieces: too many pieces"))?
+            as usize;
+        let (piece_lens, piece_sums) = match total {
+            0 => (&[][..], &[][..]),
+            _ => (
+                e.u64s("kept.piece.len", total).map_err(bad)?,
+                e.u64s("kept.piece.crc", total).map_err(bad)?,
+            ),
+        };
         std::fs::create_dir_all(&self.fields_src).map_err(|e| Error::io(&self.fields_src, e))?;
+        let mut at = 0;
         for k in 0..n {
-            if (lens[k], sums[k]) == NOT_WRITTEN {
-                self.kept.push(NOT_WRITTEN);
+            let p = pieces[k] as usize;
+            if (lens[k], sums[k]) == NOT_WRITTEN && p == 0 {
+                self.kept.push(Kept::THINNED);
                 continue;
             }
-            let src = self.dir.join("fields").join(snapshot_name(k));
-            let got = file_sum(&src).map_err(|_| {
-                refuse(
-                    &self.dir,
-                    format!("the kept snapshot {} is missing", src.display()),
-                )
-            })?;
-            if got != (lens[k], sums[k]) {
-                return Err(refuse(
-                    &self.dir,
-                    format!("the kept snapshot {} is damaged", src.display()),
-                ));
+            let want = std::iter::once((lens[k], sums[k])).chain(
+                piece_lens[at..at + p]
+                    .iter()
+                    .copied()
+                    .zip(piece_sums[at..at + p].iter().copied()),
+            );
+            at += p;
+            let mut got = Vec::with_capacity(p + 1);
+            for (name, want) in snapshot_files(k, p).into_iter().zip(want) {
+                let src = self.dir.join("fields").join(&name);
+                let sum = file_sum(&src).map_err(|_| {
+                    refuse(
+                        &self.dir,
+                        format!("the kept snapshot {} is missing", src.display()),
+                    )
+                })?;
+                if sum != want {
+                    return Err(refuse(
+                        &self.dir,
+                        format!("the kept snapshot {} is damaged", src.display()),
+                    ));
+                }
+                link_or_copy(&src, &self.fields_src.join(&name))?;
+                got.push(sum);
             }
-            link_or_copy(&src, &self.fields_src.join(snapshot_name(k)))?;
-            self.kept.push(got);
+            self.kept.push(Kept {
+                file: got[0],
+                pieces: got[1..].to_vec(),
+            });
         }
         self.resumed = Some(e);
         Ok(())
@@ -617,6 +694,17 @@ impl Session {
     /// A resumed checkpoint whose contents do not fit the scene (exit 2, one line).
     pub fn incompatible(&self, why: Error) -> Error {
         refuse(&self.dir, why)
+    }
+
+    /// The file name of kept output `k` in the VTK collection (`state_KKKK.vti`, or
+    /// `state_KKKK.pvti` if it was written under mpirun); `None` if it is not kept (thinned
+    /// away, or not yet written).
+    pub fn kept_name(&self, k: usize) -> Option<String> {
+        match self.kept.get(k)? {
+            Kept { file, pieces } if pieces.is_empty() && *file == NOT_WRITTEN => None,
+            Kept { pieces, .. } if pieces.is_empty() => Some(snapshot_name(k)),
+            _ => Some(pvti_name(k)),
+        }
     }
 
     /// Checkpoints written by this session.
@@ -732,18 +820,39 @@ impl Session {
         let fields = self.dir.join("fields");
         std::fs::create_dir_all(&fields).map_err(|e| Error::io(&fields, e))?;
         for k in self.kept.len()..progress.next {
-            let src = self.fields_src.join(snapshot_name(k));
-            if !src.exists() {
+            let names = if self.fields_src.join(snapshot_name(k)).exists() {
+                snapshot_files(k, 0)
+            } else if self.fields_src.join(pvti_name(k)).exists() {
+                // under mpirun: the .pvti and every rank's piece (all written before the
+                // output command returned on rank 0)
+                let pieces = (0..)
+                    .take_while(|&r| self.fields_src.join(piece_name(k, r)).exists())
+                    .count();
+                if pieces == 0 {
+                    return Err(Error::failure(format!(
+                        "{}: no pieces beside it",
+                        self.fields_src.join(pvti_name(k)).display()
+                    )));
+                }
+                snapshot_files(k, pieces)
+            } else {
                 // thinned away ([output] vtk_every): nothing to keep
-                self.kept.push(NOT_WRITTEN);
+                self.kept.push(Kept::THINNED);
                 continue;
+            };
+            let mut sums = Vec::with_capacity(names.len());
+            for name in &names {
+                let dst = fields.join(name);
+                link_or_copy(&self.fields_src.join(name), &dst)?;
+                if let Ok(f) = std::fs::File::open(&dst) {
+                    let _ = f.sync_all();
+                }
+                sums.push(file_sum(&dst)?);
             }
-            let dst = fields.join(snapshot_name(k));
-            link_or_copy(&src, &dst)?;
-            if let Ok(f) = std::fs::File::open(&dst) {
-                let _ = f.sync_all();
-            }
-            self.kept.push(file_sum(&dst)?);
+            self.kept.push(Kept {
+                file: sums[0],
+                pieces: sums[1..].to_vec(),
+            });
         }
         sync_dir(&fields);
         let mut e = Entries::default();
@@ -757,14 +866,32 @@ impl Session {
         e.put("scene.fingerprint", Value::U64(self.fingerprint));
         let next = progress.next;
         e.put("progress.next", Value::U64(next as u64));
+        let kept = &self.kept[..next];
         e.put(
             "kept.len",
-            Value::U64s(self.kept[..next].iter().map(|k| k.0).collect()),
+            Value::U64s(kept.iter().map(|k| k.file.0).collect()),
         );
         e.put(
             "kept.crc",
-            Value::U64s(self.kept[..next].iter().map(|k| k.1).collect()),
+            Value::U64s(kept.iter().map(|k| k.file.1).collect()),
         );
+        if kept.iter().any(|k| !k.pieces.is_empty()) {
+            // a .pvti and its pieces (under mpirun): a serial run's checkpoint has no such
+            // entries
+            let pieces = || kept.iter().flat_map(|k| &k.pieces);
+            e.put(
+                "kept.pieces",
+                Value::U64s(kept.iter().map(|k| k.pieces.len() as u64).collect()),
+            );
+            e.put(
+                "kept.piece.len",
+                Value::U64s(pieces().map(|p| p.0).collect()),
+            );
+            e.put(
+                "kept.piece.crc",
+                Value::U64s(pieces().map(|p| p.1).collect()),
+            );
+        }
         let st = &progress.stats;
         e.put("progress.steps", Value::U64(st.steps));
         e.put(

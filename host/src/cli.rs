@@ -524,7 +524,11 @@ fn run_setup(a: &RunArgs) -> Result<(scene::Scene, scene::Fields, PathBuf, run::
         src
     };
     let (scene, fields) = src.load()?;
-    if !a.quiet {
+    #[cfg(feature = "mpi")]
+    let quiet = a.quiet || crate::parallel_mpi::is_follower(); // under mpirun rank 0 says it
+    #[cfg(not(feature = "mpi"))]
+    let quiet = a.quiet;
+    if !quiet {
         let e = &stored.entries;
         eprintln!(
             "sieve: resuming {} ({}) from its checkpoint at t = {} after {} steps",
@@ -554,9 +558,9 @@ fn run_command(a: &RunArgs) -> Result<()> {
     {
         // `mpirun -np K sieve run`: refused scenes end every rank before anything is built;
         // the ranks > 0 serve rank 0's run (docs/parallel.md)
-        crate::parallel_mpi::check_scope(&scene, a.resume.is_some())?;
+        crate::parallel_mpi::check_scope(&scene)?;
         if crate::parallel_mpi::is_follower() {
-            return crate::mpi_jobs::follow(&scene, &fields);
+            return crate::mpi_jobs::follow(&scene, &fields, resume.resume.as_ref());
         }
         if let (Some(n), Some((_, k)), false) = (a.threads, crate::parallel_mpi::world(), a.quiet) {
             eprintln!("note: --threads {n}: under mpirun each of the {k} ranks steps its rows on one thread");

@@ -4,6 +4,7 @@
 //! because they build solvers through [`crate::run`], which calls `parallel_mpi` for rank 0's
 //! stepper and snapshots: modules import no circle (host/tests/house.rs).
 
+use crate::checkpoint::{self as cp, Stored};
 use crate::error::{Error, Result};
 use crate::parallel_mpi::{driver_for, serve, world};
 use crate::run::{FlowJob, SolverJob};
@@ -12,16 +13,39 @@ use sieve_core::flow::Flow;
 use sieve_core::{state_hash, Real, Segregation};
 
 /// A follower's `sieve run`: builds the scene's solver as rank 0 does (a frozen flow spun up
-/// here too), then [`serve`]s rank 0's commands until stop. Returns the
-/// stop's exit code as a silent error (rank 0 reports).
-pub fn follow(scene: &Scene, fields: &Fields) -> Result<()> {
-    let job = Follower { scene, fields };
+/// here too, or taken from the checkpoint), restores the checkpoint it resumes (`resume`:
+/// the one rank 0 resumes, read by this rank), then [`serve`]s rank 0's commands until stop.
+/// Returns the stop's exit code as a silent error (rank 0 reports).
+pub fn follow(scene: &Scene, fields: &Fields, resume: Option<&Stored>) -> Result<()> {
+    if let Some(st) = resume {
+        // rank 0 refuses the same checkpoint for the same reason (its line is the one shown)
+        st.check_identity(scene, fields)?;
+    }
+    let job = Follower {
+        scene,
+        fields,
+        resume,
+    };
     crate::run::with_scene_solvers(scene, job)
 }
 
 struct Follower<'a> {
     scene: &'a Scene,
     fields: &'a Fields,
+    resume: Option<&'a Stored>,
+}
+
+impl Follower<'_> {
+    /// Restores the segregation state of the resumed checkpoint, as rank 0's run does.
+    fn restore<R: Real, const D: usize, const N: usize>(
+        &self,
+        s: &mut Segregation<R, D, N>,
+    ) -> Result<()> {
+        match self.resume {
+            Some(st) => cp::restore_segregation(&st.entries, s).map_err(|w| st.incompatible(w)),
+            None => Ok(()),
+        }
+    }
 }
 
 impl SolverJob for Follower<'_> {
@@ -31,6 +55,7 @@ impl SolverJob for Follower<'_> {
         s: &mut Segregation<R, D, N>,
     ) -> Result<()> {
         crate::run::load(s, self.scene, self.fields)?;
+        self.restore(s)?;
         serve(s, self.scene, None)
     }
 }
@@ -42,10 +67,25 @@ impl FlowJob for Follower<'_> {
         s: &mut Segregation<R, D, N>,
         f: &mut Flow<R, D, N>,
     ) -> Result<()> {
-        // as rank 0's frozen-flow run (run.rs): the same spin-up, the same bits
+        // as rank 0's frozen-flow run (run.rs): the same spin-up (or the checkpoint's frozen
+        // flow, no spin-up), the same bits
         crate::run::load(s, self.scene, self.fields)?;
-        let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
+        let frozen = match self.resume {
+            Some(st) => {
+                let fr = cp::frozen(&st.entries, self.scene.len(), self.scene.dim)
+                    .map_err(|w| st.incompatible(w))?;
+                crate::flow::Frozen {
+                    c: fr.c,
+                    t: fr.t,
+                    p: fr.p,
+                    u: fr.u,
+                    summary: fr.summary,
+                }
+            }
+            None => crate::flow::spin_up(f, self.scene, self.fields)?,
+        };
         crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
+        self.restore(s)?;
         serve(s, self.scene, Some(frozen.p))
     }
 }

@@ -20,6 +20,14 @@
 //!   `.pvti` that names them ([`write_snapshot`]);
 //! - *stop* with the exit code of rank 0.
 //!
+//! Checkpoints (`run.checkpoint_interval`, docs/resume.md) are rank 0's alone: its run loop
+//! writes them from its global solver, gathered after every chunk, at the serial chunk
+//! boundaries; the wall-clock decision is taken there, once. The followers take no part
+//! (they wait for the next command while rank 0 writes), so no rank can decide otherwise and
+//! nothing is broadcast for it. `--resume`: every rank reads the checkpoint and restores its
+//! global solver before it builds its subdomain (`crate::mpi_jobs::follow`); the kept
+//! `.pvti` snapshots and their pieces are rank 0's to check and adopt.
+//!
 //! Errors end every rank, never a hang: before the run every rank reports to rank 0 whether
 //! its setup worked ([`agree`]: the first failure in rank order becomes every rank's result,
 //! rank 0 prints it, the others exit with its code silently); after that a follower's failure
@@ -347,9 +355,10 @@ fn send_stop(code: i32) {
 
 /// Why a scene cannot run under mpirun, before anything is built (every rank finds the
 /// same): coupled-flow and cut-cell scenes (decision: refused, exit 2, rather than run on
-/// rank 0 while the other ranks wait), checkpoints and `--resume` (the snapshots of a
-/// checkpoint are single files), and more ranks than the rows allow.
-pub fn check_scope(scene: &Scene, resume: bool) -> Result<()> {
+/// rank 0 while the other ranks wait) and more ranks than the rows allow. Checkpoints and
+/// `--resume` run (rank 0 writes the checkpoints from its global solver; every rank reads
+/// the checkpoint it resumes: `crate::mpi_jobs::follow`).
+pub fn check_scope(scene: &Scene) -> Result<()> {
     let Some((_, ranks)) = world() else {
         return Ok(());
     };
@@ -369,17 +378,6 @@ pub fn check_scope(scene: &Scene, resume: bool) -> Result<()> {
             &scene.label,
             "mpirun",
             format!("{w} run on one rank only: run them without mpirun (docs/parallel.md)"),
-        ));
-    }
-    if resume || scene.checkpoint_interval.is_some() {
-        return Err(Error::at(
-            "command line",
-            if resume {
-                "--resume"
-            } else {
-                "run.checkpoint_interval"
-            },
-            "checkpoints are not written under mpirun: run without mpirun to use them (docs/parallel.md)",
         ));
     }
     let rows = scene.cells[scene.dim - 1];
@@ -799,7 +797,7 @@ fn rows_of(snap: &Snapshot, plane: usize, rows: &Range<usize>) -> Snapshot {
 
 /// The file of rank `rank`'s piece of output `k` (beside the `.pvti`).
 fn piece_name(k: u64, rank: usize) -> String {
-    format!("state_{k:04}_{rank}.vti")
+    crate::checkpoint::piece_name(k as usize, rank)
 }
 
 /// Writes this rank's piece of output `k` from a snapshot of the whole grid.
@@ -859,7 +857,7 @@ pub fn write_snapshot(
     let pieces: Vec<(Range<usize>, String)> = (0..ranks)
         .map(|r| (decomp::owned_rows(rows, ranks, r), piece_name(k, r)))
         .collect();
-    let name = format!("state_{k:04}.pvti");
+    let name = crate::checkpoint::pvti_name(k as usize);
     crate::output::vtk::write_pvti(&dir.join(&name), scene, snap, &pieces)?;
     Ok(Some(name))
 }

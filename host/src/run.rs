@@ -530,22 +530,28 @@ struct RunJob<'a> {
 }
 
 /// The VTK collection entries of the outputs a resumed run kept (written before the
-/// interruption): the same names and times the run gave them.
+/// interruption): the same names and times the run gave them (a `.pvti` for an output
+/// written under mpirun, whether or not this run is).
 fn kept_pvd(
     scene: &Scene,
     ckpt: Option<&crate::checkpoint::Session>,
     outputs: usize,
 ) -> Result<Vec<(f64, String)>> {
-    let next = match ckpt {
-        Some(ck) => ck.progress(scene)?.map_or(0, |p| p.next),
-        None => 0,
+    let Some(ck) = ckpt else {
+        return Ok(Vec::new());
     };
+    let next = ck.progress(scene)?.map_or(0, |p| p.next);
     Ok(output_times(scene.t_end, scene.output_interval)
         .into_iter()
         .take(next)
         .enumerate()
         .filter(|&(k, _)| scene.output.writes(k, outputs))
-        .map(|(k, t)| (t, crate::checkpoint::snapshot_name(k)))
+        .map(|(k, t)| {
+            let name = ck
+                .kept_name(k)
+                .unwrap_or_else(|| crate::checkpoint::snapshot_name(k));
+            (t, name)
+        })
         .collect())
 }
 
