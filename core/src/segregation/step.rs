@@ -765,33 +765,49 @@ impl<R: Real, const FUSED: bool, const UNIFORM: bool> HotLoop for Update<'_, R, 
         }
         // The running maxima in LANES independent chains: one chain of `max` costs a
         // floating-point latency per cell and held this loop at half the C loop's rate
-        // (core/benches/column_a_vs_c.rs). A maximum is exact, so the lanes give the same value
-        // in any order; only the sign of a zero maximum could differ, and it is made +0.
-        let (mut hi, mut lo) = ([self.start[0]; LANES], [self.start[1]; LANES]);
-        let whole = len - len % LANES;
-        // one pass per maximum: in one pass the vectoriser paired the two maxima of a cell
-        for (q, c) in q[..whole]
-            .chunks_exact(LANES)
-            .zip(c[..whole].chunks_exact(LANES))
-        {
-            for l in 0..LANES {
-                hi[l] = hi[l].max(q[l] - c_at(c[l]));
-            }
-        }
-        for q in q[..whole].chunks_exact(LANES) {
-            for l in 0..LANES {
-                lo[l] = lo[l].max(-q[l]);
-            }
-        }
-        for i in whole..len {
-            hi[0] = hi[0].max(q[i] - c_at(c[i]));
-            lo[0] = lo[0].max(-q[i]);
-        }
-        [
-            positive_zero(hi.iter().fold(hi[0], |m, &x| m.max(x))),
-            positive_zero(lo.iter().fold(lo[0], |m, &x| m.max(x))),
-        ]
+        // (core/benches/column_a_vs_c.rs).
+        lane_maxima(q, c, c_at, self.start)
     }
+}
+
+/// The bound maxima `max(start[0], max_i (q_i - c_at(c_i)))` and `max(start[1], max_i -q_i)`
+/// in [`LANES`] independent chains. A maximum is exact, so the lanes give the same value as
+/// one chain in any order; only the sign of a zero maximum could differ, and it is made +0.
+/// Shared by the step's update and a subdomain's owned-cell pass
+/// ([`Segregation::end_owned_step`]).
+#[inline(always)]
+pub(super) fn lane_maxima<R: Real>(
+    q: &[R],
+    c: &[R],
+    c_at: impl Fn(R) -> R,
+    start: [R; 2],
+) -> [R; 2] {
+    let len = q.len();
+    let c = &c[..len];
+    let (mut hi, mut lo) = ([start[0]; LANES], [start[1]; LANES]);
+    let whole = len - len % LANES;
+    // one pass per maximum: in one pass the vectoriser paired the two maxima of a cell
+    for (q, c) in q[..whole]
+        .chunks_exact(LANES)
+        .zip(c[..whole].chunks_exact(LANES))
+    {
+        for l in 0..LANES {
+            hi[l] = hi[l].max(q[l] - c_at(c[l]));
+        }
+    }
+    for q in q[..whole].chunks_exact(LANES) {
+        for l in 0..LANES {
+            lo[l] = lo[l].max(-q[l]);
+        }
+    }
+    for i in whole..len {
+        hi[0] = hi[0].max(q[i] - c_at(c[i]));
+        lo[0] = lo[0].max(-q[i]);
+    }
+    [
+        positive_zero(hi.iter().fold(hi[0], |m, &x| m.max(x))),
+        positive_zero(lo.iter().fold(lo[0], |m, &x| m.max(x))),
+    ]
 }
 
 /// Whether the flush has work: some `0 < |q| < floor` (a branch-free scan).
