@@ -44,9 +44,31 @@ pub fn mixing_entropy_density<R: Real>(x: R) -> R {
 pub fn diagnose<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
 ) -> Diagnostics<R> {
+    diagnose_with_terms(s, |i| entropy_term(s.phi(i), s.c(i), s.config().vacuum))
+}
+
+/// The entropy term [`diagnose`] adds for one cell: `e(phi / c) c` where `c > vacuum`, else 0
+/// (model.md 6). Its two `libm` logarithms are most of what a diagnosis costs.
+#[inline(always)]
+pub fn entropy_term<R: Real>(phi: R, c: R, vacuum: R) -> R {
+    if c > vacuum {
+        mixing_entropy_density(phi / c) * c
+    } else {
+        R::ZERO
+    }
+}
+
+/// [`diagnose`] with cell `i`'s entropy term given by `term(i)`, which must equal
+/// [`entropy_term`] of the cell: a driver may evaluate the terms on several threads
+/// beforehand, and since every sum still runs in cell order the result has [`diagnose`]'s
+/// bits.
+pub fn diagnose_with_terms<R: Real, const D: usize, const N: usize>(
+    s: &Segregation<R, D, N>,
+    term: impl Fn(usize) -> R,
+) -> Diagnostics<R> {
     let mut tally = Tally::new(s.config().vacuum);
     for i in 0..s.len() {
-        tally.add(s.phi(i), s.c(i), |x| x);
+        tally.add(s.phi(i), s.c(i), |x| x, || term(i));
     }
     tally.finish(s.grid().cell_volume())
 }
@@ -63,7 +85,8 @@ pub fn diagnose_embedded<R: Real, const D: usize, const N: usize>(
     for i in 0..s.len() {
         let v = geo.volume(i);
         if v != R::ZERO {
-            tally.add(s.phi(i), s.c(i), |x| x * v);
+            let (phi, c) = (s.phi(i), s.c(i));
+            tally.add(phi, c, |x| x * v, || mixing_entropy_density(phi / c) * c);
         }
     }
     tally.finish(s.grid().cell_volume())
@@ -96,8 +119,9 @@ impl<R: Real> Tally<R> {
         }
     }
 
+    /// Adds a cell; `entropy()` (its `e(phi / c) c`) is called only where `c > vacuum`.
     #[inline(always)]
-    fn add(&mut self, phi: R, c: R, weigh: impl Fn(R) -> R) {
+    fn add(&mut self, phi: R, c: R, weigh: impl Fn(R) -> R, entropy: impl FnOnce() -> R) {
         self.mass_small += weigh(phi);
         self.mass_total += weigh(c);
         self.overshoot = self.overshoot.max(phi - c);
@@ -106,7 +130,7 @@ impl<R: Real> Tally<R> {
             let ph = phi / c;
             self.phihat_min = self.phihat_min.min(ph);
             self.phihat_max = self.phihat_max.max(ph);
-            self.entropy += weigh(mixing_entropy_density(ph) * c);
+            self.entropy += weigh(entropy());
         }
     }
 

@@ -29,7 +29,10 @@ pub mod sensor;
 pub mod sum;
 
 pub use boundary::{Boundaries, Boundary};
-pub use diagnostics::{diagnose, diagnose_embedded, state_hash, Diagnostics, SegregationClock};
+pub use diagnostics::{
+    diagnose, diagnose_embedded, diagnose_with_terms, entropy_term, state_hash, Diagnostics,
+    SegregationClock,
+};
 pub use grid::Grid;
 pub use real::Real;
 pub use segregation::{

@@ -13,7 +13,7 @@ use crate::scene::{solver_errors, Fields, Precision, Scene};
 use sieve_core::flow::Flow;
 use sieve_core::geometry::CutCells;
 use sieve_core::segregation::SegregationConfig;
-use sieve_core::{diagnose, DirectionMode, Grid, Real, Segregation, TemperatureMode};
+use sieve_core::{DirectionMode, Grid, Real, Segregation, TemperatureMode};
 use std::time::Instant;
 
 const CAP_1D: usize = crate::scene::validate::CAPACITY[0];
@@ -248,12 +248,25 @@ pub fn time_loop_with<R: Real, const D: usize, const N: usize>(
     ckpt: Option<Checkpoints<'_>>,
     on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
-    time_loop_driven(s, scene, progress, geo, ckpt, None, on_output)
+    let serial = Workers {
+        stepper: None,
+        threads: 1,
+    };
+    time_loop_driven(s, scene, progress, geo, ckpt, serial, on_output)
 }
 
 /// `advance_to` of a run on subdomains ([`crate::parallel::Driver::advance`]).
 pub type Stepper<'a, R, const D: usize, const N: usize> =
     &'a dyn Fn(&mut Segregation<R, D, N>, R, u64) -> u64;
+
+/// Who does a run loop's work: its `stepper` (`None`: `advance_to` on this thread) and the
+/// threads its box diagnoses take ([`crate::parallel::diagnose_on`]).
+pub struct Workers<'a, R: Real, const D: usize, const N: usize> {
+    /// Takes the steps in place of `advance_to`.
+    pub stepper: Option<Stepper<'a, R, D, N>>,
+    /// Threads of the diagnoses (1: serial).
+    pub threads: usize,
+}
 
 /// [`time_loop_driven`] on the threads `sieve run --threads` asks for
 /// ([`crate::parallel::driver_for`]; one thread, or a scene the threads do not run, steps
@@ -271,34 +284,37 @@ fn threaded_time_loop<R: Real, const D: usize, const N: usize>(
     #[cfg(feature = "mpi")]
     if let Some(d) = crate::parallel_mpi::driver_for(s)? {
         let step = move |s: &mut _, t, n| d.advance(s, t, n);
-        return time_loop_driven(s, scene, progress, geo, ckpt, Some(&step), on_output);
+        // the other ranks step with rank 0, but its diagnoses stay on one thread
+        let ranks = Workers {
+            stepper: Some(&step),
+            threads: 1,
+        };
+        return time_loop_driven(s, scene, progress, geo, ckpt, ranks, on_output);
     }
     let driver = crate::parallel::driver_for(s, scene, quiet)?;
     let step = driver
         .as_ref()
         .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));
-    time_loop_driven(
-        s,
-        scene,
-        progress,
-        geo,
-        ckpt,
-        step.as_ref().map(|f| f as Stepper<'_, R, D, N>),
-        on_output,
-    )
+    let workers = Workers {
+        stepper: step.as_ref().map(|f| f as Stepper<'_, R, D, N>),
+        threads: driver.as_ref().map_or(1, |d| d.parts()),
+    };
+    time_loop_driven(s, scene, progress, geo, ckpt, workers, on_output)
 }
 
-/// [`time_loop_with`] whose steps are taken by `stepper` (`--threads`) instead of
-/// `advance_to`: the same steps and bits, so nothing else in the loop changes.
+/// [`time_loop_with`] whose steps are taken by `workers.stepper` (`--threads`, mpirun)
+/// instead of `advance_to`: the same steps and bits, so nothing else in the loop changes;
+/// the box diagnoses run on `workers.threads` threads (the same bits).
 pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
     s: &mut Segregation<R, D, N>,
     scene: &Scene,
     progress: &crate::progress::Progress,
     geo: Option<&CutCells<R, D, N>>,
     mut ckpt: Option<Checkpoints<'_>>,
-    stepper: Option<Stepper<'_, R, D, N>>,
+    workers: Workers<'_, R, D, N>,
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
+    let Workers { stepper, threads } = workers;
     let times = output_times(scene.t_end, scene.output_interval);
     let dt = geo
         .map_or_else(|| s.stable_dt(), |g| s.stable_dt_embedded(g))
@@ -383,7 +399,7 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
         }
         let d = match geo {
             Some(g) => sieve_core::diagnose_embedded(s, g),
-            None => diagnose(s),
+            None => crate::parallel::diagnose_on(s, threads),
         };
         let row = SeriesRow {
             t,
@@ -395,7 +411,7 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
         timer.sample(t, row.psi);
         if let Some(cp) = before {
             if timer.time().is_some() {
-                timer = resolve_crossing(s, cp, target, geo, advance);
+                timer = resolve_crossing(s, cp, target, geo, threads, advance);
             }
         }
         stats.series.push(row);
@@ -410,10 +426,11 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
 fn psi_of<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
     geo: Option<&CutCells<R, D, N>>,
+    threads: usize,
 ) -> f64 {
     match geo {
         Some(g) => sieve_core::diagnose_embedded(s, g).psi.to_f64(),
-        None => diagnose(s).psi.to_f64(),
+        None => crate::parallel::diagnose_on(s, threads).psi.to_f64(),
     }
 }
 
@@ -457,6 +474,7 @@ fn resolve_crossing<R: Real, const D: usize, const N: usize>(
     cp: Checkpoint<R>,
     target: R,
     geo: Option<&CutCells<R, D, N>>,
+    threads: usize,
     advance: impl Fn(&mut Segregation<R, D, N>, R, u64) -> u64,
 ) -> SegregationTimer {
     #[cfg(debug_assertions)]
@@ -474,7 +492,7 @@ fn resolve_crossing<R: Real, const D: usize, const N: usize>(
     // evaluation each (on 512 x 512 cells one costs about 6 single-thread steps).
     while s.time() < target && timer.time().is_none() {
         advance(s, target, 1);
-        timer.sample(s.time().to_f64(), psi_of(s, geo));
+        timer.sample(s.time().to_f64(), psi_of(s, geo, threads));
     }
     while s.time() < target {
         advance(s, target, 1 << 20);
