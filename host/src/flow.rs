@@ -204,6 +204,32 @@ pub struct Frozen {
     pub summary: FlowSummary,
 }
 
+/// A checkpoint's frozen flow (a resumed run hands it over instead of spinning up again).
+impl From<crate::checkpoint::FrozenFields> for Frozen {
+    fn from(f: crate::checkpoint::FrozenFields) -> Self {
+        Self {
+            c: f.c,
+            t: f.t,
+            p: f.p,
+            u: f.u,
+            summary: f.summary,
+        }
+    }
+}
+
+/// What a checkpoint keeps of the frozen flow.
+impl From<&Frozen> for crate::checkpoint::FrozenFields {
+    fn from(f: &Frozen) -> Self {
+        Self {
+            c: f.c.clone(),
+            t: f.t.clone(),
+            p: f.p.clone(),
+            u: f.u.clone(),
+            summary: f.summary.clone(),
+        }
+    }
+}
+
 fn diag_f64<R: Real>(d: &FlowDiagnostics<R>) -> FlowDiagnostics<f64> {
     FlowDiagnostics {
         mass: d.mass.to_f64(),

@@ -71,17 +71,9 @@ impl FlowJob for Follower<'_> {
         // flow, no spin-up), the same bits
         crate::run::load(s, self.scene, self.fields)?;
         let frozen = match self.resume {
-            Some(st) => {
-                let fr = cp::frozen(&st.entries, self.scene.len(), self.scene.dim)
-                    .map_err(|w| st.incompatible(w))?;
-                crate::flow::Frozen {
-                    c: fr.c,
-                    t: fr.t,
-                    p: fr.p,
-                    u: fr.u,
-                    summary: fr.summary,
-                }
-            }
+            Some(st) => cp::frozen(&st.entries, self.scene.len(), self.scene.dim)
+                .map_err(|w| st.incompatible(w))?
+                .into(),
             None => crate::flow::spin_up(f, self.scene, self.fields)?,
         };
         crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;

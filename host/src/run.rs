@@ -738,26 +738,12 @@ impl FlowJob for RunJob<'_> {
             // A resumed frozen-flow run hands over the checkpoint's frozen flow (no spin-up).
             let resumed = ckpt.as_ref().and_then(|c| c.resumed());
             let frozen = match resumed {
-                Some(e) => {
-                    let fr = cp::frozen(e, scene.len(), scene.dim)
-                        .map_err(|w| ckpt.as_ref().map_or(w.clone(), |c| c.incompatible(w)))?;
-                    crate::flow::Frozen {
-                        c: fr.c,
-                        t: fr.t,
-                        p: fr.p,
-                        u: fr.u,
-                        summary: fr.summary,
-                    }
-                }
+                Some(e) => cp::frozen(e, scene.len(), scene.dim)
+                    .map_err(|w| ckpt.as_ref().map_or(w.clone(), |c| c.incompatible(w)))?
+                    .into(),
                 None => crate::flow::spin_up(f, scene, self.fields)?,
             };
-            let kept = cp::FrozenFields {
-                c: frozen.c.clone(),
-                t: frozen.t.clone(),
-                p: frozen.p.clone(),
-                u: frozen.u.clone(),
-                summary: frozen.summary.clone(),
-            };
+            let kept = cp::FrozenFields::from(&frozen);
             crate::flow::hand_over_frozen(s, scene, self.fields, &frozen)?;
             if let Some(ck) = &ckpt {
                 if let Some(e) = ck.resumed() {
