@@ -68,6 +68,17 @@ pub struct Discharge<R, const D: usize> {
     pub guarded: R,
 }
 
+impl<R: Real, const D: usize> Discharge<R, D> {
+    /// Nothing has left (the start of every carried transport's tally).
+    pub fn none() -> Self {
+        Self {
+            small: [[R::ZERO; 2]; D],
+            total: [[R::ZERO; 2]; D],
+            guarded: R::ZERO,
+        }
+    }
+}
+
 impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// Sets temperature and velocity of cell `i` only (c and phi are carried: see
     /// [`Self::carry_mass_fluxes`]); call [`Self::prepare`] after.
@@ -131,11 +142,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let n = self.grid.len();
         let grid = self.grid;
         let vol = grid.cell_volume();
-        let mut out = Discharge {
-            small: [[R::ZERO; 2]; D],
-            total: [[R::ZERO; 2]; D],
-            guarded: R::ZERO,
-        };
+        let mut out = Discharge::none();
         // Pass A: O_i, the amount leaving each cell, into `rhs`.
         self.outflow_into_rhs(fx);
         // Pass B: each cell keeps the share s_i of both phases. Tracked fraction q (phi or
@@ -297,11 +304,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let n = self.grid.len();
         let grid = self.grid;
         let vol = grid.cell_volume();
-        let mut out = Discharge {
-            small: [[R::ZERO; 2]; D],
-            total: [[R::ZERO; 2]; D],
-            guarded: R::ZERO,
-        };
+        let mut out = Discharge::none();
         // Outflow of every cell (content per full cell), gathered at the masters below.
         self.outflow_into_rhs(fx);
         self.gather_outflow_at_masters(geo);
@@ -436,11 +439,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         } else {
             R::ONE - inflow_phihat
         };
-        let mut out = Discharge {
-            small: [[R::ZERO; 2]; D],
-            total: [[R::ZERO; 2]; D],
-            guarded: R::ZERO,
-        };
+        let mut out = Discharge::none();
         // Pass A: the amount each cell would give away with A = c, into `rhs`.
         self.rhs[..n].fill(R::ZERO);
         for a in 0..D {

@@ -242,11 +242,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             periodic: core::array::from_fn(|a| self.bc[a][0] == Boundary::Periodic),
             vacuum: self.cfg.vacuum,
         };
-        let mut out = Discharge {
-            small: [[R::ZERO; 2]; D],
-            total: [[R::ZERO; 2]; D],
-            guarded: R::ZERO,
-        };
+        let mut out = Discharge::none();
         // Pass A: O_i, the amount leaving each cell (gathered at the masters), into `rhs`.
         self.rhs[..n].fill(R::ZERO);
         for i in 0..n {
