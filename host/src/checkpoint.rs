@@ -24,8 +24,10 @@
 //! a CRC-64/XZ of all
 //! preceding bytes. Tags: 1 u64, 2 f64 (raw bits), 3 f64 array, 4 u64 array, 5 UTF-8 text.
 //! Floats are stored as their bits (f32 solvers widen exactly). Written atomically: a
-//! temporary file in the same directory, `fsync`, rename, `fsync` of the directory; the kept
-//! VTK files are `fsync`ed before. The reader checks the size of the file, the checksum, and
+//! temporary file in the same directory (`.checkpoint.XXXXXX.part`, six ASCII letters or
+//! digits), `fsync`, rename, `fsync` of the directory; the kept VTK files are `fsync`ed
+//! before. A SIGKILL during the write leaves the temporary file, which is never read (the
+//! checkpoint is `checkpoint.bin` only); `--resume` removes such files, exactly that pattern. The reader checks the size of the file, the checksum, and
 //! every count against the bytes left before it allocates; any damage is one line, exit 2.
 
 use crate::data::{output_times, FlowSummary, LoopStats, SeriesRow};
@@ -494,15 +496,60 @@ impl Stored {
     }
 }
 
+/// The temporary file of [`write_durably`] in the checkpoint directory: this prefix,
+/// [`PART_RANDOM`] ASCII letters or digits (tempfile's random part), this suffix.
+const PART_PREFIX: &str = ".checkpoint.";
+/// See [`PART_PREFIX`].
+const PART_SUFFIX: &str = ".part";
+/// See [`PART_PREFIX`].
+const PART_RANDOM: usize = 6;
+
+/// True for exactly the names [`write_durably`] gives its temporary files.
+fn is_part_name(name: &str) -> bool {
+    name.strip_prefix(PART_PREFIX)
+        .and_then(|r| r.strip_suffix(PART_SUFFIX))
+        .is_some_and(|r| r.len() == PART_RANDOM && r.bytes().all(|b| b.is_ascii_alphanumeric()))
+}
+
+/// Removes the temporary files that writes killed before their rename (SIGKILL) left in the
+/// checkpoint directory `dir`: regular files with [`write_durably`]'s name pattern, at the
+/// top of `dir` only; nothing else. Best effort (such a file is never read: the checkpoint is
+/// `checkpoint.bin` only). Returns the names removed.
+fn remove_stale_parts(dir: &Path) -> Vec<String> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut removed = Vec::new();
+    for entry in entries.flatten() {
+        let Some(name) = entry.file_name().to_str().map(str::to_string) else {
+            continue;
+        };
+        // the entry's own type: a symbolic link is not followed, a directory is not ours
+        if is_part_name(&name)
+            && entry.file_type().is_ok_and(|t| t.is_file())
+            && std::fs::remove_file(entry.path()).is_ok()
+        {
+            removed.push(name);
+        }
+    }
+    removed.sort();
+    removed
+}
+
+/// A new temporary file in `dir`, named by the pattern [`remove_stale_parts`] matches.
+fn part_file(dir: &Path) -> std::io::Result<tempfile::NamedTempFile> {
+    tempfile::Builder::new()
+        .prefix(PART_PREFIX)
+        .rand_bytes(PART_RANDOM)
+        .suffix(PART_SUFFIX)
+        .tempfile_in(dir)
+}
+
 /// Writes `bytes` to `path` atomically and durably: temporary file, fsync, rename, fsync of
 /// the directory.
 fn write_durably(path: &Path, bytes: &[u8]) -> Result<()> {
     let dir = path.parent().unwrap_or(Path::new("."));
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".checkpoint.")
-        .suffix(".part")
-        .tempfile_in(dir)
-        .map_err(|e| Error::io(dir, e))?;
+    let mut tmp = part_file(dir).map_err(|e| Error::io(dir, e))?;
     tmp.write_all(bytes).map_err(|e| Error::io(tmp.path(), e))?;
     tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
     tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
@@ -599,6 +646,9 @@ impl Session {
             Some(stored) => {
                 stored.check_identity(scene, fields)?;
                 s.adopt(stored.entries)?;
+                // a run killed while it wrote a checkpoint left its temporary file (one
+                // writer: a Session exists on rank 0 only under mpirun)
+                remove_stale_parts(&s.dir);
             }
             None => {
                 if s.dir.join(STATE_FILE).exists() {
@@ -1188,4 +1238,235 @@ pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<FrozenFields> {
             outlet: None,
         },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Writes `text` to `dir/name`, replacing (not changing) any file there: the checkpoint's
+    /// files are hard links to the staging directory's.
+    fn put(dir: &Path, name: &str, text: &str) {
+        let p = dir.join(name);
+        let _ = std::fs::remove_file(&p);
+        std::fs::write(p, text).unwrap();
+    }
+
+    /// A session of the small scene column-a into `target`, its snapshots in `fields_src`.
+    fn session(target: &Path, fields_src: &Path, resume: Option<Stored>) -> Result<Session> {
+        let src = crate::scene::locate("column-a").unwrap();
+        let source = SceneSource {
+            label: src.label,
+            text: src.text,
+            sets: vec!["run.checkpoint_interval=1".into()],
+        };
+        let (scene, fields) = source.load().unwrap();
+        assert_eq!(scene.checkpoint_interval, Some(1.0));
+        Session::new(
+            target,
+            &scene,
+            &fields,
+            source,
+            fields_src.to_path_buf(),
+            resume,
+        )
+    }
+
+    #[test]
+    fn kept_pieces_round_trip_through_the_encoding() {
+        let mut e = Entries::default();
+        e.put("kept.len", Value::U64s(vec![10, u64::MAX, 7]));
+        e.put("kept.crc", Value::U64s(vec![1, u64::MAX, 2]));
+        e.put("kept.pieces", Value::U64s(vec![0, 0, 3]));
+        e.put("kept.piece.len", Value::U64s(vec![100, 101, 0]));
+        e.put("kept.piece.crc", Value::U64s(vec![u64::MAX - 1, 0, 42]));
+        let bytes = encode(&e);
+        let back = decode(&bytes).unwrap();
+        assert_eq!(back, e);
+        assert_eq!(back.u64s("kept.pieces", 3).unwrap(), &[0, 0, 3]);
+        assert_eq!(back.u64s("kept.piece.len", 3).unwrap(), &[100, 101, 0]);
+        assert_eq!(encode(&back), bytes);
+    }
+
+    /// A checkpoint that keeps a `.vti`, a thinned output and a `.pvti` with two pieces (a
+    /// serial run resumed under mpirun keeps both kinds), written by `save` and resumed
+    /// without MPI: the entries, the links, the names; then a piece of the wrong length, of
+    /// the wrong CRC, or missing is refused in one line naming it.
+    #[test]
+    fn kept_pvti_pieces_are_saved_checked_and_linked() {
+        let d = tempfile::tempdir().unwrap();
+        let target = d.path().join("run");
+        let stage = d.path().join("stage");
+        std::fs::create_dir_all(&stage).unwrap();
+        put(&stage, "state_0000.vti", "serial snapshot 0");
+        put(&stage, "state_0002.pvti", "<VTKFile type=\"PImageData\"/>");
+        put(&stage, "state_0002_0.vti", "piece of rank 0");
+        put(&stage, "state_0002_1.vti", "piece of rank 1, longer");
+        let mut s = session(&target, &stage, None).unwrap();
+        let progress = Progress {
+            next: 3,
+            ..Progress::default()
+        };
+        s.save(&progress, |_| {}).unwrap();
+        assert_eq!(s.written(), 1);
+
+        let stored = Stored::open(&target).unwrap();
+        let e = &stored.entries;
+        let sum = |t: &str| (t.len() as u64, CRC.checksum(t.as_bytes()));
+        let vti = sum("serial snapshot 0");
+        let pvti = sum("<VTKFile type=\"PImageData\"/>");
+        let (p0, p1) = (sum("piece of rank 0"), sum("piece of rank 1, longer"));
+        assert_eq!(e.u64s("kept.len", 3).unwrap(), &[vti.0, u64::MAX, pvti.0]);
+        assert_eq!(e.u64s("kept.crc", 3).unwrap(), &[vti.1, u64::MAX, pvti.1]);
+        assert_eq!(e.u64s("kept.pieces", 3).unwrap(), &[0, 0, 2]);
+        assert_eq!(e.u64s("kept.piece.len", 2).unwrap(), &[p0.0, p1.0]);
+        assert_eq!(e.u64s("kept.piece.crc", 2).unwrap(), &[p0.1, p1.1]);
+
+        // resumed into a new staging directory: the kept files linked, the names as written,
+        // a stale temporary file of sieve's removed and nothing else
+        let ckdir = dir_of(&target);
+        put(&ckdir, ".checkpoint.Ab12Cd.part", "SIEVECKP half");
+        put(&ckdir, "notes.txt", "the user's");
+        let stage2 = d.path().join("stage2");
+        let r = session(&target, &stage2, Some(stored)).unwrap();
+        assert!(!ckdir.join(".checkpoint.Ab12Cd.part").exists());
+        assert_eq!(
+            std::fs::read_to_string(ckdir.join("notes.txt")).unwrap(),
+            "the user's"
+        );
+        assert_eq!(r.kept_name(0).as_deref(), Some("state_0000.vti"));
+        assert_eq!(r.kept_name(1), None);
+        assert_eq!(r.kept_name(2).as_deref(), Some("state_0002.pvti"));
+        assert_eq!(r.kept_name(3), None);
+        let mut names: Vec<String> = std::fs::read_dir(&stage2)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(
+            names,
+            [
+                "state_0000.vti",
+                "state_0002.pvti",
+                "state_0002_0.vti",
+                "state_0002_1.vti"
+            ]
+        );
+        assert_eq!(
+            std::fs::read_to_string(stage2.join("state_0002_1.vti")).unwrap(),
+            "piece of rank 1, longer"
+        );
+
+        // a damaged or missing piece: exit 2 (Error::Input), one line naming the piece
+        let kept = dir_of(&target).join("fields");
+        let refused = |needle: &str| {
+            let stage3 = d.path().join("stage3");
+            let stored = Stored::open(&target).unwrap();
+            match session(&target, &stage3, Some(stored)) {
+                Err(Error::Input(m)) => {
+                    assert_eq!(m.lines().count(), 1, "{m}");
+                    assert!(m.contains("checkpoint.bin: cannot resume"), "{m}");
+                    assert!(m.contains("state_0002_1.vti"), "{m}");
+                    assert!(m.contains(needle), "{m}");
+                }
+                other => panic!("{needle}: {other:?}"),
+            }
+        };
+        put(&kept, "state_0002_1.vti", "piece of rank 1, longer!"); // length
+        refused("is damaged");
+        put(&kept, "state_0002_1.vti", "piece of rank 1, LONGER"); // same length, CRC
+        refused("is damaged");
+        std::fs::remove_file(kept.join("state_0002_1.vti")).unwrap();
+        refused("is missing");
+        // repaired: it resumes again
+        put(&kept, "state_0002_1.vti", "piece of rank 1, longer");
+        let stored = Stored::open(&target).unwrap();
+        assert!(session(&target, &d.path().join("stage4"), Some(stored)).is_ok());
+
+        // piece entries that do not add up (the CRC of the file recomputed): refused
+        let state = dir_of(&target).join(STATE_FILE);
+        let good = std::fs::read(&state).unwrap();
+        let mut e = decode(&good).unwrap();
+        e.put("kept.piece.len", Value::U64s(vec![p0.0]));
+        std::fs::write(&state, encode(&e)).unwrap();
+        let stored = Stored::open(&target).unwrap();
+        match session(&target, &d.path().join("stage5"), Some(stored)) {
+            Err(Error::Input(m)) => assert!(m.contains("kept.piece.len"), "{m}"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn only_sieves_own_temporary_files_are_removed() {
+        assert!(is_part_name(".checkpoint.aZ09xY.part"));
+        for name in [
+            ".checkpoint.aZ09x.part",   // 5
+            ".checkpoint.aZ09xYz.part", // 7
+            ".checkpoint.aZ-9xY.part",
+            ".checkpoint.aZ09xY.part~",
+            "checkpoint.aZ09xY.part",
+            ".checkpoint.aZ09xY.bin",
+            ".checkpoint.äZ09x.part",
+            "checkpoint.bin",
+        ] {
+            assert!(!is_part_name(name), "{name}");
+        }
+        let d = tempfile::tempdir().unwrap();
+        let dir = d.path();
+        put(dir, ".checkpoint.Ab12Cd.part", "half a checkpoint");
+        put(dir, ".checkpoint.zzzzzz.part", "");
+        put(dir, ".checkpoint.notes.part", "the user's");
+        put(dir, "notes.txt", "the user's");
+        // a directory and a symbolic link with the pattern: not files sieve wrote
+        std::fs::create_dir_all(dir.join(".checkpoint.Dir123.part")).unwrap();
+        std::fs::create_dir_all(dir.join("fields")).unwrap();
+        put(
+            &dir.join("fields"),
+            ".checkpoint.Ab12Cd.part",
+            "not at the top",
+        );
+        std::os::unix::fs::symlink("notes.txt", dir.join(".checkpoint.Link12.part")).unwrap();
+        assert_eq!(
+            remove_stale_parts(dir),
+            [".checkpoint.Ab12Cd.part", ".checkpoint.zzzzzz.part"]
+        );
+        let mut left: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(
+            left,
+            [
+                ".checkpoint.Dir123.part",
+                ".checkpoint.Link12.part",
+                ".checkpoint.notes.part",
+                "fields",
+                "notes.txt"
+            ]
+        );
+        assert!(dir.join("fields/.checkpoint.Ab12Cd.part").exists());
+        assert_eq!(
+            std::fs::read_to_string(dir.join("notes.txt")).unwrap(),
+            "the user's"
+        );
+        assert!(remove_stale_parts(&dir.join("absent")).is_empty());
+    }
+
+    #[test]
+    fn the_temporary_files_have_the_pattern_removed_on_resume() {
+        let d = tempfile::tempdir().unwrap();
+        let path = d.path().join(STATE_FILE);
+        write_durably(&path, b"abc").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"abc");
+        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1);
+        // the names write_durably's temporary files get match the pattern removed on resume
+        for _ in 0..200 {
+            let t = part_file(d.path()).unwrap();
+            let name = t.path().file_name().unwrap().to_str().unwrap().to_string();
+            assert!(is_part_name(&name), "{name}");
+            assert_eq!(remove_stale_parts(d.path()), [name]);
+            assert!(path.exists());
+        }
+    }
 }

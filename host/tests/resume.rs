@@ -178,39 +178,43 @@ fn silo_with_outlet_killed_and_resumed_keeps_discharge_csv() {
     ]);
 }
 
+/// The arguments of the run [`killed_run`] kills.
+const COLUMN_B: [&str; 9] = [
+    "run", "column-b", "--cells", "3000", "--t-end", "2", "--out", "run", "-q",
+];
+
 /// Starts a checkpointed run of column-b into `dir/run`, kills it after its first
 /// checkpoint, and returns the path of the checkpoint file.
 fn killed_run(dir: &Path) -> PathBuf {
+    let mut args = COLUMN_B.to_vec();
+    args.extend(["--checkpoint-interval", "0.02"]);
+    kill_after_checkpoint(dir, &args, None)
+}
+
+/// Runs `sieve args` in `dir` (a run into `dir/run` with checkpoints), and kills it (SIGKILL)
+/// 10 ms after a checkpoint other than `old` (the bytes of the checkpoint it resumes) exists;
+/// returns the path of the checkpoint file.
+fn kill_after_checkpoint(dir: &Path, args: &[&str], old: Option<&[u8]>) -> PathBuf {
     let mut child = std::process::Command::new(assert_cmd::cargo::cargo_bin("sieve"))
         .current_dir(dir)
-        .args([
-            "run",
-            "column-b",
-            "--cells",
-            "3000",
-            "--t-end",
-            "2",
-            "--out",
-            "run",
-            "-q",
-            "--checkpoint-interval",
-            "0.02",
-        ])
+        .args(args)
         .spawn()
         .unwrap();
     let state = dir.join(".run.checkpoint").join("checkpoint.bin");
     let t0 = Instant::now();
-    while !state.exists() {
+    // (the state file is replaced by a rename: a read sees the old or the new bytes)
+    while std::fs::read(&state).map_or(true, |b| Some(&b[..]) == old) {
         assert!(
             child.try_wait().unwrap().is_none(),
-            "ended before a checkpoint"
+            "{args:?}: ended before a checkpoint"
         );
         assert!(t0.elapsed() < Duration::from_secs(60));
         std::thread::sleep(Duration::from_millis(5));
     }
     std::thread::sleep(Duration::from_millis(10));
     child.kill().unwrap();
-    child.wait().unwrap();
+    let status = child.wait().unwrap();
+    assert!(!status.success(), "{args:?}: finished before the kill");
     state
 }
 
@@ -330,13 +334,192 @@ fn refusals_name_the_checkpoint_and_what_to_do() {
     assert!(!d.path().join(".run.checkpoint").exists());
 }
 
+/// A name sieve gives the temporary file of a checkpoint write (checkpoint.rs,
+/// `write_durably`): `.checkpoint.`, six ASCII letters or digits, `.part`.
+const STALE_PART: &str = ".checkpoint.Ab12Cd.part";
+
+#[test]
+fn a_stale_temporary_file_is_removed_on_resume_and_never_read() {
+    let d = tempfile::tempdir().unwrap();
+    // about 0.8 s uninterrupted: long enough to be killed twice
+    let long = [
+        "run",
+        "column-b",
+        "--cells",
+        "3000",
+        "--t-end",
+        "20",
+        "--set",
+        "run.output_interval=1",
+        "-q",
+        "--out",
+    ];
+    let (code, _, err) = run_full(d.path(), &[&long[..], &["ref"]].concat());
+    assert_eq!(code, 0, "{err}");
+    let args = [&long[..], &["run", "--checkpoint-interval", "0.02"]].concat();
+    let state = kill_after_checkpoint(d.path(), &args, None);
+    let ck = state.parent().unwrap().to_path_buf();
+    let good = std::fs::read(&state).unwrap();
+    // what a SIGKILL during a checkpoint write leaves: the start of a checkpoint
+    std::fs::write(ck.join(STALE_PART), &good[..good.len() / 2]).unwrap();
+    // not sieve's: a user's file and names close to the pattern
+    let users = [
+        "notes.txt",
+        ".checkpoint.mine.part",
+        ".checkpoint.Ab12Cd.part.bak",
+        ".checkpoint.Ab12Cde.part",
+    ];
+    for name in users {
+        std::fs::write(ck.join(name), "the user's").unwrap();
+    }
+    // never taken for the checkpoint, even a whole one: without checkpoint.bin there is none
+    std::fs::remove_file(&state).unwrap();
+    std::fs::write(ck.join(".checkpoint.Whole1.part"), &good).unwrap();
+    let resume = ["run", "--resume", "run", "-q"];
+    one_line_refusal(d.path(), &resume, &["no checkpoint", "checkpoint.bin"]);
+    assert!(ck.join(STALE_PART).exists(), "a refused resume changed it");
+    std::fs::write(&state, &good).unwrap();
+
+    // resumed, and killed after its next checkpoint: sieve's stale files are gone, the
+    // user's are untouched
+    kill_after_checkpoint(d.path(), &resume, Some(&good));
+    assert!(!ck.join(STALE_PART).exists(), "the stale .part is left");
+    assert!(!ck.join(".checkpoint.Whole1.part").exists());
+    for name in users {
+        assert_eq!(
+            std::fs::read_to_string(ck.join(name)).unwrap(),
+            "the user's",
+            "{name}"
+        );
+    }
+    // resumed to the end: the uninterrupted run's bits
+    let (code, _, err) = run_full(d.path(), &resume);
+    assert_eq!(code, 0, "{err}");
+    let (a, b) = (d.path().join("ref"), d.path().join("run"));
+    let hash = |dir: &Path| json(&dir.join("summary.json"))["state_hash"].clone();
+    assert_eq!(hash(&a).as_str().map(str::len), Some(16));
+    assert_eq!(hash(&a), hash(&b));
+    assert_eq!(summary_without_timings(&a), summary_without_timings(&b));
+    let files = data_files(&a);
+    assert_eq!(files, data_files(&b));
+    for f in &files {
+        assert!(
+            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
+            "{} differs after resume",
+            f.display()
+        );
+    }
+}
+
+#[test]
+fn kept_pvti_and_piece_are_checked_and_resumed_without_mpi() {
+    let d = tempfile::tempdir().unwrap();
+    let mut reference = COLUMN_B.to_vec();
+    reference[7] = "ref";
+    let (code, _, err) = run_full(d.path(), &reference);
+    assert_eq!(code, 0, "{err}");
+    let state = killed_run(d.path());
+    let fields = state.parent().unwrap().join("fields");
+    let mut e = decode(&std::fs::read(&state).unwrap()).unwrap();
+    let n = e.u64("progress.next").unwrap() as usize;
+    assert!(n >= 1, "no kept output");
+    assert!(
+        !e.0.contains_key("kept.pieces"),
+        "a serial run keeps .vti files"
+    );
+
+    // Output 0 as a run under mpirun on one rank keeps it: a .pvti and its piece
+    // state_0000_0.vti (the serial .vti, which covers the whole grid).
+    let vti = std::fs::read(fields.join("state_0000.vti")).unwrap();
+    let head = String::from_utf8_lossy(&vti[..vti.len().min(2000)]).into_owned();
+    let image = head
+        .split('<')
+        .find(|t| t.starts_with("ImageData "))
+        .unwrap();
+    let attrs = image["ImageData ".len()..].trim_end().trim_end_matches('>');
+    let whole = attrs.split("WholeExtent=\"").nth(1).unwrap();
+    let whole = &whole[..whole.find('"').unwrap()];
+    let pvti = format!(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"PImageData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <PImageData {attrs} GhostLevel=\"0\">\n    <Piece Extent=\"{whole}\" Source=\"state_0000_0.vti\"/>\n  </PImageData>\n</VTKFile>\n"
+    );
+    std::fs::remove_file(fields.join("state_0000.vti")).unwrap();
+    std::fs::write(fields.join("state_0000.pvti"), &pvti).unwrap();
+    let piece = fields.join("state_0000_0.vti");
+    std::fs::write(&piece, &vti).unwrap();
+    let crc = |b: &[u8]| crc::Crc::<u64>::new(&crc::CRC_64_XZ).checksum(b);
+    let mut lens = e.u64s("kept.len", n).unwrap().to_vec();
+    let mut sums = e.u64s("kept.crc", n).unwrap().to_vec();
+    (lens[0], sums[0]) = (pvti.len() as u64, crc(pvti.as_bytes()));
+    let mut pieces = vec![0; n];
+    pieces[0] = 1;
+    e.put("kept.len", Value::U64s(lens));
+    e.put("kept.crc", Value::U64s(sums));
+    e.put("kept.pieces", Value::U64s(pieces));
+    e.put("kept.piece.len", Value::U64s(vec![vti.len() as u64]));
+    e.put("kept.piece.crc", Value::U64s(vec![crc(&vti)]));
+    std::fs::write(&state, encode(&e)).unwrap();
+
+    // the piece one byte longer, then one bit flipped: exit 2, one line naming it
+    let mut v = vti.clone();
+    v.push(b' ');
+    std::fs::write(&piece, &v).unwrap();
+    let resume = ["run", "--resume", "run", "-q"];
+    one_line_refusal(
+        d.path(),
+        &resume,
+        &["checkpoint.bin", "state_0000_0.vti", "damaged"],
+    );
+    v.pop();
+    let last = v.len() - 1;
+    v[last] ^= 1;
+    std::fs::write(&piece, &v).unwrap();
+    one_line_refusal(d.path(), &resume, &["state_0000_0.vti", "damaged"]);
+    std::fs::remove_file(&piece).unwrap();
+    one_line_refusal(d.path(), &resume, &["state_0000_0.vti", "missing"]);
+
+    // intact: it resumes, keeps the .pvti and its piece, ends with the uninterrupted bits
+    std::fs::write(&piece, &vti).unwrap();
+    let (code, _, err) = run_full(d.path(), &resume);
+    assert_eq!(code, 0, "{err}");
+    let (a, b) = (d.path().join("ref"), d.path().join("run"));
+    let got = b.join("fields");
+    assert_eq!(
+        std::fs::read_to_string(got.join("state_0000.pvti")).unwrap(),
+        pvti
+    );
+    assert!(std::fs::read(got.join("state_0000_0.vti")).unwrap() == vti);
+    assert!(!got.join("state_0000.vti").exists());
+    let pvd = std::fs::read_to_string(got.join("series.pvd")).unwrap();
+    assert!(pvd.contains("file=\"state_0000.pvti\""), "{pvd}");
+    assert_eq!(
+        pvd.replace("state_0000.pvti", "state_0000.vti"),
+        std::fs::read_to_string(a.join("fields/series.pvd")).unwrap()
+    );
+    let hash = |dir: &Path| json(&dir.join("summary.json"))["state_hash"].clone();
+    assert_eq!(hash(&a), hash(&b));
+    for f in data_files(&a) {
+        if f.ends_with("state_0000.vti") || f.ends_with("series.pvd") {
+            continue;
+        }
+        assert!(
+            std::fs::read(a.join(&f)).unwrap() == std::fs::read(b.join(&f)).unwrap(),
+            "{} differs after resume",
+            f.display()
+        );
+    }
+}
+
 fn sample_entries() -> Vec<u8> {
     let mut e = Entries::default();
     e.put("build", Value::Text("sieve x".into()));
     e.put("progress.next", Value::U64(3));
     e.put("seg.time", Value::F64(0.125));
     e.put("seg.q", Value::F64s(vec![0.1, -0.0, 1e-300, f64::MAX]));
-    e.put("kept.len", Value::U64s(vec![1, 2, 3]));
+    e.put("kept.len", Value::U64s(vec![1, 2, u64::MAX]));
+    // a .pvti with two pieces (written under mpirun), then a .vti
+    e.put("kept.pieces", Value::U64s(vec![2, 0, 0]));
+    e.put("kept.piece.len", Value::U64s(vec![40, 41]));
+    e.put("kept.piece.crc", Value::U64s(vec![7, u64::MAX]));
     encode(&e)
 }
 
