@@ -536,6 +536,57 @@ fn remove_stale_parts(dir: &Path) -> Vec<String> {
     removed
 }
 
+/// True for the names of the snapshots a checkpoint keeps in its `fields/` ([`snapshot_name`],
+/// [`pvti_name`], [`piece_name`]): `state_` digits (`_` digits) `.vti` or `.pvti`.
+fn is_snapshot_name(name: &str) -> bool {
+    let Some(rest) = name.strip_prefix("state_") else {
+        return false;
+    };
+    let Some(stem) = rest
+        .strip_suffix(".pvti")
+        .or_else(|| rest.strip_suffix(".vti"))
+    else {
+        return false;
+    };
+    let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+    match stem.split_once('_') {
+        Some((k, r)) => digits(k) && digits(r),
+        None => digits(stem),
+    }
+}
+
+/// Removes a checkpoint directory's own files (the state file, stale temporary files, the
+/// kept snapshots in `fields/`) and then the directories if they are empty. Anything else
+/// (a file sieve did not write) is left where it is, with its directory; the returned
+/// message says so. Never follows a symbolic link.
+fn remove_checkpoint_dir(dir: &Path) -> Result<Option<String>> {
+    let fields = dir.join("fields");
+    if let Ok(entries) = std::fs::read_dir(&fields) {
+        for entry in entries.flatten() {
+            let name = entry.file_name();
+            let ours = name.to_str().is_some_and(is_snapshot_name)
+                && entry.file_type().is_ok_and(|t| t.is_file());
+            if ours {
+                let path = entry.path();
+                std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
+            }
+        }
+        let _ = std::fs::remove_dir(&fields);
+    }
+    let state = dir.join(STATE_FILE);
+    if std::fs::symlink_metadata(&state).is_ok_and(|m| m.is_file()) {
+        std::fs::remove_file(&state).map_err(|e| Error::io(&state, e))?;
+    }
+    remove_stale_parts(dir);
+    if !dir.exists() || std::fs::remove_dir(dir).is_ok() {
+        return Ok(None);
+    }
+    Ok(Some(format!(
+        "note: {} kept: it holds files sieve did not write",
+        dir.display()
+    )))
+}
+
 /// A new temporary file in `dir`, named by the pattern [`remove_stale_parts`] matches.
 fn part_file(dir: &Path) -> std::io::Result<tempfile::NamedTempFile> {
     tempfile::Builder::new()
@@ -615,7 +666,7 @@ impl Session {
     /// A session for a run into `target` whose snapshots are written to `fields_src`.
     /// Without an interval it never writes. A fresh run (`resume = None`) refuses a target
     /// whose checkpoint directory holds a checkpoint, and removes one that holds none (a run
-    /// killed before its first checkpoint).
+    /// killed before its first checkpoint): sieve's own files only.
     pub fn new(
         target: &Path,
         scene: &Scene,
@@ -659,8 +710,8 @@ impl Session {
                         target.display()
                     )));
                 }
-                if s.dir.exists() {
-                    std::fs::remove_dir_all(&s.dir).map_err(|e| Error::io(&s.dir, e))?;
+                if let Some(note) = remove_checkpoint_dir(&s.dir)? {
+                    eprintln!("{note}");
                 }
             }
         }
@@ -994,8 +1045,8 @@ impl Session {
 
     /// After DIR has been committed: the checkpoint is no longer needed.
     pub fn finish(self) -> Result<()> {
-        if self.dir.exists() {
-            std::fs::remove_dir_all(&self.dir).map_err(|e| Error::io(&self.dir, e))?;
+        if let Some(note) = remove_checkpoint_dir(&self.dir)? {
+            eprintln!("{note}");
         }
         Ok(())
     }
@@ -1468,5 +1519,57 @@ mod tests {
             assert_eq!(remove_stale_parts(d.path()), [name]);
             assert!(path.exists());
         }
+    }
+    #[test]
+    fn removing_the_checkpoint_directory_keeps_what_sieve_did_not_write() {
+        for name in ["state_0001.vti", "state_0012.pvti", "state_0002_3.vti"] {
+            assert!(is_snapshot_name(name), "{name}");
+        }
+        for name in [
+            "state_.vti",
+            "state_1_.vti",
+            "state_a.vti",
+            "state_0001.vtk",
+            "s_0001.vti",
+        ] {
+            assert!(!is_snapshot_name(name), "{name}");
+        }
+        let d = tempfile::tempdir().unwrap();
+        let fill = |dir: &Path| {
+            std::fs::create_dir_all(dir.join("fields")).unwrap();
+            for name in [
+                STATE_FILE,
+                ".checkpoint.Ab12Cd.part",
+                "fields/state_0000.vti",
+                "fields/state_0001.pvti",
+                "fields/state_0001_0.vti",
+            ] {
+                std::fs::write(dir.join(name), "sieve's").unwrap();
+            }
+        };
+        // only sieve's files: the directory goes
+        let own = d.path().join(".a.checkpoint");
+        fill(&own);
+        assert_eq!(remove_checkpoint_dir(&own).unwrap(), None);
+        assert!(!own.exists());
+        assert_eq!(remove_checkpoint_dir(&own).unwrap(), None);
+        // a user's files beside them: those stay, with their directories, and a note says so
+        let mixed = d.path().join(".b.checkpoint");
+        fill(&mixed);
+        std::fs::write(mixed.join("notes.txt"), "the user's").unwrap();
+        std::fs::write(mixed.join("fields/plot.png"), "the user's").unwrap();
+        let note = remove_checkpoint_dir(&mixed).unwrap().unwrap();
+        assert!(note.contains(".b.checkpoint"), "{note}");
+        assert!(!mixed.join(STATE_FILE).exists());
+        assert!(!mixed.join(".checkpoint.Ab12Cd.part").exists());
+        assert!(!mixed.join("fields/state_0001_0.vti").exists());
+        assert_eq!(
+            std::fs::read_to_string(mixed.join("notes.txt")).unwrap(),
+            "the user's"
+        );
+        assert_eq!(
+            std::fs::read_to_string(mixed.join("fields/plot.png")).unwrap(),
+            "the user's"
+        );
     }
 }

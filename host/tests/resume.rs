@@ -392,9 +392,18 @@ fn a_stale_temporary_file_is_removed_on_resume_and_never_read() {
             "{name}"
         );
     }
-    // resumed to the end: the uninterrupted run's bits
+    // resumed to the end: the uninterrupted run's bits; the checkpoint's own files go, the
+    // user's stay, with their directory, and a note says so
     let (code, _, err) = run_full(d.path(), &resume);
     assert_eq!(code, 0, "{err}");
+    assert!(err.contains("holds files sieve did not write"), "{err}");
+    assert!(!state.exists() && !ck.join("fields").exists());
+    for name in users {
+        assert_eq!(
+            std::fs::read_to_string(ck.join(name)).unwrap(),
+            "the user's"
+        );
+    }
     let (a, b) = (d.path().join("ref"), d.path().join("run"));
     let hash = |dir: &Path| json(&dir.join("summary.json"))["state_hash"].clone();
     assert_eq!(hash(&a).as_str().map(str::len), Some(16));
