@@ -231,6 +231,11 @@ fn segregation_name(dim: usize, a: usize) -> &'static str {
 pub fn scan_segregation<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
 ) -> Option<Reason> {
+    if s.all_finite() {
+        // the common case, without the search's per-cell bookkeeping (on 512 x 512 cells the
+        // search took about a tenth of the 2-thread stepping)
+        return None;
+    }
     for i in 0..s.len() {
         let u = s.velocity(i);
         // The segregation velocity too: an overflowing S0 g sqrt(T) leaves phi finite but

@@ -354,3 +354,33 @@ fn compensated_updates_keep_f32_mass_over_long_runs() {
         "plain {plain:e} vs compensated {compensated:e}: the case no longer shows the drift"
     );
 }
+
+/// `Segregation::all_finite` (the run's check after every chunk of steps) is false exactly
+/// when a cell holds a non-finite phi, c, T, velocity or segregation velocity, wherever the
+/// cell is; on a clean state it is true.
+#[test]
+fn all_finite_sees_every_non_finite_field_in_any_cell() {
+    let clean = shear_cell(Scheme::Modified, Phase::Small, -1.0, false);
+    assert!(clean.all_finite());
+    let n = clean.len();
+    for i in [0, 1, n / 2 + 7, n - 1] {
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let mut s = clean.clone();
+            s.set_tracked(i, bad);
+            assert!(!s.all_finite(), "phi = {bad} in cell {i}");
+            let mut s = clean.clone();
+            s.set_flow_state(i, bad, [0.0, 0.0]);
+            assert!(!s.all_finite(), "T = {bad} in cell {i}");
+            let mut s = clean.clone();
+            s.set_cell(i, bad, 1.0, [0.0, 0.0], 0.0);
+            assert!(!s.all_finite(), "c = {bad} in cell {i}");
+            for a in 0..2 {
+                let mut s = clean.clone();
+                let mut u = [0.0; 2];
+                u[a] = bad;
+                s.set_flow_state(i, 1.0, u);
+                assert!(!s.all_finite(), "u_{a} = {bad} in cell {i}");
+            }
+        }
+    }
+}

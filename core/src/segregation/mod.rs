@@ -850,6 +850,25 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
         u
     }
+    /// True when every value a state scan reads is finite: [`Self::phi`], `c`, `T`, the
+    /// velocity and [`Self::segregation_velocity`] of every cell, computed as those accessors
+    /// compute them, so it is false exactly when a cell-by-cell search would find a culprit.
+    /// One pass without branches (a run checks the state after every chunk of steps and
+    /// searches cell by cell only when this is false).
+    pub fn all_finite(&self) -> bool {
+        let n = self.grid.len();
+        let mut ok = true;
+        for i in 0..n {
+            let mut cell =
+                self.phi(i).is_finite() & self.c[i].is_finite() & self.temp[i].is_finite();
+            let s = self.segregation_velocity(i);
+            for (a, sa) in s.iter().enumerate() {
+                cell &= self.u[a][i].is_finite() & sa.is_finite();
+            }
+            ok &= cell;
+        }
+        ok
+    }
     /// Segregation velocity `S` of cell `i` for the small phase (model.md 3); zero if empty.
     pub fn segregation_velocity(&self, i: usize) -> [R; D] {
         let sign = match self.cfg.phase {
