@@ -562,33 +562,114 @@ pub fn colour_map(path: &Path, title: &str, g: &MapGrid, values: &[f64]) -> Resu
     root.present().map_err(fail(path))
 }
 
-/// An animated GIF of colour maps, one frame per [`Animation::frame`] (plotters' GIF
-/// backend: no external tools).
+/// An animated GIF of colour maps, one frame per [`Animation::frame`]. Each frame is drawn
+/// into an RGB buffer and mapped onto one fixed palette ([`MapPalette`]): the colour map's
+/// own colours, greys for text and empty cells, the curve colours. Quantising every frame
+/// anew (NeuQuant, plotters' GIF backend) took three quarters of a small run's time.
 pub struct Animation {
-    root: DrawingArea<BitMapBackend<'static>, plotters::coord::Shift>,
+    encoder: gif::Encoder<std::io::BufWriter<std::fs::File>>,
     path: std::path::PathBuf,
     grid: MapGrid,
+    size: (u32, u32),
+    /// Frame delay in GIF units (1/100 s).
+    delay: u16,
+    rgb: Vec<u8>,
+    palette: MapPalette,
 }
 
 impl Animation {
     /// Starts `path` with `delay_ms` between frames.
     pub fn new(path: &Path, grid: MapGrid, delay_ms: u32) -> Result<Self> {
         ensure_font()?;
-        // Every GIF frame is colour-quantised (NeuQuant): the dominant cost, so the frames are
-        // smaller than the stills.
-        let backend =
-            BitMapBackend::gif(path, grid.size_for(GIF_WIDTH), delay_ms).map_err(fail(path))?;
+        let size = grid.size_for(GIF_WIDTH);
+        let (w, h) = (
+            u16::try_from(size.0).map_err(fail(path))?,
+            u16::try_from(size.1).map_err(fail(path))?,
+        );
+        let palette = MapPalette::new();
+        let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+        let mut encoder = gif::Encoder::new(std::io::BufWriter::new(file), w, h, &palette.flat())
+            .map_err(fail(path))?;
+        encoder
+            .set_repeat(gif::Repeat::Infinite)
+            .map_err(fail(path))?;
         Ok(Self {
-            root: backend.into_drawing_area(),
+            encoder,
             path: path.to_path_buf(),
             grid,
+            size,
+            delay: u16::try_from(delay_ms.div_ceil(10)).unwrap_or(u16::MAX),
+            rgb: vec![0; size.0 as usize * size.1 as usize * 3],
+            palette,
         })
     }
 
     /// Adds one frame.
     pub fn frame(&mut self, title: &str, values: &[f64]) -> Result<()> {
-        draw_colour_map(&self.root, title, &self.grid, values).map_err(fail(&self.path))?;
-        self.root.present().map_err(fail(&self.path))
+        {
+            let root = BitMapBackend::with_buffer(&mut self.rgb, self.size).into_drawing_area();
+            draw_colour_map(&root, title, &self.grid, values).map_err(fail(&self.path))?;
+            root.present().map_err(fail(&self.path))?;
+        }
+        let indices: Vec<u8> = self
+            .rgb
+            .chunks_exact(3)
+            .map(|p| self.palette.index([p[0], p[1], p[2]]))
+            .collect();
+        let mut frame =
+            gif::Frame::from_indexed_pixels(self.size.0 as u16, self.size.1 as u16, &indices, None);
+        frame.delay = self.delay;
+        self.encoder.write_frame(&frame).map_err(fail(&self.path))
+    }
+}
+
+/// The fixed palette of the animations: 200 steps of [`viridis`], 47 greys from black to
+/// white, [`EMPTY`] and the curve colours ([`PALETTE`]); every other colour (anti-aliased
+/// edges) goes to the nearest entry (squared RGB distance, the first of equals), remembered
+/// per colour. The same frame always gives the same bytes.
+struct MapPalette {
+    colours: Vec<[u8; 3]>,
+    nearest: std::cell::RefCell<std::collections::HashMap<[u8; 3], u8>>,
+}
+
+impl MapPalette {
+    fn new() -> Self {
+        let mut colours: Vec<[u8; 3]> = (0..200)
+            .map(|k| {
+                let c = viridis(k as f64 / 199.0);
+                [c.0, c.1, c.2]
+            })
+            .collect();
+        colours.extend((0..47u32).map(|k| [(k * 255 / 46) as u8; 3]));
+        colours.push([EMPTY.0, EMPTY.1, EMPTY.2]);
+        colours.extend(PALETTE.iter().map(|c| [c.0, c.1, c.2]));
+        colours.resize(256, [255; 3]);
+        Self {
+            colours,
+            nearest: Default::default(),
+        }
+    }
+
+    /// The palette as the GIF's global colour table (RGB triples).
+    fn flat(&self) -> Vec<u8> {
+        self.colours.iter().flatten().copied().collect()
+    }
+
+    fn index(&self, rgb: [u8; 3]) -> u8 {
+        *self.nearest.borrow_mut().entry(rgb).or_insert_with(|| {
+            let d = |c: &[u8; 3]| {
+                (0..3)
+                    .map(|i| (c[i] as i32 - rgb[i] as i32).pow(2))
+                    .sum::<i32>()
+            };
+            let mut best = 0;
+            for (k, c) in self.colours.iter().enumerate() {
+                if d(c) < d(&self.colours[best]) {
+                    best = k;
+                }
+            }
+            best as u8
+        })
     }
 }
 
@@ -978,4 +1059,35 @@ pub fn stacked_curves(path: &Path, title: &str, x_desc: &str, panels: &[Panel<'_
         }
     }
     root.present().map_err(fail(path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The animations' fixed palette keeps the colour map's colours, the background, the
+    /// text and the empty-cell grey exactly, and puts any other value of the colour map within
+    /// 4 per channel of its colour.
+    #[test]
+    fn animation_palette_keeps_the_map_colours() {
+        let p = MapPalette::new();
+        assert_eq!(p.flat().len(), 256 * 3);
+        let rgb = |c: RGBColor| [c.0, c.1, c.2];
+        let exact = (0..200)
+            .map(|k| rgb(viridis(k as f64 / 199.0)))
+            .chain([[255; 3], [0; 3], rgb(EMPTY)])
+            .chain(PALETTE.iter().map(|&c| rgb(c)));
+        for c in exact {
+            assert_eq!(p.colours[p.index(c) as usize], c);
+        }
+        for k in 0..=1000 {
+            let c = rgb(viridis(k as f64 / 1000.0));
+            let q = p.colours[p.index(c) as usize];
+            let worst = (0..3)
+                .map(|j| (q[j] as i32 - c[j] as i32).abs())
+                .max()
+                .unwrap();
+            assert!(worst <= 4, "{c:?} -> {q:?}");
+        }
+    }
 }
