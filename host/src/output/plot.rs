@@ -611,10 +611,11 @@ impl Animation {
             draw_colour_map(&root, title, &self.grid, values).map_err(fail(&self.path))?;
             root.present().map_err(fail(&self.path))?;
         }
+        let palette = &mut self.palette;
         let indices: Vec<u8> = self
             .rgb
             .chunks_exact(3)
-            .map(|p| self.palette.index([p[0], p[1], p[2]]))
+            .map(|p| palette.index([p[0], p[1], p[2]]))
             .collect();
         let mut frame =
             gif::Frame::from_indexed_pixels(self.size.0 as u16, self.size.1 as u16, &indices, None);
@@ -626,10 +627,12 @@ impl Animation {
 /// The fixed palette of the animations: 200 steps of [`viridis`], 47 greys from black to
 /// white, [`EMPTY`] and the curve colours ([`PALETTE`]); every other colour (anti-aliased
 /// edges) goes to the nearest entry (squared RGB distance, the first of equals), remembered
-/// per colour. The same frame always gives the same bytes.
+/// per colour, and a run of equal pixels takes the last answer. The same frame always gives
+/// the same bytes.
 struct MapPalette {
     colours: Vec<[u8; 3]>,
-    nearest: std::cell::RefCell<std::collections::HashMap<[u8; 3], u8>>,
+    nearest: std::collections::HashMap<[u8; 3], u8>,
+    last: ([u8; 3], u8),
 }
 
 impl MapPalette {
@@ -644,9 +647,11 @@ impl MapPalette {
         colours.push([EMPTY.0, EMPTY.1, EMPTY.2]);
         colours.extend(PALETTE.iter().map(|c| [c.0, c.1, c.2]));
         colours.resize(256, [255; 3]);
+        let last = (colours[0], 0);
         Self {
             colours,
             nearest: Default::default(),
+            last,
         }
     }
 
@@ -655,21 +660,27 @@ impl MapPalette {
         self.colours.iter().flatten().copied().collect()
     }
 
-    fn index(&self, rgb: [u8; 3]) -> u8 {
-        *self.nearest.borrow_mut().entry(rgb).or_insert_with(|| {
+    fn index(&mut self, rgb: [u8; 3]) -> u8 {
+        if rgb == self.last.0 {
+            return self.last.1;
+        }
+        let colours = &self.colours;
+        let i = *self.nearest.entry(rgb).or_insert_with(|| {
             let d = |c: &[u8; 3]| {
                 (0..3)
                     .map(|i| (c[i] as i32 - rgb[i] as i32).pow(2))
                     .sum::<i32>()
             };
             let mut best = 0;
-            for (k, c) in self.colours.iter().enumerate() {
-                if d(c) < d(&self.colours[best]) {
+            for (k, c) in colours.iter().enumerate() {
+                if d(c) < d(&colours[best]) {
                     best = k;
                 }
             }
             best as u8
-        })
+        });
+        self.last = (rgb, i);
+        i
     }
 }
 
@@ -1070,7 +1081,7 @@ mod tests {
     /// 4 per channel of its colour.
     #[test]
     fn animation_palette_keeps_the_map_colours() {
-        let p = MapPalette::new();
+        let mut p = MapPalette::new();
         assert_eq!(p.flat().len(), 256 * 3);
         let rgb = |c: RGBColor| [c.0, c.1, c.2];
         let exact = (0..200)
@@ -1078,11 +1089,13 @@ mod tests {
             .chain([[255; 3], [0; 3], rgb(EMPTY)])
             .chain(PALETTE.iter().map(|&c| rgb(c)));
         for c in exact {
-            assert_eq!(p.colours[p.index(c) as usize], c);
+            let i = p.index(c) as usize;
+            assert_eq!(p.colours[i], c);
         }
         for k in 0..=1000 {
             let c = rgb(viridis(k as f64 / 1000.0));
-            let q = p.colours[p.index(c) as usize];
+            let i = p.index(c) as usize;
+            let q = p.colours[i];
             let worst = (0..3)
                 .map(|j| (q[j] as i32 - c[j] as i32).abs())
                 .max()
