@@ -30,7 +30,7 @@
 //! checkpoint is `checkpoint.bin` only); `--resume` removes such files, exactly that pattern. The reader checks the size of the file, the checksum, and
 //! every count against the bytes left before it allocates; any damage is one line, exit 2.
 
-use crate::data::{output_times, FlowSummary, LoopStats, SeriesRow};
+use crate::data::{output_times, FlowSummary, Frozen, LoopStats, SeriesRow};
 use crate::error::{Error, Result};
 use crate::scene::{Fields, Scene};
 use sieve_core::flow::coupled::CoupledTotals;
@@ -1180,24 +1180,8 @@ pub fn totals<R: Real, const D: usize>(e: &Entries) -> Result<CoupledTotals<R, D
     })
 }
 
-/// A frozen flow as a checkpoint keeps it (the fields of `flow::Frozen`; frozen-flow
-/// scenes): the resumed run skips the spin-up and hands the same fields over.
-#[derive(Debug, Clone)]
-pub struct FrozenFields {
-    /// c per cell.
-    pub c: Vec<f64>,
-    /// T per cell.
-    pub t: Vec<f64>,
-    /// p per cell.
-    pub p: Vec<f64>,
-    /// Velocity per solver axis, per cell.
-    pub u: Vec<Vec<f64>>,
-    /// The flow block of summary.json.
-    pub summary: FlowSummary,
-}
-
 /// Stores a frozen flow under `frozen.*`.
-pub fn put_frozen(e: &mut Entries, fr: &FrozenFields) {
+pub fn put_frozen(e: &mut Entries, fr: &Frozen) {
     e.put("frozen.c", Value::F64s(fr.c.clone()));
     e.put("frozen.T", Value::F64s(fr.t.clone()));
     e.put("frozen.p", Value::F64s(fr.p.clone()));
@@ -1237,7 +1221,7 @@ pub fn put_frozen(e: &mut Entries, fr: &FrozenFields) {
 }
 
 /// The frozen flow [`put_frozen`] stored, for a scene of `n` cells in `dim` dimensions.
-pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<FrozenFields> {
+pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<Frozen> {
     let v = |name: &str| e.f64s(name, n).map(<[f64]>::to_vec);
     let x = e.f64s("frozen.numbers", 10)?;
     let steady = match e.0.get("frozen.flow_steps_to_steady") {
@@ -1258,7 +1242,7 @@ pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<FrozenFields> {
             ))
         }
     };
-    Ok(FrozenFields {
+    Ok(Frozen {
         c: v("frozen.c")?,
         t: v("frozen.T")?,
         p: v("frozen.p")?,

@@ -295,6 +295,23 @@ pub fn psi_per_revolution(series: &[SeriesRow], period: f64) -> Vec<f64> {
     out
 }
 
+/// A steady flow, frozen, on the full grid (solver cell order): what a frozen-flow run
+/// hands over to the segregation ([`crate::flow::hand_over_frozen`]) and what its
+/// checkpoints keep ([`crate::checkpoint::put_frozen`]), so a resumed run skips the spin-up.
+#[derive(Debug, Clone)]
+pub struct Frozen {
+    /// c per cell.
+    pub c: Vec<f64>,
+    /// T per cell.
+    pub t: Vec<f64>,
+    /// p per cell.
+    pub p: Vec<f64>,
+    /// Velocity per solver axis, per cell.
+    pub u: Vec<Vec<f64>>,
+    /// The flow block (without the segregation part).
+    pub summary: FlowSummary,
+}
+
 /// The `flow` block of summary.json.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct FlowSummary {

@@ -189,46 +189,8 @@ fn setup<R: Real, const D: usize, const N: usize>(
         .map_err(|e| solver_errors::flow_error(scene, &e))
 }
 
-/// A steady flow, frozen, on the full grid (solver cell order).
-#[derive(Debug, Clone)]
-pub struct Frozen {
-    /// c per cell.
-    pub c: Vec<f64>,
-    /// T per cell.
-    pub t: Vec<f64>,
-    /// p per cell.
-    pub p: Vec<f64>,
-    /// Velocity per solver axis, per cell.
-    pub u: Vec<Vec<f64>>,
-    /// The flow block (without the segregation part).
-    pub summary: FlowSummary,
-}
-
-/// A checkpoint's frozen flow (a resumed run hands it over instead of spinning up again).
-impl From<crate::checkpoint::FrozenFields> for Frozen {
-    fn from(f: crate::checkpoint::FrozenFields) -> Self {
-        Self {
-            c: f.c,
-            t: f.t,
-            p: f.p,
-            u: f.u,
-            summary: f.summary,
-        }
-    }
-}
-
-/// What a checkpoint keeps of the frozen flow.
-impl From<&Frozen> for crate::checkpoint::FrozenFields {
-    fn from(f: &Frozen) -> Self {
-        Self {
-            c: f.c.clone(),
-            t: f.t.clone(),
-            p: f.p.clone(),
-            u: f.u.clone(),
-            summary: f.summary.clone(),
-        }
-    }
-}
+/// A steady flow, frozen ([`crate::data::Frozen`]: a checkpoint keeps the same fields).
+pub use crate::data::Frozen;
 
 fn diag_f64<R: Real>(d: &FlowDiagnostics<R>) -> FlowDiagnostics<f64> {
     FlowDiagnostics {

@@ -232,8 +232,8 @@ pub fn scan_segregation<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
 ) -> Option<Reason> {
     if s.all_finite() {
-        // the common case, without the search's per-cell bookkeeping (on 512 x 512 cells the
-        // search took about a tenth of the 2-thread stepping)
+        // the common case, without the search's per-cell bookkeeping (on 512 x 512 cells
+        // the search took 3.8 % of a 2-thread run in perf; this pass saves 0.15-0.2 s of 3.3)
         return None;
     }
     for i in 0..s.len() {

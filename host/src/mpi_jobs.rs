@@ -72,8 +72,7 @@ impl FlowJob for Follower<'_> {
         crate::run::load(s, self.scene, self.fields)?;
         let frozen = match self.resume {
             Some(st) => cp::frozen(&st.entries, self.scene.len(), self.scene.dim)
-                .map_err(|w| st.incompatible(w))?
-                .into(),
+                .map_err(|w| st.incompatible(w))?,
             None => crate::flow::spin_up(f, self.scene, self.fields)?,
         };
         crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;

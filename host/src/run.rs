@@ -397,10 +397,7 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
                 })?;
             }
         }
-        let d = match geo {
-            Some(g) => sieve_core::diagnose_embedded(s, g),
-            None => crate::parallel::diagnose_on(s, threads),
-        };
+        let d = diagnosis(s, geo, threads);
         let row = SeriesRow {
             t,
             psi: d.psi.to_f64(),
@@ -422,15 +419,16 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
     Ok(stats)
 }
 
-/// Psi of the current state (the box's or the cut cells' diagnostics).
-fn psi_of<R: Real, const D: usize, const N: usize>(
+/// The diagnostics of the current state: the cut cells' ([`sieve_core::diagnose_embedded`])
+/// or the box's, on `threads` threads ([`crate::parallel::diagnose_on`], the same bits).
+fn diagnosis<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
     geo: Option<&CutCells<R, D, N>>,
     threads: usize,
-) -> f64 {
+) -> sieve_core::Diagnostics<R> {
     match geo {
-        Some(g) => sieve_core::diagnose_embedded(s, g).psi.to_f64(),
-        None => crate::parallel::diagnose_on(s, threads).psi.to_f64(),
+        Some(g) => sieve_core::diagnose_embedded(s, g),
+        None => crate::parallel::diagnose_on(s, threads),
     }
 }
 
@@ -489,10 +487,10 @@ fn resolve_crossing<R: Real, const D: usize, const N: usize>(
     // Psi after every step until the first crossing; the rest of the interval needs no
     // samples (the timer keeps the first crossing), so it is stepped in one call: the same
     // steps (advance_to only shortens the one that lands on the target), without a Psi
-    // evaluation each (on 512 x 512 cells one costs about 6 single-thread steps).
+    // evaluation each (on 512 x 512 cells one cost about 7 single-thread steps in perf).
     while s.time() < target && timer.time().is_none() {
         advance(s, target, 1);
-        timer.sample(s.time().to_f64(), psi_of(s, geo, threads));
+        timer.sample(s.time().to_f64(), diagnosis(s, geo, threads).psi.to_f64());
     }
     while s.time() < target {
         advance(s, target, 1 << 20);
@@ -739,18 +737,16 @@ impl FlowJob for RunJob<'_> {
             let resumed = ckpt.as_ref().and_then(|c| c.resumed());
             let frozen = match resumed {
                 Some(e) => cp::frozen(e, scene.len(), scene.dim)
-                    .map_err(|w| ckpt.as_ref().map_or(w.clone(), |c| c.incompatible(w)))?
-                    .into(),
+                    .map_err(|w| ckpt.as_ref().map_or(w.clone(), |c| c.incompatible(w)))?,
                 None => crate::flow::spin_up(f, scene, self.fields)?,
             };
-            let kept = cp::FrozenFields::from(&frozen);
             crate::flow::hand_over_frozen(s, scene, self.fields, &frozen)?;
             if let Some(ck) = &ckpt {
                 if let Some(e) = ck.resumed() {
                     cp::restore_segregation(e, s).map_err(|w| ck.incompatible(w))?;
                 }
             }
-            let keep = |e: &mut cp::Entries| cp::put_frozen(e, &kept);
+            let keep = |e: &mut cp::Entries| cp::put_frozen(e, &frozen);
             let stats = threaded_time_loop(
                 s,
                 scene,
