@@ -1,15 +1,19 @@
 //! The physics of model.md 7.5 on the built-in `tumbler` as it ships (34 x 34, 0.1 rev/s in the
-//! drum's rotating frame, implicit pressure, 25 s = 2.5 revolutions; ~25 CPU s per run), with
-//! and without back-coupling, the two runs side by side:
+//! drum's rotating frame, implicit pressure, limited transport, 25 s = 2.5 revolutions; ~9 CPU s
+//! per run), with and without back-coupling, the two runs side by side:
 //! - a core of fines: phihat at the circulation centre above 0.8 after 25 s (issue 8), large
 //!   grains at the periphery;
-//! - back-coupling changes c, not the pattern: the radial profiles about the centre agree, and
-//!   the mixed part of the bed packs denser (model.md 4: a mixture packs denser than either
-//!   size alone).
+//! - back-coupling changes c, not the pattern: the radial profiles about the centre agree
+//!   (within 0.05, or within half a cell of radius where the core's edge is steep:
+//!   `same_pattern`), and the mixed part of the bed packs denser (model.md 4: a mixture packs
+//!   denser than either size alone).
 //!
-//! Measured (stop 17, after the cut-wall friction fix): centre phihat 0.965 (off: 0.976); ring
-//! within 5 mm of the wall 0.104; rings about the centre within 0.035 of each other; c of the
-//! mixed cells (0.3 < phihat < 0.7) 0.6096 with back-coupling against 0.5809 without.
+//! Measured (stop 22, with the limited transport the tumbler scenes declare): centre phihat
+//! 1.000 (off: 1.000); ring within 5 mm of the wall 0.027; rings about the centre within 0.052
+//! of each other, at the core's edge 25-30 mm from the centre (0.610 with, 0.662 without: the
+//! radius where phihat crosses 1/2 differs by 0.4 mm, an eighth of a cell); c of the 56 mixed
+//! cells (0.3 < phihat < 0.7) 0.6078 with back-coupling against 0.5808 without. With the donor
+//! rule (stop 17): 0.965 / 0.976, 0.104, 0.035, 0.6096 / 0.5809 over 108 mixed cells.
 
 use assert_cmd::Command;
 use std::path::Path;
@@ -44,6 +48,42 @@ fn run(dir: &Path, out: &str, back_coupling: &str) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
+/// Cell size of the shipped 34 x 34 tumbler [m].
+const H: f64 = 0.10625 / 34.0;
+
+/// "The same pattern" for one ring `(r, phihat)` of one profile against the other profile
+/// (ring midpoints, phihat): within 0.05 of the other profile somewhere within half a cell of
+/// `r`. The limited transport keeps the fines core's edge about a cell wide, so a sub-cell
+/// shift of that edge moves the ring it crosses by up to the jump times the shift over the 5 mm
+/// ring: 0.05 on its own would call that a change of pattern. Linear interpolation between
+/// the other profile's midpoints, constant beyond its ends, the nearer
+/// midpoint's value next to an empty ring (NaN); an empty ring only matches an empty ring.
+fn same_pattern(ring: &(f64, f64), other: &[(f64, f64)]) -> bool {
+    let (r, v) = *ring;
+    if v.is_nan() {
+        return other.iter().any(|o| (o.0 - r).abs() < 1e-12 && o.1.is_nan());
+    }
+    let at = |x: f64| -> f64 {
+        let (first, last) = (other[0], other[other.len() - 1]);
+        if x <= first.0 {
+            return first.1;
+        }
+        if x >= last.0 {
+            return last.1;
+        }
+        let k = other.iter().position(|o| o.0 > x).unwrap();
+        let (p, q) = (other[k - 1], other[k]);
+        let w = (x - p.0) / (q.0 - p.0);
+        match (p.1.is_nan(), q.1.is_nan()) {
+            (false, false) => p.1 + (q.1 - p.1) * w,
+            // next to an empty ring: the nearer midpoint's value
+            _ if w < 0.5 => p.1,
+            _ => q.1,
+        }
+    };
+    (-10..=10).any(|i| (at(r + 0.05 * f64::from(i) * H) - v).abs() < 0.05)
+}
+
 #[test]
 fn tumbler_grows_a_core_of_fines_and_back_coupling_changes_c_not_the_pattern() {
     let d = tempfile::tempdir().unwrap();
@@ -67,19 +107,26 @@ fn tumbler_grows_a_core_of_fines_and_back_coupling_changes_c_not_the_pattern() {
     let outer = axis.last().unwrap()["phihat"].as_f64().unwrap();
     assert!(outer < 0.2, "phihat within 5 mm of the wall {outer}");
     // Back-coupling: the same pattern ...
-    let ring = |s: &serde_json::Value| -> Vec<f64> {
+    let ring = |s: &serde_json::Value| -> Vec<(f64, f64)> {
         s["drum"]["radial_about_centre"]
             .as_array()
             .unwrap()
             .iter()
-            .map(|r| r["phihat"].as_f64().unwrap_or(f64::NAN))
+            .map(|r| {
+                let mid = 0.5 * (r["r_lo"].as_f64().unwrap() + r["r_hi"].as_f64().unwrap());
+                (mid, r["phihat"].as_f64().unwrap_or(f64::NAN))
+            })
             .collect()
     };
     let (a, b) = (ring(&on), ring(&off));
+    assert_eq!(a.len(), b.len());
     for (k, (x, y)) in a.iter().zip(&b).enumerate() {
         assert!(
-            (x - y).abs() < 0.05,
-            "ring {k}: {x} with, {y} without back-coupling"
+            same_pattern(x, &b) && same_pattern(y, &a),
+            "ring {k} at {:.1} mm: {} with, {} without back-coupling",
+            x.0 * 1e3,
+            x.1,
+            y.1
         );
     }
     let centre_off = off["drum"]["centre_phihat"].as_f64().unwrap();
@@ -101,7 +148,7 @@ fn tumbler_grows_a_core_of_fines_and_back_coupling_changes_c_not_the_pattern() {
     let gap = a
         .iter()
         .zip(&b)
-        .map(|(x, y)| (x - y).abs())
+        .map(|(x, y)| (x.1 - y.1).abs())
         .filter(|g| g.is_finite())
         .fold(0.0, f64::max);
     println!(
@@ -115,14 +162,16 @@ fn tumbler_grows_a_core_of_fines_and_back_coupling_changes_c_not_the_pattern() {
     );
 }
 
-/// `tumbler-75` as it ships (34 x 34, 0.1 rev/s, implicit, 25 s; ~16 CPU s). Model.md 7.5
-/// expects a ring of fines around an unchanged core. The model grows the ring, with the large
-/// grains at the wall, but fills the core too (docs/tumbler.md "tumbler-75": the flowing layer
-/// reaches within a few mm of the axis and the creeping bed below keeps T ~ 1e-8). Measured
-/// when written, phihat about the axis averaged over 15-25 s: 0.820 on the axis (0-5 mm),
-/// peak 0.855 at 10-15 mm, 0.067 at 45-50 mm; 64 x 64 sharpens the ring (0.82 / 0.92 / 0.02).
+/// `tumbler-75` as it ships (34 x 34, 0.1 rev/s, implicit, limited transport, 25 s; ~10 CPU
+/// s). Model.md 7.5 expects a ring of fines around an unchanged core. The model grows the
+/// ring, with the large grains at the wall, and fills the core only part of the way
+/// (docs/tumbler.md "tumbler-75": the flowing layer reaches within a few mm of the axis and
+/// the creeping bed below keeps T ~ 1e-8). Measured (stop 22), phihat about the axis averaged
+/// over 15-25 s: 0.626 on the axis (0-5 mm), 0.811 at most over 5-20 mm, 0.003 at 45-50 mm.
+/// With the donor rule the core filled to 0.82, as high as the ring (0.855): most of that was
+/// the donor rule's numerical diffusion.
 #[test]
-fn tumbler_75_grows_a_ring_of_fines_about_the_axis_but_no_unchanged_core() {
+fn tumbler_75_grows_a_ring_of_fines_about_a_core_that_fills_only_part_way() {
     let d = tempfile::tempdir().unwrap();
     let o = Command::cargo_bin("sieve")
         .unwrap()
@@ -148,9 +197,9 @@ fn tumbler_75_grows_a_ring_of_fines_about_the_axis_but_no_unchanged_core() {
     let ring = at(0.005).max(at(0.01)).max(at(0.015));
     let wall = at(0.045);
     println!("tumbler-75: axis {axis:.3}, ring (5-20 mm) {ring:.3}, wall (45-50 mm) {wall:.3}");
-    // the ring: richer in fines than the axis it surrounds, large grains at the wall
-    assert!(ring > axis + 0.015, "ring {ring} vs axis {axis}");
-    assert!(wall < 0.2, "wall {wall}");
-    // the limit found: the core does not stay at the mixed start's 0.5
-    assert!(axis > 0.6 && axis < ring, "axis {axis}");
+    // the ring: clearly richer in fines than the axis it surrounds, large grains at the wall
+    assert!(ring > axis + 0.1, "ring {ring} vs axis {axis}");
+    assert!(wall < 0.05, "wall {wall}");
+    // the limit found: the core does not stay at the mixed start's 0.5, nor does it fill
+    assert!(axis > 0.55 && axis < 0.7, "axis {axis}");
 }
