@@ -61,7 +61,9 @@ const H: f64 = 0.10625 / 34.0;
 fn same_pattern(ring: &(f64, f64), other: &[(f64, f64)]) -> bool {
     let (r, v) = *ring;
     if v.is_nan() {
-        return other.iter().any(|o| (o.0 - r).abs() < 1e-12 && o.1.is_nan());
+        return other
+            .iter()
+            .any(|o| (o.0 - r).abs() < 1e-12 && o.1.is_nan());
     }
     let at = |x: f64| -> f64 {
         let (first, last) = (other[0], other[other.len() - 1]);
