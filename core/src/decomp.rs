@@ -21,8 +21,9 @@
 //!   taken over owned cells only ([`Segregation::prepare_owned`]);
 //! - the step number, on which the flush of docs/model.md 5.6 depends, is the global one;
 //!   the subdomain steps with the flush off and the driver flushes the owned cells
-//!   and tracks the bound maxima over the owned cells ([`Segregation::end_owned_step`]),
-//!   handing the flushed values over in cell order;
+//!   ([`Segregation::end_owned_step`]), handing the flushed values over in cell order;
+//! - the bound maxima count the owned cells only: the step's update takes them over the
+//!   range given to [`Segregation::prepare_owned`];
 //! - the time step is a minimum, and `C / max rate` is the minimum of `C / rate` over
 //!   subdomains exactly (correctly rounded division is monotone).
 //!

@@ -143,7 +143,7 @@ fn bench(steps: u64) {
         }
     }) / 100.0;
     println!(
-        "owned bound maxima (+ flush every 8th), 256 rows {:6.1} us",
+        "owned-cell end of step (the flush every 8th; the maxima are the step's), 256 rows {:6.1} us",
         end * 1e6
     );
     let copy = best(5, || {

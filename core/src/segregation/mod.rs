@@ -219,6 +219,9 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     shear_noise: R,
     /// Running maxima over cells and steps of `q - c` and `-q` (tracked phase), since setup.
     excess: [R; 2],
+    /// The cells `tally.0..tally.1` whose bounds the box step's maxima count: every cell, or
+    /// a subdomain's owned ones ([`Self::prepare_owned`]; its halo cells must not count).
+    tally: (usize, usize),
     /// Sum of the tracked fractions flushed to zero ([`SegregationConfig::flush_below`]),
     /// weighted by the open volume fraction of their cell (1 on a box grid).
     flushed: R,
@@ -261,6 +264,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             percolation_rate: R::ZERO,
             shear_noise: R::ZERO,
             excess: [R::ZERO; 2],
+            tally: (0, usize::MAX),
             flushed: R::ZERO,
             prepared: false,
             uniform: [false; D],
@@ -342,6 +346,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.rate = R::ZERO;
         self.percolation_rate = R::ZERO;
         self.excess = [R::ZERO; 2];
+        self.tally = (0, usize::MAX);
         self.flushed = R::ZERO;
         self.prepared = false;
         self.uniform = [false; D];
@@ -888,9 +893,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// derived T, direction and rate differ from the global ones; its fluxes only ever reach
     /// halo cells, but its rate would reach the time step. The maximum over the owned cells of
     /// all subdomains is the global maximum exactly, so the global dt is the minimum of the
-    /// subdomains' dt to the bit.
+    /// subdomains' dt to the bit. From here on the box step's bound maxima
+    /// ([`Self::tracked_excess`]) count the `owned` cells only.
     pub fn prepare_owned(&mut self, owned: core::ops::Range<usize>) -> Result<(), SetupError> {
         self.prepare()?;
+        self.tally = (owned.start, owned.end);
         if owned != (0..self.grid.len()) {
             self.derive_coefficients(owned);
         }
@@ -898,17 +905,17 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     }
 
     /// The end of a step of a subdomain (docs/parallel.md, [`crate::decomp`]), on the cells
-    /// `cells` (the owned ones) only: the running bound maxima `excess` (as
-    /// [`Self::tracked_excess`]) and the flush of vanishing fractions (docs/model.md 5.6) with
-    /// `floor` as [`SegregationConfig::flush_below`], exactly as [`Self::step`] does them
-    /// after step number `steps_before` (counted before the step): the maxima of `q - c` and
-    /// `-q` (of `q + carry` when compensated) after the update; the flush every
-    /// [`step::FLUSH_EVERY`] steps on `q`, or after every step on `q + carry` when
-    /// compensated. A subdomain steps with the flush off and its own maxima ignored: its halo
-    /// cells must count for neither (the outermost halo row is updated against a wall that
-    /// is not there and may overshoot where the global grid does not). Every flushed value is
-    /// handed to `flushed` in cell order, so that the driver adds them to the global counter
-    /// in the serial order.
+    /// `cells` (the owned ones, as given to [`Self::prepare_owned`]) only: the running bound
+    /// maxima `excess` (as [`Self::tracked_excess`]) and the flush of vanishing fractions
+    /// (docs/model.md 5.6) with `floor` as [`SegregationConfig::flush_below`], exactly as
+    /// [`Self::step`] does them after step number `steps_before` (counted before the step):
+    /// the flush every [`step::FLUSH_EVERY`] steps on `q`, or after every step on `q + carry`
+    /// when compensated. A subdomain steps with the flush off: its halo cells must not flush
+    /// (the outermost halo row is updated against a wall that is not there). The maxima are
+    /// the step's own, which count the owned cells only since [`Self::prepare_owned`] (the
+    /// halo rows may overshoot where the global grid does not); `excess` takes them. Every
+    /// flushed value is handed to `flushed` in cell order, so that the driver adds them to
+    /// the global counter in the serial order.
     pub fn end_owned_step(
         &mut self,
         cells: core::ops::Range<usize>,
@@ -917,39 +924,27 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         excess: &mut [R; 2],
         mut flushed: impl FnMut(usize, R),
     ) {
-        let [mut above, mut below] = *excess;
+        debug_assert_eq!((cells.start, cells.end), self.tally);
+        *excess = [excess[0].max(self.excess[0]), excess[1].max(self.excess[1])];
         let (lo, hi) = (cells.start, cells.end);
         if self.cfg.compensated {
-            let (q, e, c) = (
-                &mut self.q[lo..hi],
-                &mut self.carry[lo..hi],
-                &self.c[lo..hi],
-            );
+            let (q, e) = (&mut self.q[lo..hi], &mut self.carry[lo..hi]);
             for i in 0..hi - lo {
                 let v = q[i] + e[i];
-                above = above.max(v - c[i]);
-                below = below.max(-v);
                 if v.abs() < floor {
                     flushed(lo + i, v);
                     q[i] = R::ZERO;
                     e[i] = R::ZERO;
                 }
             }
-        } else {
-            let (q, c) = (&mut self.q[lo..hi], &self.c[lo..hi]);
-            // the step's lane-split maxima (one chain held this pass at a floating-point
-            // latency per cell: a fifth of a subdomain's step); a zero maximum is +0
-            [above, below] = step::lane_maxima(q, c, |c| c, [above, below]);
-            if floor > R::ZERO && steps_before % step::FLUSH_EVERY == 0 {
-                for (i, qi) in q.iter_mut().enumerate() {
-                    if qi.abs() < floor {
-                        flushed(lo + i, *qi);
-                        *qi = R::ZERO;
-                    }
+        } else if floor > R::ZERO && steps_before % step::FLUSH_EVERY == 0 {
+            for (i, qi) in self.q[lo..hi].iter_mut().enumerate() {
+                if qi.abs() < floor {
+                    flushed(lo + i, *qi);
+                    *qi = R::ZERO;
                 }
             }
         }
-        *excess = [above, below];
     }
 }
 

@@ -424,17 +424,22 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             return self.apply_increment_compensated(s);
         }
         let n = self.grid.len();
+        // the cells whose bounds count (a subdomain's owned ones, else all)
+        let (t0, t1) = (self.tally.0.min(n), self.tally.1.min(n));
         let (mut above, mut below) = (self.excess[0], self.excess[1]);
         {
             let (q, dq, c) = (&mut self.q[..s], &self.rhs[..s], &self.c[..s]);
             for i in 0..s {
                 q[i] += dq[i];
+            }
+            for i in t0.min(s)..t1.min(s) {
                 above = above.max(q[i] - c[i]);
                 below = below.max(-q[i]);
             }
         }
         let len = n - s;
         let start = [above, below];
+        let tally = t0.max(s) - s..t1.max(s) - s;
         // Uniform coefficients on the last axis (`detect_uniform`): c is one value, bit for
         // bit, so the bound check reads it once instead of an array.
         let uniform = self.uniform[D - 1];
@@ -458,6 +463,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 c,
                 c0,
                 start,
+                tally: tally.clone(),
             }),
             (false, true) => I::run(Update::<R, false, true> {
                 q,
@@ -466,6 +472,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 c,
                 c0,
                 start,
+                tally: tally.clone(),
             }),
             (true, false) => I::run(Update::<R, true, false> {
                 q,
@@ -474,6 +481,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 c,
                 c0,
                 start,
+                tally: tally.clone(),
             }),
             (true, true) => I::run(Update::<R, true, true> {
                 q,
@@ -482,6 +490,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 c,
                 c0,
                 start,
+                tally: tally.clone(),
             }),
         };
         // The flush (docs/model.md 5.6) every FLUSH_EVERY steps, in a pass of its own: in the
@@ -524,6 +533,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let (mut above, mut below) = (self.excess[0], self.excess[1]);
         let floor = self.cfg.flush_below;
         let mut flushed = self.flushed;
+        let tally = self.tally.0..self.tally.1;
         // The same two blocks as the plain update: cells without and with a face below.
         for (lo, hi) in [(0, s), (s, n)] {
             let (q, e, dq, c) = (
@@ -545,8 +555,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 // bounds of the compensated value (rounded): q alone may sit an ulp past c
                 // while its carry brings it back
                 let v = sum + carry;
-                above = above.max(v - c[i]);
-                below = below.max(-v);
+                if tally.contains(&(lo + i)) {
+                    above = above.max(v - c[i]);
+                    below = below.max(-v);
+                }
                 if v.abs() < floor {
                     flushed += v;
                     q[i] = R::ZERO;
@@ -738,7 +750,8 @@ impl<R: Real> HotLoop for Gain<'_, R> {
 /// ([`Segregation::apply_increment`]): `q += dq + f`, with the running bound maxima
 /// `[max(q - c), max(-q)]` from `start`. `FUSED`: `dq` holds the flux of each cell's upper
 /// face and the increment is `-dq` (the same value the face loop would have stored).
-/// `UNIFORM`: every c is `c0` (the array is not read).
+/// `UNIFORM`: every c is `c0` (the array is not read). The maxima count the cells `tally`
+/// of the block only (all of them, except in a subdomain: its owned cells).
 struct Update<'a, R, const FUSED: bool, const UNIFORM: bool> {
     q: &'a mut [R],
     dq: &'a [R],
@@ -746,6 +759,7 @@ struct Update<'a, R, const FUSED: bool, const UNIFORM: bool> {
     c: &'a [R],
     c0: R,
     start: [R; 2],
+    tally: core::ops::Range<usize>,
 }
 
 impl<R: Real, const FUSED: bool, const UNIFORM: bool> HotLoop for Update<'_, R, FUSED, UNIFORM> {
@@ -766,15 +780,16 @@ impl<R: Real, const FUSED: bool, const UNIFORM: bool> HotLoop for Update<'_, R, 
         // The running maxima in LANES independent chains: one chain of `max` costs a
         // floating-point latency per cell and held this loop at half the C loop's rate
         // (core/benches/column_a_vs_c.rs).
-        lane_maxima(q, c, c_at, self.start)
+        let r = self.tally.start.min(len)..self.tally.end.min(len);
+        lane_maxima(&q[r.clone()], &c[r], c_at, self.start)
     }
 }
 
 /// The bound maxima `max(start[0], max_i (q_i - c_at(c_i)))` and `max(start[1], max_i -q_i)`
 /// in [`LANES`] independent chains. A maximum is exact, so the lanes give the same value as
 /// one chain in any order; only the sign of a zero maximum could differ, and it is made +0.
-/// Shared by the step's update and a subdomain's owned-cell pass
-/// ([`Segregation::end_owned_step`]).
+/// The step's update takes them over the cells whose bounds count (a subdomain's owned
+/// ones: [`Segregation::prepare_owned`]).
 #[inline(always)]
 pub(super) fn lane_maxima<R: Real>(
     q: &[R],
