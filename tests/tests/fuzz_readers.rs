@@ -217,7 +217,12 @@ fn apply(
         Mutation::TruthPsi(k, v) => {
             if !truth.is_empty() {
                 let n = truth.len();
-                truth[k % n].psi = *v;
+                // both mixing indices of a record (format 6)
+                if k % 2 == 0 {
+                    truth[k % n].psi = *v;
+                } else {
+                    truth[k % n].psi_estimator_grid = *v;
+                }
             }
         }
         Mutation::StreamDupFrame(k) => {

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 /// File magic.
 pub const RECORDING_MAGIC: [u8; 8] = *b"SIEVEREC";
 /// Current format version.
-pub const RECORDING_VERSION: u32 = 5;
+pub const RECORDING_VERSION: u32 = 6;
 
 /// What the recording says about itself.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -59,13 +59,17 @@ pub struct TruthRecord {
     /// Grain volume and small-grain volume that had left the truth's box by this time (per
     /// unit depth; 0 for a closed box), for the outflow fines fraction (format 3).
     pub discharged: [f32; 2],
+    /// Mixing index of the truth averaged onto the estimator's grid (format 6): Psi of a sharp
+    /// interface depends on the cells it is measured in, and this is the one an estimator on
+    /// that grid can reach.
+    pub psi_estimator_grid: f32,
 }
 
 impl TruthRecord {
     /// Appends the postcard encoding of this record to `out` (a writer callback); returns
     /// false if the record does not fit the 2 KiB scratch.
     pub fn encode_into(&self, mut out: impl FnMut(&[u8])) -> bool {
-        let mut buf = [0u8; 8 + 5 + 2 * (2 + 4 * super::MAX_SENSOR_POINTS) + 8 + 8];
+        let mut buf = [0u8; 8 + 5 + 2 * (2 + 4 * super::MAX_SENSOR_POINTS) + 8 + 8 + 4];
         match postcard::to_slice(self, &mut buf) {
             Ok(b) => {
                 out(b);

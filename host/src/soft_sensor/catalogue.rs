@@ -31,7 +31,7 @@
 //! the coupled run itself, sampled at every frame time; see there.
 
 use super::record::{RecordReport, Writer};
-use super::scene::coarsen;
+use super::scene::{coarsen, psi_on_grid};
 use super::ESTIMATOR_CAPACITY;
 use crate::data::FlowSummary;
 use crate::error::{Error, Result};
@@ -316,6 +316,10 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
     let nf = [scene.cells[0], scene.cells[1]];
     let n = nf[0] * nf[1];
     let ns = [opts.sensor[0] as usize, opts.sensor[1] as usize];
+    let ne = [
+        opts.estimator_cells[0] as usize,
+        opts.estimator_cells[1] as usize,
+    ];
     let periodic = [
         scene.boundaries[0][0] == Boundary::Periodic,
         scene.boundaries[1][0] == Boundary::Periodic,
@@ -538,13 +542,14 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
                 k as f64 * period
             )));
         }
-        let (psi, coarse, coarse_c) = truth_on_sensor(s, nf, ns);
+        let (psi, psi_ne, coarse, coarse_c) = truth_on_sensor(s, nf, ns, ne);
         final_psi = psi;
         writer
             .truth(
                 k,
                 s.time().to_f64(),
                 final_psi,
+                psi_ne,
                 &coarse,
                 &coarse_c,
                 [0.0, 0.0],
@@ -648,6 +653,10 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
     let nf = [scene.cells[0], scene.cells[1]];
     let n = nf[0] * nf[1];
     let ns = [opts.sensor[0] as usize, opts.sensor[1] as usize];
+    let ne = [
+        opts.estimator_cells[0] as usize,
+        opts.estimator_cells[1] as usize,
+    ];
     let extent = [
         scene.upper[0] - scene.lower[0],
         scene.upper[1] - scene.lower[1],
@@ -791,7 +800,7 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
     crate::flow::coupled_loop(f, s, &truth_scene, fields, None, &bar, |k, t, seg, _| {
         crate::interrupt::check("sieve record")?;
         if k >= 1 {
-            let (psi, coarse, coarse_c) = truth_on_sensor(seg, nf, ns);
+            let (psi, psi_ne, coarse, coarse_c) = truth_on_sensor(seg, nf, ns, ne);
             final_psi = psi;
             let m = mass(seg);
             writer
@@ -799,6 +808,7 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
                     k as u32,
                     t,
                     final_psi,
+                    psi_ne,
                     &coarse,
                     &coarse_c,
                     [m0[0] - m[0], m0[1] - m[1]],
@@ -910,8 +920,10 @@ fn truth_on_sensor<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
     nf: [usize; 2],
     ns: [usize; 2],
-) -> (f64, Vec<f64>, Vec<f64>) {
+    ne: [usize; 2],
+) -> (f64, f64, Vec<f64>, Vec<f64>) {
     let psi = diagnose(s).psi.to_f64();
+    let psi_ne = psi_on_grid(|i| s.phi(i).to_f64(), |i| s.c(i).to_f64(), nf, ne);
     let phihat = coarsen(
         |i| {
             let ci = s.c(i).to_f64();
@@ -925,7 +937,7 @@ fn truth_on_sensor<R: Real, const D: usize, const N: usize>(
         ns,
     );
     let c = coarsen(|i| s.c(i).to_f64(), nf, ns);
-    (psi, phihat, c)
+    (psi, psi_ne, phihat, c)
 }
 
 #[cfg(test)]

@@ -214,7 +214,7 @@ pub fn config(c: &SensorConfig<f32>) -> Result<(), String> {
 }
 
 /// Decodes and checks every truth record: one per frame at most, each with one finite phihat
-/// in [0, 1] per coarse cell, finite time and psi in [0, 1]. A small tolerance admits the
+/// in [0, 1] per coarse cell, finite time and both psi in [0, 1]. A small tolerance admits the
 /// f32 round-off of a coarsened truth.
 pub fn truth(rec: &Recording<'_>) -> Result<Vec<TruthRecord>, String> {
     let h = &rec.header;
@@ -250,6 +250,12 @@ pub fn truth(rec: &Recording<'_>) -> Result<Vec<TruthRecord>, String> {
             return Err(format!(
                 "truth record {k} has psi = {} (allowed 0 to 1, the mixing index of model.md 6); {DAMAGED}",
                 t.psi
+            ));
+        }
+        if !unit(t.psi_estimator_grid) {
+            return Err(format!(
+                "truth record {k} has psi_estimator_grid = {} (allowed 0 to 1, the mixing index of model.md 6); {DAMAGED}",
+                t.psi_estimator_grid
             ));
         }
         if let Some((i, v)) = t.phihat.iter().enumerate().find(|(_, &v)| !unit(v)) {

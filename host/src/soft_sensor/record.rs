@@ -1,6 +1,6 @@
 //! Recording: truth simulation + simulated velocity sensor -> recording file.
 
-use super::scene::{coarsen, Scene};
+use super::scene::{coarsen, psi_on_grid, Scene};
 use sieve_core::diagnose;
 use sieve_core::sensor::frame::{encode, FRAME_WIRE_MAX};
 use sieve_core::sensor::recording::{write_recording, RecordingHeader, TruthRecord};
@@ -172,13 +172,16 @@ impl Writer {
         Ok(())
     }
 
-    /// The truth at the end of period `k`: its time, psi, phihat and c on the sensor grid,
-    /// and what had left its box (grains, small grains).
+    /// The truth at the end of period `k`: its time, psi (on its own grid and on the
+    /// estimator's: [`super::scene::psi_on_grid`]), phihat and c on the sensor grid, and what
+    /// had left its box (grains, small grains).
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn truth(
         &mut self,
         k: u32,
         time: f64,
         psi: f64,
+        psi_estimator_grid: f64,
         coarse: &[f64],
         coarse_c: &[f64],
         discharged: [f64; 2],
@@ -190,6 +193,7 @@ impl Writer {
             phihat: Default::default(),
             c: Default::default(),
             discharged: [discharged[0] as f32, discharged[1] as f32],
+            psi_estimator_grid: psi_estimator_grid as f32,
         };
         for &v in coarse {
             rec.phihat.push(v as f32).map_err(|_| "truth capacity")?;
@@ -285,9 +289,22 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
         final_psi = d.psi;
         let coarse = coarsen(|i| truth.phi(i) / truth.c(i), nf, ns);
         let coarse_c = coarsen(|i| truth.c(i), nf, ns);
+        let ne = [
+            opts.estimator_cells[0] as usize,
+            opts.estimator_cells[1] as usize,
+        ];
+        let psi_ne = psi_on_grid(|i| truth.phi(i), |i| truth.c(i), nf, ne);
         // The legacy scenes' truth has no discharge accounting: closed or periodic boxes,
         // except Gray-Thornton, whose outflow the replay does not compare.
-        writer.truth(k, truth.time(), d.psi, &coarse, &coarse_c, [0.0, 0.0])?;
+        writer.truth(
+            k,
+            truth.time(),
+            d.psi,
+            psi_ne,
+            &coarse,
+            &coarse_c,
+            [0.0, 0.0],
+        )?;
     }
     let (out, stream_bytes) = writer.finish(
         config,
