@@ -125,6 +125,21 @@ fn nan_truth_is_an_error_not_a_zero_error() {
         &psi,
         &["truth record 5", "psi = NaN"],
     );
+    // the truth's Psi on the estimator's grid (format 6), NaN or outside [0, 1]
+    let coarse = rewrite(&good, |_, t| t[2].psi_estimator_grid = f32::NAN);
+    refused(
+        dir.path(),
+        "coarse.rec",
+        &coarse,
+        &["truth record 3", "psi_estimator_grid = NaN", "0 to 1"],
+    );
+    let over = rewrite(&good, |_, t| t[0].psi_estimator_grid = 1.5);
+    refused(
+        dir.path(),
+        "over.rec",
+        &over,
+        &["truth record 1", "psi_estimator_grid = 1.5"],
+    );
     let phihat = rewrite(&good, |_, t| t[7].phihat[3] = f32::NAN);
     refused(
         dir.path(),
