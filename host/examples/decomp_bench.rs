@@ -133,12 +133,11 @@ fn bench(steps: u64) {
         halo,
         pack * 1e6
     );
-    let own = sub.owned_cells();
     let mut excess = [0.0; 2];
     let mut k = 1;
     let end = best(5, || {
         for _ in 0..100 {
-            local.end_owned_step(own.clone(), f64::MIN_POSITIVE, k, &mut excess, |_, _| {});
+            local.end_owned_step(f64::MIN_POSITIVE, k, &mut excess, |_, _| {});
             k += 1;
         }
     }) / 100.0;

@@ -223,7 +223,6 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         decomp::copy_rows(g, sub, l, self.fields);
         l.set_clock(g.time(), g.steps());
         l.set_tracked_excess(g.tracked_excess());
-        let own = sub.owned_cells();
         let mut excess = g.tracked_excess();
         let mut flushed = Vec::new();
         let mut taken = 0;
@@ -237,7 +236,7 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
             } else {
                 crate::isa::step(l, dt);
             }
-            l.end_owned_step(own.clone(), self.floor, before, &mut excess, |_, v| {
+            l.end_owned_step(self.floor, before, &mut excess, |_, v| {
                 if v != R::ZERO {
                     flushed.push((before, v));
                 }

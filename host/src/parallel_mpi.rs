@@ -485,7 +485,6 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
     /// control (and the threads' driver), with a halo exchange after every step.
     fn chunk(&mut self, target: R, max_steps: u64) -> Chunk<R> {
         let slack = snap_slack(target);
-        let own = self.sub.owned_cells();
         let mut flushed = Vec::new();
         let mut taken = 0;
         while self.s.time() < target && taken < max_steps {
@@ -498,7 +497,7 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
                 crate::isa::step(&mut *self.s, self.dt);
             }
             self.s
-                .end_owned_step(own.clone(), self.floor, before, &mut self.excess, |_, v| {
+                .end_owned_step(self.floor, before, &mut self.excess, |_, v| {
                     if v != R::ZERO {
                         flushed.push((before, v));
                     }

@@ -904,8 +904,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         Ok(())
     }
 
-    /// The end of a step of a subdomain (docs/parallel.md, [`crate::decomp`]), on the cells
-    /// `cells` (the owned ones, as given to [`Self::prepare_owned`]) only: the running bound
+    /// The end of a step of a subdomain (docs/parallel.md, [`crate::decomp`]), on its owned
+    /// cells (the range given to [`Self::prepare_owned`]) only: the running bound
     /// maxima `excess` (as [`Self::tracked_excess`]) and the flush of vanishing fractions
     /// (docs/model.md 5.6) with `floor` as [`SegregationConfig::flush_below`], exactly as
     /// [`Self::step`] does them after step number `steps_before` (counted before the step):
@@ -918,15 +918,14 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// the global counter in the serial order.
     pub fn end_owned_step(
         &mut self,
-        cells: core::ops::Range<usize>,
         floor: R,
         steps_before: u64,
         excess: &mut [R; 2],
         mut flushed: impl FnMut(usize, R),
     ) {
-        debug_assert_eq!((cells.start, cells.end), self.tally);
         *excess = [excess[0].max(self.excess[0]), excess[1].max(self.excess[1])];
-        let (lo, hi) = (cells.start, cells.end);
+        let n = self.grid.len();
+        let (lo, hi) = (self.tally.0.min(n), self.tally.1.min(n));
         if self.cfg.compensated {
             let (q, e) = (&mut self.q[lo..hi], &mut self.carry[lo..hi]);
             for i in 0..hi - lo {

@@ -923,7 +923,13 @@ fn truth_on_sensor<R: Real, const D: usize, const N: usize>(
     ne: [usize; 2],
 ) -> (f64, f64, Vec<f64>, Vec<f64>) {
     let psi = diagnose(s).psi.to_f64();
-    let psi_ne = psi_on_grid(|i| s.phi(i).to_f64(), |i| s.c(i).to_f64(), nf, ne);
+    let psi_ne = psi_on_grid(
+        |i| s.phi(i).to_f64(),
+        |i| s.c(i).to_f64(),
+        nf,
+        ne,
+        s.config().vacuum.to_f64(),
+    );
     let phihat = coarsen(
         |i| {
             let ci = s.c(i).to_f64();

@@ -293,7 +293,13 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
             opts.estimator_cells[0] as usize,
             opts.estimator_cells[1] as usize,
         ];
-        let psi_ne = psi_on_grid(|i| truth.phi(i), |i| truth.c(i), nf, ne);
+        let psi_ne = psi_on_grid(
+            |i| truth.phi(i),
+            |i| truth.c(i),
+            nf,
+            ne,
+            truth.config().vacuum,
+        );
         // The legacy scenes' truth has no discharge accounting: closed or periodic boxes,
         // except Gray-Thornton, whose outflow the replay does not compare.
         writer.truth(

@@ -271,14 +271,16 @@ impl Scene {
 
 /// Psi (docs/model.md 6) of a truth on an `nf` grid seen at the resolution of an `nc` grid
 /// over the same box: phi and c averaged onto the `nc` cells by the overlap of each fine
-/// cell with each coarse one (exact for any ratio), then `E / E_mix` of those averages. It is
-/// what an estimator on `nc` cells can be held to: Psi of a sharp interface depends on the
-/// cells it is measured in (docs/soft-sensor.md, "How much of the 0.063").
+/// cell with each coarse one (exact for any ratio), then the core's sums of those averages
+/// (the entropy over cells with `c > vacuum`, the amounts over all). It is what an estimator
+/// on `nc` cells can be held to: Psi of a sharp interface depends on the cells it is
+/// measured in (docs/soft-sensor.md, "How much of the 0.063").
 pub fn psi_on_grid(
     phi: impl Fn(usize) -> f64,
     c: impl Fn(usize) -> f64,
     nf: [usize; 2],
     nc: [usize; 2],
+    vacuum: f64,
 ) -> f64 {
     // Per axis: (coarse cell, weight) of fine cell i; the weight is the overlap over the
     // coarse cell's length, in units of 1 / (nf nc) of the box.
@@ -312,26 +314,17 @@ pub fn psi_on_grid(
             }
         }
     }
-    let e = |h: f64| -> f64 {
-        let h = h.clamp(0.0, 1.0);
-        let mut s = 0.0;
-        if h > 0.0 {
-            s -= h * h.ln();
-        }
-        if h < 1.0 {
-            s -= (1.0 - h) * (1.0 - h).ln();
-        }
-        s
+    let entropy: f64 = ps
+        .iter()
+        .zip(&cs)
+        .map(|(&p, &ci)| sieve_core::entropy_term(p, ci, vacuum))
+        .sum();
+    let (small, total): (f64, f64) = (ps.iter().sum(), cs.iter().sum());
+    let mixed = if total > 0.0 {
+        sieve_core::diagnostics::mixing_entropy_density(small / total) * total
+    } else {
+        0.0
     };
-    let (mut entropy, mut small, mut total) = (0.0, 0.0, 0.0);
-    for (&p, &ci) in ps.iter().zip(&cs) {
-        if ci > 0.0 {
-            entropy += e(p / ci) * ci;
-            small += p;
-            total += ci;
-        }
-    }
-    let mixed = e(small / total) * total;
     if mixed > 0.0 {
         entropy / mixed
     } else {
@@ -373,14 +366,14 @@ mod tests {
                 0.0
             }
         };
-        psi_on_grid(phi, |_| 0.6, nf, nc)
+        psi_on_grid(phi, |_| 0.6, nf, nc, 1e-6)
     }
 
     #[test]
     fn psi_on_grid_sees_an_interface_at_the_coarse_resolution() {
         // the same grid: a fully segregated field has Psi 0, a mixed one 1
         assert_eq!(layered([8, 8], [8, 8], 0.5), 0.0);
-        let mixed = psi_on_grid(|_| 0.3, |_| 0.6, [8, 8], [8, 8]);
+        let mixed = psi_on_grid(|_| 0.3, |_| 0.6, [8, 8], [8, 8], 1e-6);
         assert!((mixed - 1.0).abs() < 1e-12, "{mixed}");
         // an interface on a coarse face stays sharp; one inside a coarse cell is mixed
         // there: 40 fine rows, the edge after row 20 (a face of 4 coarse rows) or row 15
@@ -393,7 +386,7 @@ mod tests {
         assert!((inside - want).abs() < 1e-12, "{inside} vs {want}");
         // a ratio that is not an integer (200 -> 32 and 100 -> 32, as the catalogue's
         // gray-thornton-shear): the overlaps keep the amounts, so a uniform field stays at 1
-        let uniform = psi_on_grid(|_| 0.15, |_| 0.6, [200, 100], [32, 32]);
+        let uniform = psi_on_grid(|_| 0.15, |_| 0.6, [200, 100], [32, 32], 1e-6);
         assert!((uniform - 1.0).abs() < 1e-12, "{uniform}");
         // and an interface at z = 0.5 (a coarse face of 32 rows at 16) stays sharp
         assert!(layered([20, 100], [4, 32], 0.5) < 1e-12);
