@@ -660,6 +660,9 @@ pub struct Session {
     kept: Vec<Kept>,
     resumed: Option<Entries>,
     written: u64,
+    /// Snapshot writes in flight ([`crate::output::writer`]): a checkpoint keeps copies of
+    /// the snapshots written before it, so it waits for them first.
+    writes: Option<std::sync::Arc<crate::output::writer::Pending>>,
 }
 
 impl Session {
@@ -691,6 +694,7 @@ impl Session {
             kept: Vec::new(),
             resumed: None,
             written: 0,
+            writes: None,
             dir,
         };
         match resume {
@@ -808,6 +812,12 @@ impl Session {
         }
     }
 
+    /// Makes every checkpoint wait for the snapshot writes in flight (`sieve run` writes its
+    /// snapshots on a writer thread).
+    pub fn after_writes(&mut self, writes: std::sync::Arc<crate::output::writer::Pending>) {
+        self.writes = Some(writes);
+    }
+
     /// Checkpoints written by this session.
     pub fn written(&self) -> u64 {
         self.written
@@ -918,6 +928,9 @@ impl Session {
     /// file atomically. `solvers` adds the solver state ([`put_segregation`], [`put_flow`],
     /// ...).
     pub fn save(&mut self, progress: &Progress, solvers: impl FnOnce(&mut Entries)) -> Result<()> {
+        if let Some(w) = &self.writes {
+            w.wait()?;
+        }
         let fields = self.dir.join("fields");
         std::fs::create_dir_all(&fields).map_err(|e| Error::io(&fields, e))?;
         for k in self.kept.len()..progress.next {

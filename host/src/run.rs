@@ -550,6 +550,8 @@ struct RunJob<'a> {
     /// Number of output times (the last always gets a snapshot).
     outputs: usize,
     ckpt: Option<crate::checkpoint::Session>,
+    /// Writes the snapshots beside the stepping ([`crate::output::writer`]).
+    writer: &'a crate::output::writer::Writer,
 }
 
 /// The VTK collection entries of the outputs a resumed run kept (written before the
@@ -580,13 +582,7 @@ fn kept_pvd(
 
 impl RunJob<'_> {
     /// Writes the VTK snapshot of output `k` (the pictures are drawn from these files).
-    fn output(
-        &self,
-        k: usize,
-        t: f64,
-        snap: &Snapshot,
-        pvd: &mut Vec<(f64, String)>,
-    ) -> Result<()> {
+    fn output(&self, k: usize, t: f64, snap: Snapshot, pvd: &mut Vec<(f64, String)>) -> Result<()> {
         if let Some(v) = crate::estimate::worst_violation(&snap.phi, &snap.c, t) {
             if self.worst.get().is_none_or(|w| v.amount > w.amount) {
                 self.worst.set(Some(v));
@@ -598,13 +594,13 @@ impl RunJob<'_> {
         // under mpirun: one piece per rank and the .pvti naming them
         #[cfg(feature = "mpi")]
         if let Some(name) =
-            crate::parallel_mpi::write_snapshot(&self.fields_dir, k, self.scene, snap)?
+            crate::parallel_mpi::write_snapshot(&self.fields_dir, k, self.scene, &snap)?
         {
             pvd.push((t, name));
             return Ok(());
         }
         let name = format!("state_{k:04}.vti");
-        crate::output::vtk::write_vti(&self.fields_dir.join(&name), self.scene, snap)?;
+        self.writer.write(self.fields_dir.join(&name), snap)?;
         pvd.push((t, name));
         Ok(())
     }
@@ -671,7 +667,7 @@ impl SolverJob for RunJob<'_> {
             |k, t, s| {
                 let mut snap = Snapshot::of(s, scene);
                 snap.volume = volume.clone();
-                self.output(k, t, &snap, &mut pvd)
+                self.output(k, t, snap, &mut pvd)
             },
         )?;
         bar.finish_and_clear();
@@ -726,7 +722,7 @@ impl FlowJob for RunJob<'_> {
                     let mut snap = Snapshot::of(s, scene);
                     snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
                     snap.volume = volume.clone();
-                    self.output(k, t, &snap, &mut pvd)
+                    self.output(k, t, snap, &mut pvd)
                 },
             )?;
             let p: Vec<f64> = (0..f.len()).map(|i| f.pressure(i).to_f64()).collect();
@@ -757,7 +753,7 @@ impl FlowJob for RunJob<'_> {
                 |k, t, s| {
                     let mut snap = Snapshot::of(s, scene);
                     snap.p = Some(frozen.p.clone());
-                    self.output(k, t, &snap, &mut pvd)
+                    self.output(k, t, snap, &mut pvd)
                 },
             )?;
             (stats, frozen.summary, frozen.p)
@@ -820,17 +816,30 @@ pub fn run_scene_with(
         )?),
         None => None,
     };
-    let job = RunJob {
-        scene,
-        fields,
-        fields_dir: fields_dir.clone(),
-        staging: staging.path().to_path_buf(),
-        quiet: opts.quiet,
-        worst: std::cell::Cell::new(None),
-        outputs: output_times(scene.t_end, scene.output_interval).len(),
-        ckpt,
-    };
-    let out = with_scene_solvers(scene, job)?;
+    // The snapshots are written on their own thread while the solver steps on; every one is
+    // on disk (or the first error returned) before anything below reads them.
+    let out = std::thread::scope(|scope| {
+        let (writer, handle) = output::writer::Writer::start(scope, scene)?;
+        let mut ckpt = ckpt;
+        if let Some(ck) = ckpt.as_mut() {
+            ck.after_writes(writer.pending());
+        }
+        let job = RunJob {
+            scene,
+            fields,
+            fields_dir: fields_dir.clone(),
+            staging: staging.path().to_path_buf(),
+            quiet: opts.quiet,
+            worst: std::cell::Cell::new(None),
+            outputs: output_times(scene.t_end, scene.output_interval).len(),
+            ckpt,
+            writer: &writer,
+        };
+        let out = with_scene_solvers(scene, job);
+        let written = output::writer::finish(writer, handle);
+        let out = out?;
+        written.map(|()| out)
+    })?;
     let stats = &out.stats;
     output::csv::write_series(&staging.path().join("series.csv"), &stats.series)?;
     output::vtk::write_pvd(&fields_dir.join("series.pvd"), &out.pvd)?;

@@ -11,6 +11,7 @@ pub mod redraw;
 pub mod summary;
 pub mod target;
 pub mod vtk;
+pub mod writer;
 
 use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
