@@ -197,6 +197,12 @@ pub struct ReplayArgs {
     /// Changes the estimate (and the state hash).
     #[arg(long = "noise-term", value_name = "L", allow_negative_numbers = true)]
     pub noise_term: Option<f64>,
+    /// Weight W of a new frame in the moving average of the measured velocity (0 < W <= 1;
+    /// 1 = no averaging; the recording's value otherwise): the filter a controls engineer
+    /// tunes against the sensor's noise (docs/soft-sensor.md "Noise mixes the estimate").
+    /// Changes the estimate (and the state hash).
+    #[arg(long = "smoothing", value_name = "W", allow_negative_numbers = true)]
+    pub smoothing: Option<f64>,
     /// Replace the recorded velocity frames by the Nedderman-Tuzun kinematic velocity of a
     /// flat-bottomed silo with kinematic constant B [m], scaled by the discharge rate alone
     /// (a load cell; docs/soft-sensor.md). Silo recordings only.
@@ -695,6 +701,16 @@ pub fn execute(cli: Cli) -> Result<()> {
                     ));
                 }
             }
+            if let Some(w) = a.smoothing {
+                if !(w.is_finite() && w > 0.0 && w <= 1.0) {
+                    return Err(Error::range(
+                        "command line",
+                        "--smoothing",
+                        w,
+                        "0 < W <= 1 (1: no averaging)",
+                    ));
+                }
+            }
             if let Some(b) = a.kinematic {
                 if !(b.is_finite() && b > 0.0 && b <= 1.0) {
                     return Err(Error::range(
@@ -709,11 +725,12 @@ pub fn execute(cli: Cli) -> Result<()> {
                     || a.alarm_persist.is_some()
                     || a.shear_gain.is_some()
                     || a.noise_term.is_some()
+                    || a.smoothing.is_some()
                 {
                     return Err(Error::at(
                         "command line",
                         "--kinematic",
-                        "--kinematic replays the rate alone: it takes no --faults, --fines-band, --alarm-persist, --shear-gain or --noise-term",
+                        "--kinematic replays the rate alone: it takes no --faults, --fines-band, --alarm-persist, --shear-gain, --noise-term or --smoothing",
                     ));
                 }
                 let bytes = std::fs::read(&a.file).map_err(|e| {
@@ -747,6 +764,9 @@ pub fn execute(cli: Cli) -> Result<()> {
                 }
                 if let Some(l) = a.noise_term {
                     c.noise_term = l as f32;
+                }
+                if let Some(w) = a.smoothing {
+                    c.smoothing = w as f32;
                 }
                 Ok(())
             })

@@ -97,6 +97,25 @@ fn noise_term_zero_is_the_recorded_estimate_and_one_changes_it() {
 }
 
 #[test]
+fn smoothing_of_the_recorded_weight_is_the_recorded_estimate_and_one_changes_it() {
+    // `--smoothing W` sets the weight of a new frame in the moving average of the measured
+    // velocity (docs/soft-sensor.md "Noise mixes the estimate"): the committed recording's own
+    // weight (0.02, it is noisy) is its estimate bit for bit; W = 1 (no averaging) changes it.
+    let (clean, _) = golden();
+    let rec = recordings().join("shear-cell.rec");
+    let rec = rec.to_str().expect("utf-8 path");
+    let (code, out, err) = sieve(&["replay", rec, "--smoothing", "0.02"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(hash_line(&out), clean);
+    let (code, out, err) = sieve(&["replay", rec, "--smoothing", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert_ne!(hash_line(&out), clean);
+    let (code, _, err) = sieve(&["replay", rec, "--kinematic", "0.05", "--smoothing", "1"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--smoothing"), "{err}");
+}
+
+#[test]
 fn replay_of_the_committed_recording_prints_the_golden_hashes() {
     let (clean, faulted) = golden();
     let rec = recordings().join("shear-cell.rec");
@@ -385,6 +404,10 @@ fn bad_options_exit_2_with_one_line() {
         ("--noise-term", "nan"),
         ("--noise-term", "11"),
         ("--noise-term", "inf"),
+        ("--smoothing", "0"),
+        ("--smoothing", "-0.5"),
+        ("--smoothing", "1.5"),
+        ("--smoothing", "nan"),
     ] {
         assert_bad(&["replay", rec, flag, value], flag);
     }
