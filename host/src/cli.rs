@@ -199,10 +199,22 @@ pub struct ReplayArgs {
     pub noise_term: Option<f64>,
     /// Weight W of a new frame in the moving average of the measured velocity (0 < W <= 1;
     /// 1 = no averaging; the recording's value otherwise): the filter a controls engineer
-    /// tunes against the sensor's noise (docs/soft-sensor.md "Noise mixes the estimate").
+    /// tunes against the sensor's noise and the flow's changes (docs/soft-sensor.md "Sensor
+    /// grid, filter and gain on the silo").
     /// Changes the estimate (and the state hash).
     #[arg(long = "smoothing", value_name = "W", allow_negative_numbers = true)]
     pub smoothing: Option<f64>,
+    /// Passes P of the 1-2-1 filter over each measured frame (0 <= P <= 8; the recording's
+    /// value otherwise): fewer passes keep a narrow jet or shear band that a coarse sensor
+    /// sees in one point (docs/soft-sensor.md "Sensor grid, filter and gain on the silo").
+    /// Changes the estimate (and the state hash).
+    #[arg(
+        long = "spatial-passes",
+        value_name = "P",
+        allow_negative_numbers = true,
+        value_parser = clap::value_parser!(i64).range(0..=8)
+    )]
+    pub spatial_passes: Option<i64>,
     /// Replace the recorded velocity frames by the Nedderman-Tuzun kinematic velocity of a
     /// flat-bottomed silo with kinematic constant B [m], scaled by the discharge rate alone
     /// (a load cell; docs/soft-sensor.md). Silo recordings only.
@@ -726,11 +738,12 @@ pub fn execute(cli: Cli) -> Result<()> {
                     || a.shear_gain.is_some()
                     || a.noise_term.is_some()
                     || a.smoothing.is_some()
+                    || a.spatial_passes.is_some()
                 {
                     return Err(Error::at(
                         "command line",
                         "--kinematic",
-                        "--kinematic replays the rate alone: it takes no --faults, --fines-band, --alarm-persist, --shear-gain, --noise-term or --smoothing",
+                        "--kinematic replays the rate alone: it takes no --faults, --fines-band, --alarm-persist, --shear-gain, --noise-term, --smoothing or --spatial-passes",
                     ));
                 }
                 let bytes = std::fs::read(&a.file).map_err(|e| {
@@ -767,6 +780,9 @@ pub fn execute(cli: Cli) -> Result<()> {
                 }
                 if let Some(w) = a.smoothing {
                     c.smoothing = w as f32;
+                }
+                if let Some(p) = a.spatial_passes.and_then(|p| u8::try_from(p).ok()) {
+                    c.spatial_passes = p;
                 }
                 Ok(())
             })

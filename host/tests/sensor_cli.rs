@@ -97,7 +97,7 @@ fn noise_term_zero_is_the_recorded_estimate_and_one_changes_it() {
 }
 
 #[test]
-fn smoothing_of_the_recorded_weight_is_the_recorded_estimate_and_one_changes_it() {
+fn recorded_filter_settings_give_the_recorded_estimate_and_others_change_it() {
     // `--smoothing W` sets the weight of a new frame in the moving average of the measured
     // velocity (docs/soft-sensor.md "Noise mixes the estimate"): the committed recording's own
     // weight (0.02, it is noisy) is its estimate bit for bit; W = 1 (no averaging) changes it.
@@ -113,6 +113,13 @@ fn smoothing_of_the_recorded_weight_is_the_recorded_estimate_and_one_changes_it(
     let (code, _, err) = sieve(&["replay", rec, "--kinematic", "0.05", "--smoothing", "1"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("--smoothing"), "{err}");
+    // `--spatial-passes P` likewise: the recorded 2 passes are the golden, 0 changes it.
+    let (code, out, err) = sieve(&["replay", rec, "--spatial-passes", "2"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(hash_line(&out), clean);
+    let (code, out, err) = sieve(&["replay", rec, "--spatial-passes", "0"]);
+    assert_eq!(code, 0, "{err}");
+    assert_ne!(hash_line(&out), clean);
 }
 
 #[test]
@@ -408,6 +415,9 @@ fn bad_options_exit_2_with_one_line() {
         ("--smoothing", "-0.5"),
         ("--smoothing", "1.5"),
         ("--smoothing", "nan"),
+        ("--spatial-passes", "-1"),
+        ("--spatial-passes", "9"),
+        ("--spatial-passes", "1.5"),
     ] {
         assert_bad(&["replay", rec, flag, value], flag);
     }

@@ -77,10 +77,11 @@ fn outlet_fines_fraction_of_a_discharging_silo() {
     assert!(o.total_out[0] > 0.0 && o.total_out[1] > 0.0);
     // The packing cap vents at the orifice (docs/soft-sensor.md, step 0 of the cap): the
     // 2 x 7 sensor measures the jet too slow and too wide, and the excess that piled up above
-    // the orifice used to go back into the bed. Measured: 56 % of the truth's grains out
-    // (26 % when the cap sent it back into the bed).
+    // the orifice used to go back into the bed. Measured: 64.4 % of the truth's grains out
+    // since coupled recordings have no moving average and no 1-2-1 pass on a sensor under
+    // 8 points across (55.7 % with them, 26 % when the cap sent the excess into the bed).
     assert!(
-        o.total_out[0] > 0.45 * o.total_out[1],
+        o.total_out[0] > 0.6 * o.total_out[1],
         "estimator let out {:e} of the truth's {:e}",
         o.total_out[0],
         o.total_out[1]
@@ -90,7 +91,7 @@ fn outlet_fines_fraction_of_a_discharging_silo() {
     assert_eq!(r.counters.phi_excursions, 0);
     assert_eq!(r.counters.budget_limited, 0);
     // The carried c follows the measured flow; how far it drifts is reported, and bounded
-    // here at what was measured with some room (0.062 mean).
+    // here at what was measured with some room (0.041 mean).
     assert!(r.mean_c_error < 0.1, "{}", r.mean_c_error);
     // The replay is deterministic.
     let again = replay_bytes(&bytes, &ReplayOptions::default()).expect("replay");

@@ -706,9 +706,19 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
         hold_ticks: 5,
         reject_speed: 1.0,
         outlier_tol: 1.0,
-        // The flow changes over a discharge: an EMA over a few frames, one 1-2-1 pass.
-        smoothing: if opts.noise > 0.0 { 0.3 } else { 1.0 },
-        spatial_passes: if opts.noise > 0.0 { 1 } else { 0 },
+        // The flow changes over a discharge, so no moving average: on the full-size silo
+        // (5 % noise, 10 Hz) an EMA of weight 0.3 lags the draining flow and made the outflow
+        // fines error and the map worse on every sensor grid measured. One 1-2-1 pass cuts
+        // the noise of the measured shear, but only where the sensor has the points for it:
+        // across 4 points it spreads the orifice jet over the silo's width, and the estimator
+        // let out 76 % of the truth's grains (98.6 % without it). docs/soft-sensor.md
+        // "Sensor grid, filter and gain on the silo".
+        smoothing: 1.0,
+        spatial_passes: if opts.noise > 0.0 && ns[0].min(ns[1]) >= 8 {
+            1
+        } else {
+            0
+        },
         track_large: false,
         regions: Default::default(),
         outlet: None,
