@@ -524,7 +524,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// place: the boundary faces and cell 0 first, from the old q, then the cells `1..n` in
     /// tiles of [`TILE`] cells ([`Sweep`]). Each cell gets the same increment as in
     /// [`Self::axis_increment`] (fused) and [`Self::apply_increment`], `q += -f_up + f_down`,
-    /// the bound maxima run in the same lanes, and the flush (every [`FLUSH_EVERY`] steps)
+    /// the bound maxima take the same values, and the flush (every [`FLUSH_EVERY`] steps)
     /// flushes the same cells in the same order, so the bits are those of the general path;
     /// but q is read and written once per step, the face fluxes stay in a tile buffer in L1,
     /// and the flush is found by a scan of the tile just updated (no pass of its own).
@@ -926,9 +926,8 @@ const TILE: usize = 512;
 /// is `max_i q_i - c` exactly and the values are those of [`lane_maxima`] (for a state
 /// without NaN, as the lanes' own). Two details decide the speed (column a, native build):
 /// `max -q` rather than `min q` (the vectoriser made the min a compare, a lane permute and a
-/// blend: 0.93x against 1.06x the C loop), and lanes local to the tile from -inf (the tile's
-/// loop over lanes carried in from outside, or `max(q - c)` in the loop, was not vectorised:
-/// 0.58x).
+/// blend: 0.93x against 1.06x the C loop), and lanes local to the tile, from -inf (lanes
+/// carried across tiles, or `max(q - c)` in the loop, were not vectorised: 0.58x).
 struct Sweep<'a, R, K, const DIFFUSE: bool> {
     q: &'a mut [R],
     below: R,
