@@ -5,8 +5,9 @@
 //!
 //! What stays as it was:
 //! - the files: the same bytes under the same names (one writer, in output order);
-//! - at most one snapshot waits while one is written (a bounded queue), so memory stays two
-//!   snapshots, and a slow disk slows the run instead of filling memory;
+//! - at most one snapshot waits (in [`Writer::write`]) while one is written, so the run holds
+//!   two snapshots at most (one before), and a slow disk slows the run instead of filling
+//!   memory;
 //! - errors: the first failed write is reported by the next [`Writer::write`], by
 //!   [`Pending::wait`] and when the writer is finished; later snapshots are not written;
 //! - checkpoints copy the snapshots written before them, so a checkpoint first waits for
@@ -87,7 +88,9 @@ impl Writer {
         scope: &'scope Scope<'scope, '_>,
         scene: &'scope Scene,
     ) -> Result<(Self, Handle<'scope>)> {
-        let (tx, rx) = sync_channel::<Job>(1);
+        // A rendezvous: `write` hands a snapshot over only when the writer is free, so at most one
+        // is being written and one waits (held by the caller in `write`).
+        let (tx, rx) = sync_channel::<Job>(0);
         let pending = Arc::new(Pending::default());
         let shared = Arc::clone(&pending);
         let handle = std::thread::Builder::new()
@@ -114,8 +117,8 @@ impl Writer {
         Ok((Self { tx, pending }, handle))
     }
 
-    /// Hands `snap` over to be written to `path` as a `.vti`; waits only if a snapshot is
-    /// already waiting. An earlier write's error is returned here.
+    /// Hands `snap` over to be written to `path` as a `.vti`; waits while the previous one is
+    /// still being written. An earlier write's error is returned here.
     pub fn write(&self, path: PathBuf, snap: Snapshot) -> Result<()> {
         self.pending.check()?;
         self.pending.lock().queued += 1;
