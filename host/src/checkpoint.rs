@@ -1340,6 +1340,50 @@ mod tests {
     /// serial run resumed under mpirun keeps both kinds), written by `save` and resumed
     /// without MPI: the entries, the links, the names; then a piece of the wrong length, of
     /// the wrong CRC, or missing is refused in one line naming it.
+    /// A checkpoint keeps the snapshots written before it, so it waits for the writer
+    /// thread: a snapshot still being written when the checkpoint is due is kept (without the
+    /// wait it would not exist yet and count as thinned), and a failed write fails the
+    /// checkpoint instead of leaving one that lacks the snapshot.
+    #[test]
+    fn a_checkpoint_waits_for_the_snapshot_writes_in_flight() {
+        use crate::output::writer::Pending;
+        let d = tempfile::tempdir().unwrap();
+        let (target, stage) = (d.path().join("run"), d.path().join("stage"));
+        std::fs::create_dir_all(&stage).unwrap();
+        let mut s = session(&target, &stage, None).unwrap();
+        let writes = std::sync::Arc::new(Pending::default());
+        s.after_writes(writes.clone());
+        writes.begin();
+        let progress = Progress {
+            next: 1,
+            ..Progress::default()
+        };
+        std::thread::scope(|sc| {
+            let (w, dir) = (writes.clone(), stage.clone());
+            sc.spawn(move || {
+                std::thread::sleep(std::time::Duration::from_millis(200));
+                put(&dir, "state_0000.vti", "snapshot 0, written late");
+                w.done(Ok(()));
+            });
+            s.save(&progress, |_| {}).unwrap();
+        });
+        assert_eq!(s.kept_name(0).as_deref(), Some("state_0000.vti"));
+        let stored = Stored::open(&target).unwrap();
+        let len = "snapshot 0, written late".len() as u64;
+        assert_eq!(stored.entries.u64s("kept.len", 1).unwrap(), &[len]);
+
+        // a write that failed: the next checkpoint fails with its message
+        let target2 = d.path().join("run2");
+        let mut s2 = session(&target2, &stage, None).unwrap();
+        let failed = std::sync::Arc::new(Pending::default());
+        failed.begin();
+        failed.done(Err(Error::failure("stage/state_0001.vti: no space left")));
+        s2.after_writes(failed);
+        let e = s2.save(&progress, |_| {}).unwrap_err();
+        assert!(e.to_string().contains("no space left"), "{e}");
+        assert_eq!(s2.written(), 0);
+    }
+
     #[test]
     fn kept_pvti_pieces_are_saved_checked_and_linked() {
         let d = tempfile::tempdir().unwrap();

@@ -57,7 +57,13 @@ impl Pending {
         self.lock().error.clone().map_or(Ok(()), Err)
     }
 
-    fn done(&self, r: Result<()>) {
+    /// One more write in flight (handed over, not yet done).
+    pub(crate) fn begin(&self) {
+        self.lock().queued += 1;
+    }
+
+    /// A write in flight is done, with its result (the first error is kept).
+    pub(crate) fn done(&self, r: Result<()>) {
         let mut s = self.lock();
         s.queued -= 1;
         if let (Err(e), None) = (r, &s.error) {
@@ -121,7 +127,7 @@ impl Writer {
     /// still being written. An earlier write's error is returned here.
     pub fn write(&self, path: PathBuf, snap: Snapshot) -> Result<()> {
         self.pending.check()?;
-        self.pending.lock().queued += 1;
+        self.pending.begin();
         self.tx.send(Job { path, snap }).map_err(|_| {
             self.pending.lock().queued -= 1;
             Error::failure("the snapshot writer stopped")
