@@ -42,6 +42,15 @@ fn coarse_silo() -> Vec<u8> {
         .iter()
         .any(|n| n.contains("filled to 0.4000 m")));
     assert!((report.c - 0.6).abs() < 1e-12);
+    // and it is told that 2 points across cannot follow the fines-rich end of a discharge
+    assert!(
+        report
+            .notes
+            .iter()
+            .any(|n| n.contains("2 sensor points across the outlet's wall")),
+        "{:?}",
+        report.notes
+    );
     bytes
 }
 
