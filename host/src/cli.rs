@@ -423,6 +423,16 @@ pub fn clap_line(e: &clap::Error) -> String {
 }
 
 /// `--grid NXxNY[xNZ]` as a TOML array.
+/// A number given for `flag`: finite and `ok`, else exit 2 in one line naming the flag, the
+/// value and what is `allowed`.
+fn number_in(flag: &str, value: f64, ok: impl Fn(f64) -> bool, allowed: &str) -> Result<()> {
+    if value.is_finite() && ok(value) {
+        Ok(())
+    } else {
+        Err(Error::range("command line", flag, value, allowed))
+    }
+}
+
 fn grid_array(grid: &str) -> Result<String> {
     let parts: Vec<&str> = grid.split(['x', 'X']).collect();
     let ok = !parts.is_empty()
@@ -694,44 +704,22 @@ pub fn execute(cli: Cli) -> Result<()> {
                 }
             };
             if let Some(g) = a.shear_gain {
-                if !(g.is_finite() && g > 0.0 && g <= 100.0) {
-                    return Err(Error::range(
-                        "command line",
-                        "--shear-gain",
-                        g,
-                        "0 < G <= 100",
-                    ));
-                }
+                number_in("--shear-gain", g, |g| g > 0.0 && g <= 100.0, "0 < G <= 100")?;
             }
             if let Some(l) = a.noise_term {
-                if !(l.is_finite() && (0.0..=10.0).contains(&l)) {
-                    return Err(Error::range(
-                        "command line",
-                        "--noise-term",
-                        l,
-                        "0 <= L <= 10",
-                    ));
-                }
+                number_in(
+                    "--noise-term",
+                    l,
+                    |l| (0.0..=10.0).contains(&l),
+                    "0 <= L <= 10",
+                )?;
             }
             if let Some(w) = a.smoothing {
-                if !(w.is_finite() && w > 0.0 && w <= 1.0) {
-                    return Err(Error::range(
-                        "command line",
-                        "--smoothing",
-                        w,
-                        "0 < W <= 1 (1: no averaging)",
-                    ));
-                }
+                let allowed = "0 < W <= 1 (1: no averaging)";
+                number_in("--smoothing", w, |w| w > 0.0 && w <= 1.0, allowed)?;
             }
             if let Some(b) = a.kinematic {
-                if !(b.is_finite() && b > 0.0 && b <= 1.0) {
-                    return Err(Error::range(
-                        "command line",
-                        "--kinematic",
-                        b,
-                        "0 < B <= 1 m",
-                    ));
-                }
+                number_in("--kinematic", b, |b| b > 0.0 && b <= 1.0, "0 < B <= 1 m")?;
                 if a.faults
                     || a.fines_band.is_some()
                     || a.alarm_persist.is_some()
@@ -946,37 +934,16 @@ fn record(a: &RecordArgs) -> Result<()> {
             "at most 1024 cells (e.g. 32x32, 64x16): the firmware's capacity",
         ));
     }
-    if !(a.noise.is_finite() && (0.0..=1.0).contains(&a.noise)) {
-        return Err(Error::range(
-            "command line",
-            "--noise",
-            a.noise,
-            "0 <= SIGMA <= 1",
-        ));
+    let unit = |x: f64| (0.0..=1.0).contains(&x);
+    number_in("--noise", a.noise, unit, "0 <= SIGMA <= 1")?;
+    if let Some(hz) = a.rate {
+        number_in("--rate", hz, |hz| hz > 0.0, "HZ > 0")?;
     }
-    let period = match a.rate {
-        Some(hz) if !(hz.is_finite() && hz > 0.0) => {
-            return Err(Error::range("command line", "--rate", hz, "HZ > 0"))
-        }
-        Some(hz) => Some(1.0 / hz),
-        None => None,
-    };
-    if !(a.cpu_mhz.is_finite() && (1.0..=10_000.0).contains(&a.cpu_mhz)) {
-        return Err(Error::range(
-            "command line",
-            "--cpu-mhz",
-            a.cpu_mhz,
-            "1 <= MHZ <= 10000",
-        ));
-    }
-    if !(a.cpu_share.is_finite() && a.cpu_share > 0.0 && a.cpu_share <= 1.0) {
-        return Err(Error::range(
-            "command line",
-            "--cpu-share",
-            a.cpu_share,
-            "0 < SHARE <= 1",
-        ));
-    }
+    let period = a.rate.map(|hz| 1.0 / hz);
+    let mhz = |m: f64| (1.0..=10_000.0).contains(&m);
+    number_in("--cpu-mhz", a.cpu_mhz, mhz, "1 <= MHZ <= 10000")?;
+    let share = |s: f64| s > 0.0 && s <= 1.0;
+    number_in("--cpu-share", a.cpu_share, share, "0 < SHARE <= 1")?;
     if let Some(n) = a.frames {
         if !(1..=100_000).contains(&n) {
             return Err(Error::range("command line", "--frames", n, "1..=100000"));
