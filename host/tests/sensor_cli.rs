@@ -77,49 +77,34 @@ fn shear_gain_scales_the_segregation_and_one_changes_nothing() {
 }
 
 #[test]
-fn noise_term_zero_is_the_recorded_estimate_and_one_changes_it() {
-    // `--noise-term L` subtracts L times the noise's own kappa:kappa before T (docs/soft-
-    // sensor.md "Noise in the measured shear"): 0 is the recorded configuration bit for bit,
-    // 1 changes the estimate of the noisy committed recording.
+fn recorded_estimator_settings_give_the_recorded_estimate_and_others_change_it() {
+    // Per-installation settings of `sieve replay` (docs/soft-sensor.md): the committed noisy
+    // recording's own value reproduces its estimate bit for bit, another value changes it,
+    // and `--kinematic` (frames from the rate alone) refuses each.
+    // - `--noise-term L` subtracts L times the noise's own kappa:kappa before T ("Noise in
+    //   the measured shear"), recorded 0;
+    // - `--smoothing W`, the weight of a new frame in the moving average, recorded 0.02;
+    // - `--spatial-passes P`, the 1-2-1 passes over each frame, recorded 2 ("Sensor grid,
+    //   filter and gain on the silo").
     let (clean, _) = golden();
     let rec = recordings().join("shear-cell.rec");
     let rec = rec.to_str().expect("utf-8 path");
-    let (code, out, err) = sieve(&["replay", rec, "--noise-term", "0"]);
-    assert_eq!(code, 0, "{err}");
-    assert_eq!(hash_line(&out), clean);
-    let (code, out, err) = sieve(&["replay", rec, "--noise-term", "1"]);
-    assert_eq!(code, 0, "{err}");
-    assert_ne!(hash_line(&out), clean);
-    // and with --kinematic (frames from the rate alone) it is refused like the others
-    let (code, _, err) = sieve(&["replay", rec, "--kinematic", "0.05", "--noise-term", "1"]);
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("--noise-term"), "{err}");
-}
-
-#[test]
-fn recorded_filter_settings_give_the_recorded_estimate_and_others_change_it() {
-    // `--smoothing W` sets the weight of a new frame in the moving average of the measured
-    // velocity (docs/soft-sensor.md "Noise mixes the estimate"): the committed recording's own
-    // weight (0.02, it is noisy) is its estimate bit for bit; W = 1 (no averaging) changes it.
-    let (clean, _) = golden();
-    let rec = recordings().join("shear-cell.rec");
-    let rec = rec.to_str().expect("utf-8 path");
-    let (code, out, err) = sieve(&["replay", rec, "--smoothing", "0.02"]);
-    assert_eq!(code, 0, "{err}");
-    assert_eq!(hash_line(&out), clean);
-    let (code, out, err) = sieve(&["replay", rec, "--smoothing", "1"]);
-    assert_eq!(code, 0, "{err}");
-    assert_ne!(hash_line(&out), clean);
-    let (code, _, err) = sieve(&["replay", rec, "--kinematic", "0.05", "--smoothing", "1"]);
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("--smoothing"), "{err}");
-    // `--spatial-passes P` likewise: the recorded 2 passes are the golden, 0 changes it.
-    let (code, out, err) = sieve(&["replay", rec, "--spatial-passes", "2"]);
-    assert_eq!(code, 0, "{err}");
-    assert_eq!(hash_line(&out), clean);
-    let (code, out, err) = sieve(&["replay", rec, "--spatial-passes", "0"]);
-    assert_eq!(code, 0, "{err}");
-    assert_ne!(hash_line(&out), clean);
+    for (flag, recorded, other) in [
+        ("--noise-term", "0", "1"),
+        ("--smoothing", "0.02", "1"),
+        ("--spatial-passes", "2", "0"),
+    ] {
+        let hash = |value: &str| {
+            let (code, out, err) = sieve(&["replay", rec, flag, value]);
+            assert_eq!(code, 0, "{flag} {value}: {err}");
+            hash_line(&out).to_string()
+        };
+        assert_eq!(hash(recorded), clean, "{flag} {recorded}");
+        assert_ne!(hash(other), clean, "{flag} {other}");
+        let (code, _, err) = sieve(&["replay", rec, "--kinematic", "0.05", flag, other]);
+        assert_eq!(code, 2, "{err}");
+        assert!(err.contains(flag), "{err}");
+    }
 }
 
 #[test]
