@@ -18,6 +18,7 @@ pub mod decomp;
 pub mod diagnostics;
 pub mod exact;
 pub mod flow;
+pub mod fork;
 pub mod frame;
 pub mod geometry;
 pub mod grid;

@@ -466,6 +466,8 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
         None => Coupled::new(flow, seg, cc).map_err(fail)?,
     };
     let times = output_times(scene.t_end, scene.output_interval);
+    // `--threads`: the flow's linear solves on a pool (the same bits, docs/parallel.md)
+    let pool = crate::parallel::flow_pool(scene);
     let mut stats = LoopStats {
         dt: cpl.stable_dt().to_f64(),
         ..Default::default()
@@ -508,7 +510,12 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
                 .or_else(|| collapsed_step(stable.to_f64(), stats.dt.min(scene.t_end)))
             {
                 Some(r) => Err(r),
-                None => cpl.step_with(dt).map_err(|e| {
+                None => match &pool {
+                    // the step on a worker: its loops fork from inside the pool
+                    Some(p) => p.install(|| cpl.step_with_on(dt, p)),
+                    None => cpl.step_with(dt),
+                }
+                .map_err(|e| {
                     // The core names what it refused; a non-finite cell says more.
                     crate::interrupt::scan_segregation(cpl.seg)
                         .or_else(|| crate::interrupt::scan_flow(cpl.flow))

@@ -28,6 +28,7 @@ pub mod output;
 pub mod parallel;
 #[cfg(feature = "mpi")]
 pub mod parallel_mpi;
+pub mod pool;
 pub mod progress;
 pub mod run;
 pub mod scene;

@@ -58,14 +58,10 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
     if wanted <= 1 {
         return (1, None);
     }
-    let why = if scene.geometry.is_some() {
+    let why = if is_coupled(scene) {
+        None // the flow's solves on a pool ([`flow_pool`])
+    } else if scene.geometry.is_some() {
         Some("cut-cell (geometry) scenes")
-    } else if scene
-        .flow
-        .as_ref()
-        .is_some_and(|f| f.equations == crate::scene::Equations::Coupled)
-    {
-        Some("coupled-flow scenes")
     } else {
         None
     };
@@ -76,6 +72,27 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
                 .map(|n| format!("note: --threads {n}: {w} run on one thread (docs/parallel.md)")),
         ),
         None => (wanted, None),
+    }
+}
+
+/// Whether the scene runs the coupled flow.
+fn is_coupled(scene: &Scene) -> bool {
+    scene
+        .flow
+        .as_ref()
+        .is_some_and(|f| f.equations == crate::scene::Equations::Coupled)
+}
+
+/// The pool whose workers run a coupled run's linear solves ([`sieve_core::fork`]; the same
+/// bits for any number), if [`plan`] gives it more than one thread. (mpirun refuses
+/// coupled scenes before they are built.)
+pub fn flow_pool(scene: &Scene) -> Option<crate::pool::Pool> {
+    if !is_coupled(scene) {
+        return None;
+    }
+    match plan(scene, requested_threads()) {
+        (n, _) if n > 1 => crate::pool::Pool::new(n),
+        _ => None,
     }
 }
 

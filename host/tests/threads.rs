@@ -340,6 +340,15 @@ fn cli_threads_frozen_flow() {
 }
 
 #[test]
+fn cli_threads_coupled_flow() {
+    // the coupled flow's linear solves on the pool (host/src/pool.rs): 11,600 and 9,216
+    // cells, enough for 3 parts of the default cut (2,048 cells a part)
+    same_outputs(&["silo", "--grid", "58x200", "--t-end", "0.004"]);
+    // cut cells in the rotating frame
+    same_outputs(&["tumbler", "--grid", "96x96", "--t-end", "0.01"]);
+}
+
+#[test]
 fn cli_threads_refusals_and_notes() {
     let d = tempfile::tempdir().unwrap();
     for bad in ["0", "-1", "1025", "1e9", "two"] {

@@ -14,9 +14,11 @@
 //! split into chunks at block boundaries (what a threaded driver does).
 
 use proptest::prelude::*;
-use sieve_core::flow::cg::{solve, workspace_len, Preconditioner, Scratch, Stencil, Stop};
+use sieve_core::flow::cg::{solve_on, workspace_len, Preconditioner, Scratch, Stencil, Stop};
+use sieve_core::fork::{Fork, Serial};
 use sieve_core::sum;
 use sieve_core::Grid;
+use sieve_tests::Threads;
 
 const N: usize = 4096;
 
@@ -49,6 +51,10 @@ struct Outcome {
 
 impl<const D: usize> System<D> {
     fn solve(&self, pc: Preconditioner, room: usize) -> Outcome {
+        self.solve_on(&Serial, pc, room, 3000)
+    }
+
+    fn solve_on<F: Fork>(&self, fork: &F, pc: Preconditioner, room: usize, max: u32) -> Outcome {
         let st = Stencil {
             grid: &self.grid,
             periodic: self.periodic,
@@ -56,12 +62,13 @@ impl<const D: usize> System<D> {
         };
         let n = self.grid.len();
         let mut x = vec![0.0; N];
-        let mut v = vec![vec![0.0; N]; 6];
+        let mut v = vec![vec![0.0; N]; 7];
         let mut coarse = vec![0.0; room];
-        let [r, p, ap, pre, line, tmp] = &mut v[..] else {
+        let [r, p, ap, pre, line, tmp, part] = &mut v[..] else {
             unreachable!()
         };
-        let res = solve(
+        let res = solve_on(
+            fork,
             &st,
             &self.diag,
             &self.b,
@@ -74,11 +81,12 @@ impl<const D: usize> System<D> {
                 line,
                 tmp,
                 coarse: &mut coarse,
+                part,
             },
             Stop {
                 relative: 1e-10,
                 floor: 0.0,
-                max_iterations: 3000,
+                max_iterations: max,
                 preconditioner: pc,
             },
         );
@@ -212,6 +220,54 @@ fn fused_product_has_the_face_by_face_bits() {
             }
         }
     }
+}
+
+/// The threaded solve (core/src/fork.rs: products cut between lines, line solves in column
+/// blocks, sums cut at block boundaries) gives the serial bits for 2 to 5 parts, cut down to
+/// 64 cells a part: the same iterations, residual and solution, with the lines alone and with
+/// the V-cycle, periodic or not, in 2D and 3D (the first 40 iterations of the random systems,
+/// which need a thousand; the cold layer to convergence).
+#[test]
+fn threaded_solves_have_the_serial_bits() {
+    fn check<const D: usize>(sys: &System<D>, what: &str, max: u32) {
+        let room = workspace_len(sys.grid.cells());
+        for pc in [
+            Preconditioner::Lines,
+            Preconditioner::Multigrid,
+            Preconditioner::Auto,
+        ] {
+            let serial = sys.solve_on(&Serial, pc, room, max);
+            assert!(serial.iterations > 0, "{what} {pc:?}");
+            for parts in 2..=5 {
+                let fork = Threads { parts, min: 64 };
+                let t = sys.solve_on(&fork, pc, room, max);
+                let at = format!("{what} {pc:?} {parts} parts");
+                assert_eq!(t.iterations, serial.iterations, "{at}");
+                assert_eq!(t.recursive.to_bits(), serial.recursive.to_bits(), "{at}");
+                let first =
+                    (0..sys.grid.len()).find(|&i| t.x[i].to_bits() != serial.x[i].to_bits());
+                assert_eq!(first, None, "{at}: first differing cell");
+            }
+        }
+    }
+    check(
+        &random_system([61, 67], [false, false], 7),
+        "2D 61 x 67",
+        40,
+    );
+    check(
+        &random_system([64, 64], [true, false], 8),
+        "2D 64 x 64 periodic",
+        40,
+    );
+    check(
+        &random_system([13, 17, 18], [false, true, false], 9),
+        "3D 13 x 17 x 18",
+        40,
+    );
+    let layer = layer(48, 85, false, 10);
+    check(&layer, "cold layer 48 x 85", 400);
+    assert!(layer.full(Preconditioner::Multigrid).residual < 1e-9);
 }
 
 #[test]

@@ -58,6 +58,7 @@
 //! Allocation-free: the coarse levels live in the caller's workspace ([`Scratch::coarse`],
 //! [`workspace_len`]); if it is short, fewer levels are used.
 
+use crate::fork::{self, Fork};
 use crate::grid::Grid;
 use crate::real::Real;
 use crate::sum;
@@ -69,6 +70,9 @@ use crate::sum;
 const OMEGA: f64 = 0.8;
 /// Damping of the Jacobi smoother of the coarse levels.
 const OMEGA_COARSE: f64 = 2.0 / 3.0;
+/// Columns per unit of a column block of the threaded line solve (one AVX2 vector of f64:
+/// the inner loop over a block's columns stays a vector loop).
+const COLUMN_UNIT: usize = 4;
 /// Symmetric Gauss-Seidel sweeps on the coarsest level.
 const COARSEST_SWEEPS: u32 = 2;
 /// Iterations between two checks of the convergence rate of the line preconditioner.
@@ -113,6 +117,16 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
         self.product::<true>(diag, b, x, out);
     }
 
+    /// [`Self::apply`] on the threads of `fork` (the same bits).
+    pub fn apply_on<F: Fork>(&self, fork: &F, diag: &[R], x: &[R], out: &mut [R]) {
+        self.product_on::<false, F>(fork, diag, x, x, out);
+    }
+
+    /// [`Self::residual`] on the threads of `fork` (the same bits).
+    pub fn residual_on<F: Fork>(&self, fork: &F, diag: &[R], b: &[R], x: &[R], out: &mut [R]) {
+        self.product_on::<true, F>(fork, diag, b, x, out);
+    }
+
     /// `out = A x`, or `out = b - A x` if `RES`. Line by line along axis 0, each output
     /// value built in a register in one pass: the diagonal, then per axis the face to `+a`,
     /// the face from `-a`, the wrap faces, in exactly the order (and so with exactly the
@@ -122,14 +136,48 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
     /// docs/implicit-pressure.md "where the time goes". `product_by_faces` keeps the
     /// face-by-face order as the parity reference of the tests.)
     fn product<const RES: bool>(&self, diag: &[R], b: &[R], x: &[R], out: &mut [R]) {
+        let n = self.grid.len();
+        self.product_lines::<RES>(diag, b, x, 0, &mut out[..n]);
+    }
+
+    /// [`Self::product`] on the threads of `fork`, cut between lines along axis 0 (each
+    /// output value is built by the same arithmetic in any chunk: the serial bits).
+    fn product_on<const RES: bool, F: Fork>(
+        &self,
+        fork: &F,
+        diag: &[R],
+        b: &[R],
+        x: &[R],
+        out: &mut [R],
+    ) {
+        let n = self.grid.len();
+        if !fork::worth(fork, n) {
+            return self.product::<RES>(diag, b, x, out);
+        }
+        let n0 = self.grid.cells()[0];
+        fork::chunks(fork, &mut out[..n], n0, |start, o| {
+            self.product_lines::<RES>(diag, b, x, start / n0, o);
+        });
+    }
+
+    /// `out = A x` (or `b - A x`) on the whole lines along axis 0 that `out` covers, the
+    /// first being line `first` (`out` starts at cell `first * n0`).
+    fn product_lines<const RES: bool>(
+        &self,
+        diag: &[R],
+        b: &[R],
+        x: &[R],
+        first: usize,
+        out: &mut [R],
+    ) {
         let cells = self.grid.cells();
         let n0 = cells[0];
-        let lines: usize = cells[1..].iter().product();
-        let mut k = [0usize; D];
+        let lines = out.len() / n0;
+        let mut k = self.grid.coords(first * n0);
         let empty: &[R] = &[];
         let kf: [&[R]; D] = core::array::from_fn(|a| &self.kf[a][..]);
         let strides: [usize; D] = core::array::from_fn(|a| self.grid.stride(a));
-        for line in 0..lines {
+        for line in first..first + lines {
             let i0 = line * n0;
             // The faces of the other axes, in the order they are added: per axis the face to
             // `+a` (or the wrap face at the last cell), the face from `-a` (or the wrap face
@@ -145,7 +193,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
                 &mut xt,
             );
             let line_x = &x[i0..i0 + n0];
-            let o = &mut out[i0..i0 + n0];
+            let o = &mut out[i0 - first * n0..i0 - first * n0 + n0];
             let (ds, bs) = (&diag[i0..i0 + n0], &b[i0..i0 + n0]);
             let k0 = &self.kf[0][i0..i0 + n0];
             let lx = LineTerms {
@@ -380,6 +428,115 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
             }
         }
         self.line_backward(inv_d, l, z);
+    }
+
+    /// `z = M^-1 src` on the threads of `fork` (`src` may be `z`'s old value: see
+    /// [`Self::line_solve_on`]), or `None` if the grid is not worth cutting.
+    ///
+    /// The vertical lines are independent, but a row-major array cannot be cut between
+    /// columns into disjoint slices. So each worker sweeps a block of columns into its own
+    /// part of `part` (row-major inside the block: the inner loop stays a vector loop over
+    /// the block's columns), forward and backward, and a second pass, cut between rows,
+    /// copies the blocks back into `z`. Every value is computed by the serial sweep's
+    /// arithmetic in the serial order along its line: the same bits.
+    fn lines_on<F: Fork>(
+        &self,
+        fork: &F,
+        inv_d: &[R],
+        l: &[R],
+        src: &[R],
+        part: &mut [R],
+    ) -> Option<fork::Cuts> {
+        let n = self.grid.len();
+        let s = self.grid.stride(D - 1);
+        if D < 2 || !fork::worth(fork, n) || s < 4 * COLUMN_UNIT {
+            return None;
+        }
+        let rows = n / s;
+        let columns = fork::cuts(s, fork.parts(), COLUMN_UNIT);
+        let blocks: fork::Cuts = columns
+            .iter()
+            .map(|c| c.start * rows..c.end * rows)
+            .collect();
+        let mut items: heapless::Vec<(core::ops::Range<usize>, &mut [R]), { fork::MAX_PARTS }> =
+            heapless::Vec::new();
+        for (c, b) in columns.iter().zip(fork::split(&mut part[..n], &blocks)) {
+            let _ = items.push((c.clone(), b));
+        }
+        fork.each(&mut items, |(c, blk)| {
+            let (j0, w) = (c.start, c.len());
+            blk[..w].copy_from_slice(&src[j0..j0 + w]);
+            for row in 1..rows {
+                let (prev, cur) = blk.split_at_mut(row * w);
+                let (zb, zh) = (&prev[(row - 1) * w..], &mut cur[..w]);
+                let o = row * s + j0;
+                let (rh, lh) = (&src[o..o + w], &l[o..o + w]);
+                for j in 0..w {
+                    zh[j] = rh[j] + lh[j] * zb[j];
+                }
+            }
+            let last = (rows - 1) * w;
+            let wl = &inv_d[(rows - 1) * s + j0..(rows - 1) * s + j0 + w];
+            for (x, wj) in blk[last..last + w].iter_mut().zip(wl) {
+                *x *= *wj;
+            }
+            for row in (1..rows).rev() {
+                let (prev, cur) = blk.split_at_mut(row * w);
+                let (zb, zh) = (&mut prev[(row - 1) * w..], &cur[..w]);
+                let (o, ob) = (row * s + j0, (row - 1) * s + j0);
+                let (lh, wb) = (&l[o..o + w], &inv_d[ob..ob + w]);
+                for j in 0..w {
+                    zb[j] = zb[j] * wb[j] + lh[j] * zh[j];
+                }
+            }
+        });
+        Some(columns)
+    }
+
+    /// The second pass of [`Self::lines_on`]: the column blocks back into `z`, row by row.
+    fn lines_back<F: Fork>(&self, fork: &F, columns: &fork::Cuts, part: &[R], z: &mut [R]) {
+        let n = self.grid.len();
+        let s = self.grid.stride(D - 1);
+        let rows = n / s;
+        fork::chunks(fork, &mut z[..n], s, |start, zc| {
+            for (k, zrow) in zc.chunks_mut(s).enumerate() {
+                let row = start / s + k;
+                for c in columns {
+                    let w = c.len();
+                    let b = c.start * rows + row * w;
+                    zrow[c.clone()].copy_from_slice(&part[b..b + w]);
+                }
+            }
+        });
+    }
+
+    /// [`Self::precondition`] on the threads of `fork` (`part`: scratch of the grid length).
+    pub fn precondition_on<F: Fork>(
+        &self,
+        fork: &F,
+        (inv_d, l): (&[R], &[R]),
+        r: &[R],
+        z: &mut [R],
+        part: &mut [R],
+    ) {
+        match self.lines_on(fork, inv_d, l, r, part) {
+            Some(columns) => self.lines_back(fork, &columns, part, z),
+            None => self.precondition(inv_d, l, r, z),
+        }
+    }
+
+    /// [`Self::line_solve`] (in place) on the threads of `fork`.
+    fn line_solve_on<F: Fork>(
+        &self,
+        fork: &F,
+        (inv_d, l): (&[R], &[R]),
+        z: &mut [R],
+        part: &mut [R],
+    ) {
+        match self.lines_on(fork, inv_d, l, z, part) {
+            Some(columns) => self.lines_back(fork, &columns, part, z),
+            None => self.line_solve(inv_d, l, z),
+        }
     }
 
     /// The diagonal scaling and the backward sweep of the line solve (one pass).
@@ -922,6 +1079,9 @@ pub struct Scratch<'a, R> {
     /// the coarse levels of the multigrid preconditioner: [`workspace_len`] values for the
     /// full hierarchy; a shorter slice gives fewer levels (empty: line preconditioner only).
     pub coarse: &'a mut [R],
+    /// the threaded loops' scratch (column blocks of the line solve, block partials of the
+    /// sums): the grid length, or empty for a solve that runs on one thread ([`fork::Serial`]).
+    pub part: &'a mut [R],
 }
 
 /// Stopping rule of one solve: `|r| <= relative max(|b|, floor)` or `max_iterations`.
@@ -948,7 +1108,9 @@ pub struct Solve<R> {
 
 /// The preconditioner of one solve: the line factor, and once switched on, the Galerkin
 /// hierarchy.
-struct Precond<'s, 'a, R: Real, const D: usize, const N: usize> {
+struct Precond<'s, 'a, R: Real, const D: usize, const N: usize, F> {
+    fork: &'s F,
+    part: &'s mut [R],
     st: &'s Stencil<'a, R, D, N>,
     diag: &'s [R],
     pre: &'s mut [R],
@@ -966,8 +1128,9 @@ struct Cycle<R, const D: usize> {
     omega_c: R,
 }
 
-impl<'s, 'a, R: Real, const D: usize, const N: usize> Precond<'s, 'a, R, D, N> {
+impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R, D, N, F> {
     fn new(
+        (fork, part): (&'s F, &'s mut [R]),
         st: &'s Stencil<'a, R, D, N>,
         diag: &'s [R],
         pre: &'s mut [R],
@@ -977,6 +1140,8 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize> Precond<'s, 'a, R, D, N> {
     ) -> Self {
         st.line_factor(diag, pre, line);
         Self {
+            fork,
+            part,
             st,
             diag,
             pre,
@@ -1052,22 +1217,23 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize> Precond<'s, 'a, R, D, N> {
 
     /// `z = B r`, returns `r . z` (blocked sum).
     fn apply(&mut self, r: &[R], z: &mut [R]) -> R {
-        let st = self.st;
+        let (st, fork) = (self.st, self.fork);
         let n = st.grid.len();
         let (r, z) = (&r[..n], &mut z[..n]);
         let lv = self.cyc.levels;
+        let factor = (&self.pre[..], self.line);
         if lv.count < 2 {
-            st.precondition(self.pre, self.line, r, z);
-            return sum::dot(r, z);
+            st.precondition_on(fork, factor, r, z, self.part);
+            return fork::dot(fork, r, z, self.part);
         }
         let cells = lv.cells[0];
         let (n1, sc) = (lv.n[1], strides(lv.cells[1]));
         let (ops, work) = self.coarse.split_at_mut(lv.op_offset(lv.count));
         let ops: &[R] = ops;
         // pre-smoothing from 0: z = omega M^-1 r (omega is in `pre`)
-        st.precondition(self.pre, self.line, r, z);
+        st.precondition_on(fork, factor, r, z, self.part);
         let tmp = &mut self.tmp[..n];
-        st.residual(self.diag, r, z, tmp);
+        st.residual_on(fork, self.diag, r, z, tmp);
         {
             let b1 = &mut work[n1..2 * n1];
             b1.fill(R::ZERO);
@@ -1076,12 +1242,21 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize> Precond<'s, 'a, R, D, N> {
         self.cyc.vcycle(ops, 1, work);
         prolong(cells, &sc, &work[..n1], z);
         // post-smoothing: z += omega M^-1 (r - A z), with r . z on the way
-        st.residual(self.diag, r, z, tmp);
-        st.line_solve(self.pre, self.line, tmp);
-        sum::reduce(n, |i| {
-            z[i] += tmp[i];
-            r[i] * z[i]
-        })
+        st.residual_on(fork, self.diag, r, z, tmp);
+        st.line_solve_on(fork, factor, tmp, self.part);
+        if !fork::worth(fork, n) {
+            return sum::reduce(n, |i| {
+                z[i] += tmp[i];
+                r[i] * z[i]
+            });
+        }
+        let tmp: &[R] = tmp;
+        fork::chunks(fork, z, 1, |start, zc| {
+            for (k, v) in zc.iter_mut().enumerate() {
+                *v += tmp[start + k];
+            }
+        });
+        fork::dot(fork, r, z, self.part)
     }
 }
 
@@ -1145,11 +1320,31 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
     sc: Scratch<'_, R>,
     stop: Stop<R>,
 ) -> Solve<R> {
-    let (tol, floor, max_iter) = (stop.relative, stop.floor, stop.max_iterations);
+    solve_on(&fork::Serial, st, diag, b, x, sc, stop)
+}
+
+/// [`solve`] with its fine-grid loops on the threads of `fork`: the products, the line
+/// solves, the sums and the vector updates (the coarse levels of the V-cycle stay on the
+/// caller's thread). The same bits for any number of parts (module [`crate::fork`]); a
+/// `Scratch::part` shorter than the grid runs the serial solve.
+pub fn solve_on<R: Real, const D: usize, const N: usize, F: Fork>(
+    fork: &F,
+    st: &Stencil<'_, R, D, N>,
+    diag: &[R],
+    b: &[R],
+    x: &mut [R],
+    sc: Scratch<'_, R>,
+    stop: Stop<R>,
+) -> Solve<R> {
     let n = st.grid.len();
+    if fork.parts() > 1 && sc.part.len() < n {
+        return solve_on(&fork::Serial, st, diag, b, x, sc, stop);
+    }
+    let (tol, floor, max_iter) = (stop.relative, stop.floor, stop.max_iterations);
     let (b, x) = (&b[..n], &mut x[..n]);
     let (r, p, ap) = (&mut sc.r[..n], &mut sc.p[..n], &mut sc.ap[..n]);
-    let bnorm = sum::dot(b, b).sqrt();
+    let part = &mut *sc.part;
+    let bnorm = fork::dot(fork, b, b, part).sqrt();
     if bnorm == R::ZERO {
         x.fill(R::ZERO);
         return Solve {
@@ -1157,11 +1352,21 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
             relative_residual: R::ZERO,
         };
     }
-    st.apply(diag, x, ap);
-    let mut rr = sum::reduce(n, |i| {
-        r[i] = b[i] - ap[i];
-        r[i] * r[i]
-    });
+    st.apply_on(fork, diag, x, ap);
+    let mut rr = if fork::worth(fork, n) {
+        let ap: &[R] = ap;
+        fork::chunks(fork, r, 1, |start, rc| {
+            for (k, v) in rc.iter_mut().enumerate() {
+                *v = b[start + k] - ap[start + k];
+            }
+        });
+        fork::dot(fork, r, r, part)
+    } else {
+        sum::reduce(n, |i| {
+            r[i] = b[i] - ap[i];
+            r[i] * r[i]
+        })
+    };
     let target = tol * bnorm.max(floor);
     if rr.sqrt() <= target {
         return Solve {
@@ -1169,7 +1374,7 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
             relative_residual: rr.sqrt() / bnorm,
         };
     }
-    let mut pc = Precond::new(st, diag, sc.pre, sc.line, sc.tmp, sc.coarse);
+    let mut pc = Precond::new((fork, part), st, diag, sc.pre, sc.line, sc.tmp, sc.coarse);
     let mut probe = match stop.preconditioner {
         _ if !pc.can_coarsen() => u32::MAX,
         Preconditioner::Lines => u32::MAX,
@@ -1184,13 +1389,13 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
     let mut it = 0;
     while it < max_iter {
         it += 1;
-        st.apply(diag, p, ap);
-        let pap = sum::dot(p, ap);
+        st.apply_on(fork, diag, p, ap);
+        let pap = fork::dot(fork, p, ap, pc.part);
         if !(pap > R::ZERO) {
             break; // breakdown (only with an exact solution or a broken operator)
         }
         let alpha = rz / pap;
-        rr = sum::update(alpha, p, ap, x, r);
+        rr = fork::update(fork, alpha, p, ap, x, r, pc.part);
         let rn = rr.sqrt();
         if rn <= target {
             break;
@@ -1211,8 +1416,17 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
         let rz_new = pc.apply(r, ap);
         let beta = rz_new / rz;
         rz = rz_new;
-        for i in 0..n {
-            p[i] = ap[i] + beta * p[i];
+        if fork::worth(fork, n) {
+            let ap: &[R] = ap;
+            fork::chunks(fork, p, 1, |start, pc| {
+                for (k, v) in pc.iter_mut().enumerate() {
+                    *v = ap[start + k] + beta * *v;
+                }
+            });
+        } else {
+            for i in 0..n {
+                p[i] = ap[i] + beta * p[i];
+            }
         }
     }
     Solve {

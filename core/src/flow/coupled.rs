@@ -30,6 +30,7 @@
 
 use super::{Flow, FlowError};
 use crate::closure::Packing;
+use crate::fork::{Fork, Serial};
 use crate::geometry::CutCells;
 use crate::real::Real;
 use crate::segregation::{Discharge, Segregation, SetupError};
@@ -385,10 +386,16 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     /// many equal sub-steps as its own Courant limit needs, at most [`PERCOLATION_SUBSTEPS`]),
     /// flow, carried transport, packing, hand-over of `T` and `u` (module docs).
     pub fn step_with(&mut self, dt: R) -> Result<(), CouplingError> {
+        self.step_with_on(dt, &Serial)
+    }
+
+    /// [`Self::step_with`] with the flow's linear solves on the threads of `fork` (the same
+    /// bits for any number of threads: [`Flow::step_on`]).
+    pub fn step_with_on<F: Fork>(&mut self, dt: R, fork: &F) -> Result<(), CouplingError> {
         let limit = self.percolation_dt();
         self.seg
             .step_percolation_substeps(dt, limit, PERCOLATION_SUBSTEPS, self.geo);
-        self.flow.step(dt);
+        self.flow.step_on(dt, fork);
         let d = match self.geo {
             Some(g) => self
                 .seg

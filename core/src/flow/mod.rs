@@ -394,6 +394,8 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     ap: [R; N],
     pre: [R; N],
     line: [R; N],
+    /// Scratch of the solves' threaded loops ([`cg::Scratch::part`]).
+    part: [R; N],
     /// Iterations of the last implicit pressure solve (0 in explicit mode).
     last_pressure_cg: u32,
     /// Gravity of the current step as seen in the frame (the lab's in the lab frame).
@@ -468,6 +470,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             ap: z,
             pre: z,
             line: z,
+            part: z,
             last_pressure_cg: 0,
             g_now: [R::ZERO; D],
             prepared: false,

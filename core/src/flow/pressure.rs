@@ -36,6 +36,7 @@ use super::step::open_low;
 use super::{Flow, FlowSide, OutletPressure};
 use crate::boundary::Boundary;
 use crate::closure;
+use crate::fork::Fork;
 use crate::real::Real;
 use crate::segregation::flux::transport as upwind;
 
@@ -63,7 +64,7 @@ impl PressureMode {
 
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Sets `p` to the implicit `p^{n+1}` of the step of length `dt` (module docs).
-    pub(super) fn implicit_pressure(&mut self, dt: R) {
+    pub(super) fn implicit_pressure<F: Fork>(&mut self, dt: R, fork: &F) {
         let n = self.grid.len();
         let h = self.grid.spacing();
         let grid = self.grid;
@@ -151,7 +152,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // of it before reading any, so it is free here (and the flow keeps its size per cell).
         let dp = &mut self.flux[0];
         dp[..n].fill(R::ZERO);
-        let res = cg::solve(
+        let res = cg::solve_on(
+            fork,
             &st,
             &self.diag,
             &self.rhs,
@@ -165,6 +167,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 // `inflow` is free until the transport's first pass.
                 tmp: &mut self.inflow,
                 coarse: self.coarse.as_flattened_mut(),
+                part: &mut self.part,
             },
             Stop {
                 relative: self.cfg.cg_tolerance_pressure,

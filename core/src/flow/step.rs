@@ -4,6 +4,7 @@ use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
 use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip, Stress};
 use crate::boundary::Boundary;
 use crate::closure;
+use crate::fork::{Fork, Serial};
 use crate::frame::{turn_by, Frame};
 use crate::real::Real;
 use crate::segregation::flux::transport as upwind;
@@ -22,6 +23,12 @@ enum Face<R> {
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// One step of length `dt` (at most [`Self::stable_dt`]). Adds `dt` to the clock.
     pub fn step(&mut self, dt: R) {
+        self.step_on(dt, &Serial);
+    }
+
+    /// [`Self::step`] with the linear solves' fine-grid loops on the threads of `fork`: the
+    /// same bits for any number of threads (module [`crate::fork`]).
+    pub fn step_on<F: Fork>(&mut self, dt: R, fork: &F) {
         debug_assert!(self.prepared, "prepare() must follow set_cell()");
         let n = self.grid.len();
         for a in 0..D {
@@ -32,7 +39,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if implicit {
             // p^{n+1} = p^n + dp from one SPD solve; the transport's face velocities and the
             // momentum update below both use it (model.md 5.3, implicit pressure).
-            self.implicit_pressure(dt);
+            self.implicit_pressure(dt, fork);
         }
         self.transport(dt);
         if implicit {
@@ -44,8 +51,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.pressure_and_gravity(dt);
         self.coefficients();
         self.velocity_from_momentum();
-        self.viscous(dt);
-        self.temperature_stage(dt);
+        self.viscous(dt, fork);
+        self.temperature_stage(dt, fork);
         self.pressures();
         self.residual = self.step_residual(dt);
         self.time += dt;
@@ -701,7 +708,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 
     /// Stage 3: one implicit solve per velocity component, then the viscous heating.
-    fn viscous(&mut self, dt: R) {
+    fn viscous<F: Fork>(&mut self, dt: R, fork: &F) {
         let n = self.grid.len();
         let h = self.grid.spacing();
         let grid = self.grid;
@@ -793,7 +800,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 periodic,
                 kf: &self.kf,
             };
-            let res = cg::solve(
+            let res = cg::solve_on(
+                fork,
                 &st,
                 &self.diag,
                 &self.rhs,
@@ -810,6 +818,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     // coupled driver carries phi with after the step.
                     tmp: &mut self.inflow,
                     coarse: self.coarse.as_flattened_mut(),
+                    part: &mut self.part,
                 },
                 Stop {
                     relative: self.cfg.cg_tolerance,
@@ -940,7 +949,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 
     /// Stage 4: implicit conduction and dissipation with the heating as source.
-    fn temperature_stage(&mut self, dt: R) {
+    fn temperature_stage<F: Fork>(&mut self, dt: R, fork: &F) {
         let n = self.grid.len();
         let h = self.grid.spacing();
         let grid = self.grid;
@@ -983,7 +992,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             periodic,
             kf: &self.kf,
         };
-        let res = cg::solve(
+        let res = cg::solve_on(
+            fork,
             &st,
             &self.diag,
             &self.rhs,
@@ -996,6 +1006,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 line: &mut self.line,
                 tmp: &mut self.inflow,
                 coarse: self.coarse.as_flattened_mut(),
+                part: &mut self.part,
             },
             Stop {
                 relative: self.cfg.cg_tolerance,

@@ -11,6 +11,7 @@ use sieve_core::boundary::{Opening, Openings};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{CutWall, Flow, FlowConfig, FlowSide, OutletPressure, Slip};
+use sieve_core::fork::{Fork, Serial};
 use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
 use sieve_core::{Boundary, Grid};
@@ -110,6 +111,17 @@ pub fn discharge<const D: usize>(s: Spec<D>) -> Outcome {
 pub fn discharge_with<const D: usize>(
     s: Spec<D>,
     at_end: impl FnOnce(&Coupled<'_, f64, D, N>),
+) -> Outcome {
+    discharge_on(s, &Serial, at_end, |_| {})
+}
+
+/// [`discharge_with`] with the flow's solves on the threads of `fork`, handing the coupled
+/// state to `after_step` after every step.
+pub fn discharge_on<const D: usize, F: Fork>(
+    s: Spec<D>,
+    fork: &F,
+    at_end: impl FnOnce(&Coupled<'_, f64, D, N>),
+    mut after_step: impl FnMut(&Coupled<'_, f64, D, N>),
 ) -> Outcome {
     let z = D - 1;
     let mut upper = [0.0; D];
@@ -221,7 +233,8 @@ pub fn discharge_with<const D: usize>(
             None => cpl.seg.stable_dt(),
         };
         let dt = cpl.flow.stable_dt().min(seg_dt).min(next - t);
-        cpl.step_with(dt).unwrap();
+        cpl.step_with_on(dt, fork).unwrap();
+        after_step(&cpl);
         for i in 0..grid.len() {
             let (phi, c) = (cpl.seg.phi(i), cpl.seg.c(i));
             o.over = o.over.max(phi - c);
