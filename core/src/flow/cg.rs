@@ -944,13 +944,37 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
     /// the order of the face-by-face passes it replaced (so with their bits): `b - adiag x`,
     /// then per axis the face to `+a`, the face from `-a`, the wrap faces.
     fn residual(&self, b: &[R], x: &[R], out: &mut [R]) {
+        let n: usize = self.cells.iter().product();
+        self.residual_lines(b, x, 0, &mut out[..n]);
+    }
+
+    /// [`Self::residual`] on the threads of `fork`, cut between lines (the same bits).
+    fn residual_on<F: Fork>(&self, fork: &F, b: &[R], x: &[R], out: &mut [R]) {
+        let n: usize = self.cells.iter().product();
+        if !fork::worth(fork, n) {
+            return self.residual(b, x, out);
+        }
+        let n0 = self.cells[0];
+        fork::chunks(fork, &mut out[..n], n0, |start, o| {
+            self.residual_lines(b, x, start / n0, o);
+        });
+    }
+
+    /// [`Self::residual`] on the whole lines along axis 0 that `out` covers, the first
+    /// being line `first`.
+    fn residual_lines(&self, b: &[R], x: &[R], first: usize, out: &mut [R]) {
         let cells = self.cells;
         let n0 = cells[0];
-        let lines: usize = cells[1..].iter().product();
+        let lines = out.len() / n0;
         let mut k = [0usize; D];
+        let mut rest = first;
+        for a in 1..D {
+            k[a] = rest % cells[a];
+            rest /= cells[a];
+        }
         let empty: &[R] = &[];
         let k0 = self.kf[0];
-        for line in 0..lines {
+        for line in first..first + lines {
             let i0 = line * n0;
             let mut kt: [&[R]; 6] = [empty; 6];
             let mut xt: [&[R]; 6] = [empty; 6];
@@ -964,7 +988,7 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
             );
             let (xs, bs, ds) = (&x[i0..i0 + n0], &b[i0..i0 + n0], &self.adiag[i0..i0 + n0]);
             let kl = &k0[i0..i0 + n0];
-            let o = &mut out[i0..i0 + n0];
+            let o = &mut out[i0 - first * n0..i0 - first * n0 + n0];
             let lt = LineTerms {
                 x: xs,
                 kt: &kt[..m],
@@ -1239,7 +1263,7 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
             b1.fill(R::ZERO);
             restrict(cells, &sc, tmp, b1);
         }
-        self.cyc.vcycle(ops, 1, work);
+        self.cyc.vcycle(fork, ops, 1, work);
         prolong(cells, &sc, &work[..n1], z);
         // post-smoothing: z += omega M^-1 (r - A z), with r . z on the way
         st.residual_on(fork, self.diag, r, z, tmp);
@@ -1262,7 +1286,7 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
 
 impl<R: Real, const D: usize> Cycle<R, D> {
     /// Level `l >= 1`: `x_l = V b_l` with `work = [x_l | b_l | coarser levels... | shared]`.
-    fn vcycle(&self, ops: &[R], l: usize, work: &mut [R]) {
+    fn vcycle<F: Fork>(&self, fork: &F, ops: &[R], l: usize, work: &mut [R]) {
         let lv = &self.levels;
         let n = lv.n[l];
         let (xb, rest) = work.split_at_mut(2 * n);
@@ -1281,22 +1305,40 @@ impl<R: Real, const D: usize> Cycle<R, D> {
         // x = w D^-1 b from 0, then the residual goes down, then x += w D^-1 (b - A x).
         let shared = rest.len() - lv.n[1];
         let w = self.omega_c;
-        for i in 0..n {
-            x[i] = w * b[i] / op.adiag[i];
+        let (b, d): (&[R], &[R]) = (b, op.adiag);
+        if fork::worth(fork, n) {
+            fork::chunks(fork, x, 1, |start, xc| {
+                for (k, v) in xc.iter_mut().enumerate() {
+                    *v = w * b[start + k] / d[start + k];
+                }
+            });
+        } else {
+            for i in 0..n {
+                x[i] = w * b[i] / d[i];
+            }
         }
         {
             let (deeper, t) = rest.split_at_mut(shared);
-            op.residual(b, x, t);
+            op.residual_on(fork, b, x, t);
             let bc = &mut deeper[nc..2 * nc];
             bc.fill(R::ZERO);
             restrict(op.cells, &sc, &t[..n], bc);
         }
-        self.vcycle(ops, l + 1, rest);
+        self.vcycle(fork, ops, l + 1, rest);
         prolong(op.cells, &sc, &rest[..nc], x);
         let t = &mut rest[shared..];
-        op.residual(b, x, t);
-        for i in 0..n {
-            x[i] += w * t[i] / op.adiag[i];
+        op.residual_on(fork, b, x, t);
+        let t: &[R] = t;
+        if fork::worth(fork, n) {
+            fork::chunks(fork, x, 1, |start, xc| {
+                for (k, v) in xc.iter_mut().enumerate() {
+                    *v += w * t[start + k] / d[start + k];
+                }
+            });
+        } else {
+            for i in 0..n {
+                x[i] += w * t[i] / d[i];
+            }
         }
     }
 }
@@ -1324,8 +1366,8 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
 }
 
 /// [`solve`] with its fine-grid loops on the threads of `fork`: the products, the line
-/// solves, the sums and the vector updates (the coarse levels of the V-cycle stay on the
-/// caller's thread). The same bits for any number of parts (module [`crate::fork`]); a
+/// solves, the sums and the vector updates, and the coarse levels' residuals and smoothing
+/// (restriction, prolongation and the coarsest sweeps stay on the caller's thread). The same bits for any number of parts (module [`crate::fork`]); a
 /// `Scratch::part` shorter than the grid runs the serial solve.
 pub fn solve_on<R: Real, const D: usize, const N: usize, F: Fork>(
     fork: &F,
