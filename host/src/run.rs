@@ -710,6 +710,9 @@ impl FlowJob for RunJob<'_> {
         let equations = scene.flow.as_ref().map(|m| m.equations);
         let mut discharge = None;
         let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
+            if let (Some(note), false) = (crate::parallel::coupled_threads(scene).1, self.quiet) {
+                eprintln!("{note}");
+            }
             let cs = crate::flow::coupled_loop_with(
                 f,
                 s,

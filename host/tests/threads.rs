@@ -341,11 +341,11 @@ fn cli_threads_frozen_flow() {
 
 #[test]
 fn cli_threads_coupled_flow() {
-    // the coupled flow's linear solves on the pool (host/src/pool.rs): 11,600 and 9,216
-    // cells, enough for 3 parts of the default cut (2,048 cells a part)
-    same_outputs(&["silo", "--grid", "58x200", "--t-end", "0.004"]);
+    // the coupled flow's linear solves on the pool (host/src/pool.rs), on grids of at least
+    // 65,536 cells (below that they stay on one thread, with a note: next test)
+    same_outputs(&["column-collapse", "--grid", "640x128", "--t-end", "0.0001"]);
     // cut cells in the rotating frame
-    same_outputs(&["tumbler", "--grid", "96x96", "--t-end", "0.01"]);
+    same_outputs(&["tumbler", "--grid", "256x256", "--t-end", "0.001"]);
 }
 
 #[test]
@@ -375,4 +375,25 @@ fn cli_threads_refusals_and_notes() {
     let note: Vec<&str> = err.lines().filter(|l| l.starts_with("note:")).collect();
     assert_eq!(note.len(), 1, "{err}");
     assert!(note[0].contains("one thread"), "{err}");
+    // a coupled grid below 65,536 cells runs its solves on one thread, with a one-line note
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "column-collapse",
+            "--t-end",
+            "0.001",
+            "--threads",
+            "2",
+            "--out",
+            "c",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let note: Vec<&str> = err.lines().filter(|l| l.starts_with("note:")).collect();
+    assert_eq!(note.len(), 1, "{err}");
+    assert!(
+        note[0].contains("1280 cells runs its solves on one thread"),
+        "{err}"
+    );
 }

@@ -70,9 +70,6 @@ use crate::sum;
 const OMEGA: f64 = 0.8;
 /// Damping of the Jacobi smoother of the coarse levels.
 const OMEGA_COARSE: f64 = 2.0 / 3.0;
-/// Columns per unit of a column block of the threaded line solve (one AVX2 vector of f64:
-/// the inner loop over a block's columns stays a vector loop).
-const COLUMN_UNIT: usize = 4;
 /// Symmetric Gauss-Seidel sweeps on the coarsest level.
 const COARSEST_SWEEPS: u32 = 2;
 /// Iterations between two checks of the convergence rate of the line preconditioner.
@@ -428,115 +425,6 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
             }
         }
         self.line_backward(inv_d, l, z);
-    }
-
-    /// `z = M^-1 src` on the threads of `fork` (`src` may be `z`'s old value: see
-    /// [`Self::line_solve_on`]), or `None` if the grid is not worth cutting.
-    ///
-    /// The vertical lines are independent, but a row-major array cannot be cut between
-    /// columns into disjoint slices. So each worker sweeps a block of columns into its own
-    /// part of `part` (row-major inside the block: the inner loop stays a vector loop over
-    /// the block's columns), forward and backward, and a second pass, cut between rows,
-    /// copies the blocks back into `z`. Every value is computed by the serial sweep's
-    /// arithmetic in the serial order along its line: the same bits.
-    fn lines_on<F: Fork>(
-        &self,
-        fork: &F,
-        inv_d: &[R],
-        l: &[R],
-        src: &[R],
-        part: &mut [R],
-    ) -> Option<fork::Cuts> {
-        let n = self.grid.len();
-        let s = self.grid.stride(D - 1);
-        if D < 2 || !fork::worth(fork, n) || s < 4 * COLUMN_UNIT {
-            return None;
-        }
-        let rows = n / s;
-        let columns = fork::cuts(s, fork.parts(), COLUMN_UNIT);
-        let blocks: fork::Cuts = columns
-            .iter()
-            .map(|c| c.start * rows..c.end * rows)
-            .collect();
-        let mut items: heapless::Vec<(core::ops::Range<usize>, &mut [R]), { fork::MAX_PARTS }> =
-            heapless::Vec::new();
-        for (c, b) in columns.iter().zip(fork::split(&mut part[..n], &blocks)) {
-            let _ = items.push((c.clone(), b));
-        }
-        fork.each(&mut items, |(c, blk)| {
-            let (j0, w) = (c.start, c.len());
-            blk[..w].copy_from_slice(&src[j0..j0 + w]);
-            for row in 1..rows {
-                let (prev, cur) = blk.split_at_mut(row * w);
-                let (zb, zh) = (&prev[(row - 1) * w..], &mut cur[..w]);
-                let o = row * s + j0;
-                let (rh, lh) = (&src[o..o + w], &l[o..o + w]);
-                for j in 0..w {
-                    zh[j] = rh[j] + lh[j] * zb[j];
-                }
-            }
-            let last = (rows - 1) * w;
-            let wl = &inv_d[(rows - 1) * s + j0..(rows - 1) * s + j0 + w];
-            for (x, wj) in blk[last..last + w].iter_mut().zip(wl) {
-                *x *= *wj;
-            }
-            for row in (1..rows).rev() {
-                let (prev, cur) = blk.split_at_mut(row * w);
-                let (zb, zh) = (&mut prev[(row - 1) * w..], &cur[..w]);
-                let (o, ob) = (row * s + j0, (row - 1) * s + j0);
-                let (lh, wb) = (&l[o..o + w], &inv_d[ob..ob + w]);
-                for j in 0..w {
-                    zb[j] = zb[j] * wb[j] + lh[j] * zh[j];
-                }
-            }
-        });
-        Some(columns)
-    }
-
-    /// The second pass of [`Self::lines_on`]: the column blocks back into `z`, row by row.
-    fn lines_back<F: Fork>(&self, fork: &F, columns: &fork::Cuts, part: &[R], z: &mut [R]) {
-        let n = self.grid.len();
-        let s = self.grid.stride(D - 1);
-        let rows = n / s;
-        fork::chunks(fork, &mut z[..n], s, |start, zc| {
-            for (k, zrow) in zc.chunks_mut(s).enumerate() {
-                let row = start / s + k;
-                for c in columns {
-                    let w = c.len();
-                    let b = c.start * rows + row * w;
-                    zrow[c.clone()].copy_from_slice(&part[b..b + w]);
-                }
-            }
-        });
-    }
-
-    /// [`Self::precondition`] on the threads of `fork` (`part`: scratch of the grid length).
-    pub fn precondition_on<F: Fork>(
-        &self,
-        fork: &F,
-        (inv_d, l): (&[R], &[R]),
-        r: &[R],
-        z: &mut [R],
-        part: &mut [R],
-    ) {
-        match self.lines_on(fork, inv_d, l, r, part) {
-            Some(columns) => self.lines_back(fork, &columns, part, z),
-            None => self.precondition(inv_d, l, r, z),
-        }
-    }
-
-    /// [`Self::line_solve`] (in place) on the threads of `fork`.
-    fn line_solve_on<F: Fork>(
-        &self,
-        fork: &F,
-        (inv_d, l): (&[R], &[R]),
-        z: &mut [R],
-        part: &mut [R],
-    ) {
-        match self.lines_on(fork, inv_d, l, z, part) {
-            Some(columns) => self.lines_back(fork, &columns, part, z),
-            None => self.line_solve(inv_d, l, z),
-        }
     }
 
     /// The diagonal scaling and the backward sweep of the line solve (one pass).
@@ -1103,8 +991,8 @@ pub struct Scratch<'a, R> {
     /// the coarse levels of the multigrid preconditioner: [`workspace_len`] values for the
     /// full hierarchy; a shorter slice gives fewer levels (empty: line preconditioner only).
     pub coarse: &'a mut [R],
-    /// the threaded loops' scratch (column blocks of the line solve, block partials of the
-    /// sums): the grid length, or empty for a solve that runs on one thread ([`fork::Serial`]).
+    /// the threaded sums' block partials: the grid length, or empty for a solve that runs
+    /// on one thread ([`fork::Serial`]).
     pub part: &'a mut [R],
 }
 
@@ -1247,7 +1135,7 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         let lv = self.cyc.levels;
         let factor = (&self.pre[..], self.line);
         if lv.count < 2 {
-            st.precondition_on(fork, factor, r, z, self.part);
+            st.precondition(factor.0, factor.1, r, z);
             return fork::dot(fork, r, z, self.part);
         }
         let cells = lv.cells[0];
@@ -1255,7 +1143,7 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         let (ops, work) = self.coarse.split_at_mut(lv.op_offset(lv.count));
         let ops: &[R] = ops;
         // pre-smoothing from 0: z = omega M^-1 r (omega is in `pre`)
-        st.precondition_on(fork, factor, r, z, self.part);
+        st.precondition(factor.0, factor.1, r, z);
         let tmp = &mut self.tmp[..n];
         st.residual_on(fork, self.diag, r, z, tmp);
         {
@@ -1267,7 +1155,7 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         prolong(cells, &sc, &work[..n1], z);
         // post-smoothing: z += omega M^-1 (r - A z), with r . z on the way
         st.residual_on(fork, self.diag, r, z, tmp);
-        st.line_solve_on(fork, factor, tmp, self.part);
+        st.line_solve(factor.0, factor.1, tmp);
         if !fork::worth(fork, n) {
             return sum::reduce(n, |i| {
                 z[i] += tmp[i];
@@ -1365,9 +1253,12 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
     solve_on(&fork::Serial, st, diag, b, x, sc, stop)
 }
 
-/// [`solve`] with its fine-grid loops on the threads of `fork`: the products, the line
-/// solves, the sums and the vector updates, and the coarse levels' residuals and smoothing
-/// (restriction, prolongation and the coarsest sweeps stay on the caller's thread). The same bits for any number of parts (module [`crate::fork`]); a
+/// [`solve`] with its fine-grid loops on the threads of `fork`: the products, the sums and
+/// the vector updates, and the coarse levels' residuals and smoothing. The line solves stay
+/// on the caller's thread: a vertical line is a recurrence from floor to lid, and the lines
+/// of a row-major array cannot be cut into slices; sweeping column blocks into scratch and
+/// copying them back cost 0.38x - 1.09x the serial sweep on 2 threads (64 x 64 to 512 x 512,
+/// docs/parallel.md). Restriction, prolongation and the coarsest sweeps stay there too. The same bits for any number of parts (module [`crate::fork`]); a
 /// `Scratch::part` shorter than the grid runs the serial solve.
 pub fn solve_on<R: Real, const D: usize, const N: usize, F: Fork>(
     fork: &F,

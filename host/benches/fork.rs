@@ -1,0 +1,136 @@
+//! What a fork of the coupled flow's loops costs and where it pays (issue 12; core/src/fork.rs,
+//! host/src/pool.rs, docs/parallel.md "The coupled flow on threads"), in one run:
+//!
+//! - the fork and join of an empty loop on the pool (2 parts), from a pool worker as in a run;
+//! - the operator product (`Stencil::apply_on`) and the CG update with its sum
+//!   (`fork::update`) of a 2D 5-point system on square grids of 4,096 to 262,144 cells,
+//!   serial and cut into 2 parts on the pool: time per pass (best of the rounds) and the
+//!   speed-up, and whether the outputs have the same bits (they must).
+//!
+//! `cargo bench -p sieve --bench fork`. The crossover is where `fork::MIN_PER_PART` belongs.
+
+use sieve::pool::Pool;
+use sieve_core::flow::cg::Stencil;
+use sieve_core::fork::{self, Fork, Serial};
+use sieve_core::Grid;
+use std::time::Instant;
+
+const N: usize = 512 * 512;
+const ROUNDS: usize = 9;
+
+fn lcg(s: &mut u64) -> f64 {
+    *s = s
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    (*s >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Best time per call of `f` over the rounds, `reps` calls a round, in microseconds.
+fn best(reps: usize, mut f: impl FnMut()) -> f64 {
+    let mut b = f64::MAX;
+    for _ in 0..ROUNDS {
+        let t = Instant::now();
+        for _ in 0..reps {
+            f();
+        }
+        b = b.min(t.elapsed().as_secs_f64() * 1e6 / reps as f64);
+    }
+    b
+}
+
+fn main() {
+    let pool = Pool::new(2).expect("threads").cutting_down_to(1);
+    let empty = pool.install(|| {
+        let mut items = [0u64; 2];
+        best(20_000, || {
+            fork::chunks(&pool, &mut items, 1, |_, c| c[0] += 1);
+        })
+    });
+    println!("fork and join of an empty 2-part loop on the pool: {empty:.2} us");
+    let mut kf = vec![[0.0f64; N]; 2];
+    let mut s = 7;
+    for k in kf.iter_mut() {
+        for v in k.iter_mut() {
+            *v = 1.0 + lcg(&mut s);
+        }
+    }
+    let kf: Box<[[f64; N]; 2]> = kf.into_boxed_slice().try_into().expect("two axes");
+    let diag: Vec<f64> = (0..N).map(|_| 4.0 + lcg(&mut s)).collect();
+    let x: Vec<f64> = (0..N).map(|_| lcg(&mut s) - 0.5).collect();
+    println!("| cells | product serial [us] | 2 parts | speed-up | update serial [us] | 2 parts | speed-up | same bits |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for side in [64usize, 128, 256, 512] {
+        let grid = Grid::new([side, side], [0.0; 2], [1.0; 2], N).expect("grid");
+        let n = grid.len();
+        let st = Stencil {
+            grid: &grid,
+            periodic: [false; 2],
+            kf: &kf,
+        };
+        let reps = (4_000_000 / n).max(4);
+        let (mut a1, mut a2, mut z1, mut z2, mut part) = (
+            vec![0.0; N],
+            vec![0.0; N],
+            vec![0.0; N],
+            vec![0.0; N],
+            vec![0.0; N],
+        );
+        let run = |f: &dyn Fork2, a: &mut [f64], z: &mut [f64], part: &mut [f64]| {
+            let tp = best(reps, || f.apply(&st, &diag, &x, a));
+            let mut r: Vec<f64> = x.clone();
+            // x += alpha p, r -= alpha q from the same start for every fork (a few thousand
+            // passes of 1e-9: the values stay finite and normal)
+            z[..n].fill(0.0);
+            let tl = best(reps, || {
+                f.update(1e-9, &x[..n], &diag[..n], &mut z[..n], &mut r[..n], part)
+            });
+            (tp, tl)
+        };
+        let (p1, l1) = run(&Serial, &mut a1, &mut z1, &mut part);
+        let (p2, l2) = pool.install(|| run(&pool, &mut a2, &mut z2, &mut part));
+        let same = a1[..n]
+            .iter()
+            .zip(&a2[..n])
+            .all(|(u, v)| u.to_bits() == v.to_bits())
+            && z1[..n]
+                .iter()
+                .zip(&z2[..n])
+                .all(|(u, v)| u.to_bits() == v.to_bits());
+        println!(
+            "| {side} x {side} | {p1:.1} | {p2:.1} | {:.2}x | {l1:.1} | {l2:.1} | {:.2}x | {same} |",
+            p1 / p2,
+            l1 / l2
+        );
+    }
+}
+
+/// The two loops, through a fork chosen at run time.
+trait Fork2: Sync {
+    fn apply(&self, st: &Stencil<'_, f64, 2, N>, diag: &[f64], x: &[f64], out: &mut [f64]);
+    fn update(
+        &self,
+        alpha: f64,
+        p: &[f64],
+        q: &[f64],
+        x: &mut [f64],
+        r: &mut [f64],
+        part: &mut [f64],
+    );
+}
+
+impl<F: Fork> Fork2 for F {
+    fn apply(&self, st: &Stencil<'_, f64, 2, N>, diag: &[f64], x: &[f64], out: &mut [f64]) {
+        st.apply_on(self, diag, x, out);
+    }
+    fn update(
+        &self,
+        alpha: f64,
+        p: &[f64],
+        q: &[f64],
+        x: &mut [f64],
+        r: &mut [f64],
+        part: &mut [f64],
+    ) {
+        std::hint::black_box(fork::update(self, alpha, p, q, x, r, part));
+    }
+}
