@@ -92,6 +92,86 @@ pub fn diagnose_embedded<R: Real, const D: usize, const N: usize>(
     tally.finish(s.grid().cell_volume())
 }
 
+/// [`diagnose`] (`volume = None`) or [`diagnose_embedded`] (`volume` = the open volume
+/// fractions) of a copied state: `phi` and `c` per cell as [`Segregation::phi`] and
+/// [`Segregation::c`] returned them, `vacuum` and `cell_volume` of the solver's configuration
+/// and grid. The same operations in the same order: the same bits. A driver that evaluates
+/// Psi only when it must ([`psi_floor`]) keeps the fields of a step here.
+pub fn diagnose_fields<R: Real>(
+    phi: &[R],
+    c: &[R],
+    volume: Option<&[R]>,
+    vacuum: R,
+    cell_volume: R,
+) -> Diagnostics<R> {
+    tally_fields(phi, c, volume, vacuum, |phi, c| {
+        mixing_entropy_density(phi / c) * c
+    })
+    .finish(cell_volume)
+}
+
+/// A floor under the mixing index Psi that [`diagnose_fields`] returns for the same
+/// arguments, without a logarithm per cell: `e(x) >= 4 ln 2 x (1 - x)` on [0, 1] (the binary
+/// entropy in bits is at least `4 x (1 - x)`), summed in the same cell order with the same
+/// masses, then lowered by `4 (n + 16) eps` of itself, more than the round-off of the two
+/// sums of `n` positive terms and of the per-cell terms (one `libm` log is within an ulp).
+/// So `psi_floor >= threshold` proves that the evaluated Psi is `>= threshold` too; a NaN
+/// anywhere gives NaN, which proves nothing. A floor of a well-mixed state is ~0.9 of Psi,
+/// far above a segregation threshold of 0.05; it costs a few multiplications per cell
+/// where Psi costs two `libm` logarithms.
+pub fn psi_floor<R: Real>(
+    phi: &[R],
+    c: &[R],
+    volume: Option<&[R]>,
+    vacuum: R,
+    cell_volume: R,
+) -> R {
+    // 4 ln 2 = 2.7725887..., rounded down
+    let k = R::from_f64(2.772588);
+    let lb = tally_fields(phi, c, volume, vacuum, |phi, c| {
+        let x = (phi / c).max(R::ZERO).min(R::ONE);
+        k * (x * (R::ONE - x)) * c
+    })
+    .finish(cell_volume)
+    .psi;
+    let n = R::from_usize(phi.len().min(c.len()));
+    let margin = R::from_f64(4.0) * (n + R::from_f64(16.0)) * R::EPSILON;
+    if margin < R::ONE {
+        lb - lb * margin
+    } else {
+        R::ZERO
+    }
+}
+
+/// The tally of [`diagnose_fields`] with the entropy term `term(phi, c)` of a cell (called
+/// where `c > vacuum` only).
+fn tally_fields<R: Real>(
+    phi: &[R],
+    c: &[R],
+    volume: Option<&[R]>,
+    vacuum: R,
+    term: impl Fn(R, R) -> R,
+) -> Tally<R> {
+    let mut tally = Tally::new(vacuum);
+    let n = phi.len().min(c.len());
+    let (phi, c) = (&phi[..n], &c[..n]);
+    match volume {
+        None => {
+            for (&p, &ci) in phi.iter().zip(c) {
+                tally.add(p, ci, |x| x, || term(p, ci));
+            }
+        }
+        Some(vol) => {
+            for ((&p, &ci), &v) in phi.iter().zip(c).zip(vol) {
+                if v != R::ZERO {
+                    tally.add(p, ci, |x| x * v, || term(p, ci));
+                }
+            }
+        }
+    }
+    tally
+}
+
 /// The running sums of [`diagnose`] in cell order (one pass, deterministic), shared by the
 /// box and the cut-cell diagnostics; `weigh` applies a cell's open volume fraction.
 struct Tally<R> {

@@ -31,8 +31,8 @@ pub mod sum;
 
 pub use boundary::{Boundaries, Boundary};
 pub use diagnostics::{
-    diagnose, diagnose_embedded, diagnose_with_terms, entropy_term, state_hash, Diagnostics,
-    SegregationClock,
+    diagnose, diagnose_embedded, diagnose_fields, diagnose_with_terms, entropy_term, psi_floor,
+    state_hash, Diagnostics, SegregationClock,
 };
 pub use grid::Grid;
 pub use real::Real;

@@ -599,7 +599,6 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         for &ha in h.iter() {
             diffusion_rate += R::TWO * cfg.diffusion / (ha * ha);
         }
-        let (mut rate, mut percolation_rate) = (R::ZERO, R::ZERO);
         // The direction of the Fixed and Gravity modes: the same in every cell, normalised once.
         let const_dir = match cfg.direction {
             DirectionMode::Fixed(d) => {
@@ -611,66 +610,92 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             _ => gravity_dir,
         };
         let shear_noise = self.shear_noise;
-        let needs_gradient = matches!(cfg.direction, DirectionMode::Flow)
-            || matches!(cfg.temperature, TemperatureMode::FromShear { .. });
-        let cells = self.grid.cells();
-        // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
-        let mut coords = [0usize; D];
-        for i in 0..n {
-            let grad = if needs_gradient {
-                direction::velocity_gradient_at(&self.grid, &self.bc, &self.u, i, coords)
-            } else {
-                [[R::ZERO; D]; D]
-            };
-            for a in 0..D {
-                coords[a] += 1;
-                if coords[a] < cells[a] {
-                    break;
+        let flow_dir = matches!(cfg.direction, DirectionMode::Flow);
+        let from_shear = matches!(cfg.temperature, TemperatureMode::FromShear { .. });
+        // Pass 1, cell by cell (branches; `libm::sqrt` is an inline `sqrtsd`, which no loop
+        // vectorises): where the velocity gradient is needed, T from the shear and the
+        // direction from the flow; and sqrt(T) of every cell. sqrt(T) goes into the scratch
+        // `rhs`, the direction `d` into `k` and `d . d` into the scratch `flux`, which pass 2
+        // reads back in the same cell and overwrites.
+        if flow_dir || from_shear {
+            let cells = self.grid.cells();
+            // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
+            let mut coords = [0usize; D];
+            for i in 0..n {
+                let grad =
+                    direction::velocity_gradient_at(&self.grid, &self.bc, &self.u, i, coords);
+                for a in 0..D {
+                    coords[a] += 1;
+                    if coords[a] < cells[a] {
+                        break;
+                    }
+                    coords[a] = 0;
                 }
-                coords[a] = 0;
+                if let TemperatureMode::FromShear {
+                    heating,
+                    eta0,
+                    eps0,
+                } = cfg.temperature
+                {
+                    let kk = direction::shear_rate_squared(&grad);
+                    // A noisy measured velocity adds its noise's kappa:kappa on average; with
+                    // none (every solved flow) the branch keeps the bits of `kk` itself.
+                    let kk = if shear_noise > R::ZERO {
+                        (kk - shear_noise).max(R::ZERO)
+                    } else {
+                        kk
+                    };
+                    self.temp[i] = heating * eta0 / eps0 * kk;
+                }
+                self.rhs[i] = self.temp[i].sqrt();
+                if flow_dir {
+                    let ui: [R; D] = core::array::from_fn(|a| self.u[a][i]);
+                    // d is the segregation direction up to length and sign, dd = d . d:
+                    // exactly 1 except for the unnormalised 2D normal from the flow (see
+                    // `direction::segregation_normal`), so the division changes no bit
+                    // elsewhere.
+                    let (d, dd) = direction::segregation_normal(&grad, &ui, gravity_dir);
+                    for a in 0..D {
+                        self.k[a][i] = d[a];
+                    }
+                    self.flux[i] = dd;
+                }
             }
-            if let TemperatureMode::FromShear {
-                heating,
-                eta0,
-                eps0,
-            } = cfg.temperature
-            {
-                let kk = direction::shear_rate_squared(&grad);
-                // A noisy measured velocity adds its noise's kappa:kappa on average; with none
-                // (every solved flow) the branch keeps the bits of `kk` itself.
-                let kk = if shear_noise > R::ZERO {
-                    (kk - shear_noise).max(R::ZERO)
-                } else {
-                    kk
-                };
-                self.temp[i] = heating * eta0 / eps0 * kk;
+        } else {
+            for (r, t) in self.rhs[..n].iter_mut().zip(&self.temp[..n]) {
+                *r = t.sqrt();
             }
-            let mut ui = [R::ZERO; D];
-            for a in 0..D {
-                ui[a] = self.u[a][i];
-            }
-            // d is the segregation direction up to length and sign, dd = d . d: exactly 1
-            // except for the unnormalised 2D normal from the flow (see
-            // `direction::segregation_normal`), so the division changes no bit elsewhere.
-            let (d, dd) = match cfg.direction {
-                DirectionMode::Fixed(_) | DirectionMode::Gravity => (const_dir, R::ONE),
-                DirectionMode::Flow => direction::segregation_normal(&grad, &ui, gravity_dir),
-            };
-            // S = -S0 sqrt(T) (g . d) d / (d . d)   (model.md 3), signed for the tracked phase.
-            let g_dot_d = dot(&g, &d);
-            let s_mag = -(cfg.s0 * self.temp[i].sqrt() * g_dot_d / dd) * sign;
-            let ci = self.c[i];
-            let (mut cell_rate, mut cell_percolation) = (diffusion_rate, diffusion_rate);
-            for a in 0..D {
-                let s_a = s_mag * d[a];
-                self.k[a][i] = if ci > cfg.vacuum { s_a / ci } else { R::ZERO };
-                cell_rate += (ui[a].abs() + s_a.abs()) / h[a];
-                cell_percolation += s_a.abs() / h[a];
-            }
-            if owned.contains(&i) {
-                rate = rate.max(cell_rate);
-                percolation_rate = percolation_rate.max(cell_percolation);
-            }
+        }
+        // Pass 2: S, k and the two rates of every cell, one straight loop without branches
+        // (selects only) that the compiler vectorises: its divisions were most of the cost
+        // of a coupled step's prepare (docs/silo.md, "Cost"). The same
+        // operations in the same order per cell as the one-pass loop before: the same bits.
+        // The cell rates go to the scratch `rhs` and `flux`; their maxima are taken in cell
+        // order after (pass 3), so even a NaN rate picks what the one-pass loop picked.
+        let fixed = Fixed {
+            dir: const_dir,
+            g,
+            s0: cfg.s0,
+            sign,
+            vacuum: cfg.vacuum,
+            diffusion_rate,
+            h,
+        };
+        let cells = Cells {
+            n,
+            c: &self.c,
+            u: &self.u,
+        };
+        let (k, rates, percolation) = (&mut self.k, &mut self.rhs, &mut self.flux);
+        if flow_dir {
+            cell_coefficients::<R, D, N, true>(fixed, cells, k, rates, percolation);
+        } else {
+            cell_coefficients::<R, D, N, false>(fixed, cells, k, rates, percolation);
+        }
+        let (mut rate, mut percolation_rate) = (R::ZERO, R::ZERO);
+        for i in owned.start.min(n)..owned.end.min(n) {
+            rate = rate.max(self.rhs[i]);
+            percolation_rate = percolation_rate.max(self.flux[i]);
         }
         self.rate = rate;
         self.percolation_rate = percolation_rate;
@@ -967,6 +992,66 @@ fn dot<R: Real, const D: usize>(a: &[R; D], b: &[R; D]) -> R {
 
 fn norm<R: Real, const D: usize>(a: &[R; D]) -> R {
     dot(a, a).sqrt()
+}
+
+/// The per-cell constants of [`cell_coefficients`] (pass 2 of `derive_coefficients`).
+#[derive(Clone, Copy)]
+struct Fixed<R, const D: usize> {
+    /// The segregation direction of the Fixed and Gravity modes (unused with FLOW).
+    dir: [R; D],
+    g: [R; D],
+    s0: R,
+    sign: R,
+    vacuum: R,
+    diffusion_rate: R,
+    h: [R; D],
+}
+
+/// The fields pass 2 of `derive_coefficients` reads, on the cells `0..n`.
+#[derive(Clone, Copy)]
+struct Cells<'a, R, const D: usize, const N: usize> {
+    n: usize,
+    c: &'a [R; N],
+    u: &'a [[R; N]; D],
+}
+
+/// Pass 2 of `derive_coefficients` on the cells `0..n`: sqrt(T) is read from `rates`, and
+/// with `FLOW` the direction `d` from `k` and `d . d` from `percolation` (pass 1 put them
+/// there), else they are `f.dir` and 1. Writes `k_a = S_a / c` (0 in empty cells) and each cell's rate and
+/// percolation rate. `S = -S0 sqrt(T) (g . d) d / (d . d)` (model.md 3), signed for the
+/// tracked phase. Every array is cut to `n` first, so the loop has no bounds checks.
+#[inline(never)]
+fn cell_coefficients<R: Real, const D: usize, const N: usize, const FLOW: bool>(
+    f: Fixed<R, D>,
+    cells: Cells<'_, R, D, N>,
+    k: &mut [[R; N]; D],
+    rates: &mut [R; N],
+    percolation: &mut [R; N],
+) {
+    let n = cells.n.min(N);
+    let c = &cells.c[..n];
+    let u = cells.u.each_ref().map(|x| &x[..n]);
+    let k = k.each_mut().map(|x| &mut x[..n]);
+    let (rates, percolation) = (&mut rates[..n], &mut percolation[..n]);
+    for i in 0..n {
+        let (d, dd) = if FLOW {
+            (core::array::from_fn(|a| k[a][i]), percolation[i])
+        } else {
+            (f.dir, R::ONE)
+        };
+        let g_dot_d = dot(&f.g, &d);
+        let s_mag = -(f.s0 * rates[i] * g_dot_d / dd) * f.sign;
+        let ci = c[i];
+        let (mut cell_rate, mut cell_percolation) = (f.diffusion_rate, f.diffusion_rate);
+        for a in 0..D {
+            let s_a = s_mag * d[a];
+            k[a][i] = if ci > f.vacuum { s_a / ci } else { R::ZERO };
+            cell_rate += (u[a][i].abs() + s_a.abs()) / f.h[a];
+            cell_percolation += s_a.abs() / f.h[a];
+        }
+        rates[i] = cell_rate;
+        percolation[i] = cell_percolation;
+    }
 }
 
 /// How far below a target time a step may end and still be stretched to land on it
