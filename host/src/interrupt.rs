@@ -266,6 +266,17 @@ pub fn scan_segregation<R: Real, const D: usize, const N: usize>(
 pub fn scan_flow<R: Real, const D: usize, const N: usize>(
     f: &sieve_core::flow::Flow<R, D, N>,
 ) -> Option<Reason> {
+    // the common case first, one branch-free pass (after every coupled step: 0.8 % of the
+    // silo's run time as a search)
+    let finite = |v: R| v.is_finite();
+    let all = (0..f.len()).fold(true, |ok, i| {
+        let u = f.velocity(i);
+        let cell = finite(f.c(i)) & finite(f.temperature(i)) & finite(f.pressure(i));
+        u.iter().fold(ok & cell, |ok, &v| ok & finite(v))
+    });
+    if all {
+        return None;
+    }
     for i in 0..f.len() {
         let u = f.velocity(i);
         let found = [

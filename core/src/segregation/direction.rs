@@ -194,6 +194,79 @@ fn direction_2d<R: Real>(k: [[R; 2]; 2], u: [R; 2], fallback: [R; 2]) -> Option<
     })
 }
 
+/// `out[i] = (u[i + s] - u[i - s]) / w` for the cells `s..n - s` (`n = out.len()`), the
+/// central difference of [`velocity_gradient_at`] along an axis of stride `s` with
+/// `w = 2 h`; the other cells are left alone. A straight loop that vectorises.
+pub(crate) fn central_difference<R: Real>(out: &mut [R], u: &[R], s: usize, w: R) {
+    let n = out.len().min(u.len());
+    if n <= 2 * s {
+        return;
+    }
+    let m = n - 2 * s;
+    let (lo, hi) = (&u[..m], &u[2 * s..2 * s + m]);
+    for ((o, &a), &b) in out[s..s + m].iter_mut().zip(lo).zip(hi) {
+        *o = (b - a) / w;
+    }
+}
+
+/// First part of [`direction_2d`] over arrays: from the gradient `(g00, g10, g01, g11)` of
+/// each cell (in `x0, x1, x2, x3`) the entries `a = 2 g00`, `b = g01 + g10`, `d = 2 g11` of
+/// `k = g + g^T` and `r^2 = ((a - d)/2)^2 + b^2`, in their place. Vectorises.
+pub(crate) fn normal_2d_parts<R: Real>(x0: &mut [R], x1: &mut [R], x2: &mut [R], x3: &mut [R]) {
+    let n = x0.len().min(x1.len()).min(x2.len()).min(x3.len());
+    let (x0, x1, x2, x3) = (&mut x0[..n], &mut x1[..n], &mut x2[..n], &mut x3[..n]);
+    for i in 0..n {
+        let (g00, g10, g01, g11) = (x0[i], x1[i], x2[i], x3[i]);
+        let (a, b, d) = (g00 + g00, g01 + g10, g11 + g11);
+        let half_diff = (a - d) * R::HALF;
+        (x0[i], x1[i], x2[i], x3[i]) = (a, b, d, half_diff * half_diff + b * b);
+    }
+}
+
+/// The rest of [`direction_2d`] and [`segregation_normal`] over arrays, without branches
+/// (selects only: vectorises): from `a, b` (in `m`), `d` and `r` of each cell and its
+/// velocity `u`, the normal `m` (into `m`) and `m . m` (into `r`); `fallback` and 1 where
+/// the shear vanishes. The same operations as the per-cell functions: the same bits.
+pub(crate) fn normal_2d_finish<R: Real>(
+    m: [&mut [R]; 2],
+    d: &[R],
+    r: &mut [R],
+    u: [&[R]; 2],
+    fallback: [R; 2],
+) {
+    let [m0, m1] = m;
+    let n = m0.len().min(m1.len()).min(d.len()).min(r.len());
+    let n = n.min(u[0].len()).min(u[1].len());
+    let (m0, m1, d, r) = (&mut m0[..n], &mut m1[..n], &d[..n], &mut r[..n]);
+    let (u0, u1) = (&u[0][..n], &u[1][..n]);
+    let dot = |n: [R; 2], v: [R; 2]| (n[0] * v[0] + n[1] * v[1]).abs();
+    for i in 0..n {
+        let (a, b, d, r_i) = (m0[i], m1[i], d[i], r[i]);
+        let half_diff = (a - d) * R::HALF;
+        let sheared = r_i > R::EPSILON * (a.abs() + b.abs() + d.abs()) && r_i != R::ZERO;
+        let cos2 = -(b / r_i);
+        let sin2 = half_diff / r_i;
+        let p = if cos2 >= R::ZERO {
+            [R::ONE + cos2, sin2]
+        } else {
+            [sin2, R::ONE - cos2]
+        };
+        let q = [-p[1], p[0]];
+        let v = [u0[i], u1[i]];
+        let (dot1, dot2) = (dot(p, v), dot(q, v));
+        let tie = (dot1 - dot2).abs() <= R::EPSILON * (dot1 + dot2);
+        let towards = dot(q, fallback) > dot(p, fallback);
+        let pick_q = if tie { towards } else { dot2 < dot1 };
+        let best = if pick_q { q } else { p };
+        let (out, mm) = if sheared {
+            (best, best[0] * best[0] + best[1] * best[1])
+        } else {
+            (fallback, R::ONE)
+        };
+        (m0[i], m1[i], r[i]) = (out[0], out[1], mm);
+    }
+}
+
 /// 3D: a bounded symmetric eigen-solve (nalgebra, at most 64 sweeps).
 fn direction_3d(k: Matrix3<f64>, u: [f64; 3], fallback: [f64; 3]) -> Option<[f64; 3]> {
     let scale = k.amax();

@@ -494,6 +494,48 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// coefficients `k` and the stable rate. Needed after any change of u, c or T.
     pub fn prepare(&mut self) -> Result<(), SetupError> {
         let n = self.grid.len();
+        // The checks of every cell as one branch-free pass (vectorises; a coupled run
+        // prepares after every step); the loop below names the first failing cell.
+        if !self.fields_valid() {
+            self.first_invalid_cell()?;
+        }
+        self.derive_coefficients(0..n);
+        self.detect_uniform();
+        self.prepared = true;
+        Ok(())
+    }
+
+    /// Whether every cell passes the checks of [`Self::first_invalid_cell`]: the same
+    /// comparisons, combined without short circuits so that the loop vectorises.
+    fn fields_valid(&self) -> bool {
+        let n = self.grid.len().min(N);
+        let (q, carry, c, t, ghost) = (
+            &self.q[..n],
+            &self.carry[..n],
+            &self.c[..n],
+            &self.temp[..n],
+            &self.ghost[..n],
+        );
+        let large = matches!(self.cfg.phase, Phase::Large);
+        let mut ok = true;
+        for i in 0..n {
+            // `Self::phi`
+            let qc = q[i] + carry[i];
+            let phi = if large { c[i] - qc } else { qc };
+            let finite = c[i].is_finite() & t[i].is_finite() & phi.is_finite();
+            let ranges = (c[i] >= R::ZERO) & (t[i] >= R::ZERO) & (phi >= R::ZERO) & (phi <= c[i]);
+            let inflow = ghost[i].is_finite() & (ghost[i] >= R::ZERO) & (ghost[i] <= c[i]);
+            ok &= finite & ranges & inflow;
+        }
+        for a in 0..D {
+            ok &= self.u[a][..n].iter().fold(true, |ok, v| ok & v.is_finite());
+        }
+        ok
+    }
+
+    /// The checks of [`Self::prepare`], cell by cell: the first failing one's error.
+    fn first_invalid_cell(&self) -> Result<(), SetupError> {
+        let n = self.grid.len();
         for i in 0..n {
             let phi = self.phi(i);
             for (field, v) in [("c", self.c[i]), ("T", self.temp[i]), ("phi", phi)] {
@@ -529,9 +571,6 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 return Err(SetupError::InflowOutOfRange { cell: i });
             }
         }
-        self.derive_coefficients(0..n);
-        self.detect_uniform();
-        self.prepared = true;
         Ok(())
     }
 
@@ -617,7 +656,12 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // direction from the flow; and sqrt(T) of every cell. sqrt(T) goes into the scratch
         // `rhs`, the direction `d` into `k` and `d . d` into the scratch `flux`, which pass 2
         // reads back in the same cell and overwrites.
-        if flow_dir || from_shear {
+        if flow_dir && !from_shear && D == 2 {
+            self.flow_normals_2d(gravity_dir);
+            for (r, t) in self.rhs[..n].iter_mut().zip(&self.temp[..n]) {
+                *r = t.sqrt();
+            }
+        } else if flow_dir || from_shear {
             let cells = self.grid.cells();
             // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
             let mut coords = [0usize; D];
@@ -699,6 +743,69 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
         self.rate = rate;
         self.percolation_rate = percolation_rate;
+    }
+
+    /// Pass 1 of `derive_coefficients` for the 2D direction from the flow with T given (every
+    /// coupled 2D scene): [`direction::segregation_normal`] of every cell in passes over the
+    /// arrays, three of which vectorise; the divisions and branches of the gradient and of
+    /// `direction_2d` cost as much as the rest of the prepare together (docs/silo.md,
+    /// "Cost"). The same operations per cell: the same bits. Leaves the normal `m` in `k`
+    /// and `m . m` in the scratch `flux` (pass 2 reads them); `rhs` is scratch too.
+    fn flow_normals_2d(&mut self, fallback: [R; D]) {
+        let n = self.grid.len();
+        let cells = self.grid.cells();
+        let h = self.grid.spacing();
+        let [u0, u1] = [&self.u[0][..n], &self.u[1][..n]];
+        let (k0, k1) = self.k.split_at_mut(1);
+        let (k0, k1) = (&mut k0[0][..n], &mut k1[0][..n]);
+        let (rhs, flux) = (&mut self.rhs[..n], &mut self.flux[..n]);
+        // A: the gradient g[c][j] = d_j u_c into k0 = g00, k1 = g10, rhs = g01, flux = g11:
+        // central differences wherever a cell has both neighbours along j (row ends too,
+        // mended below), zero along an axis of one cell ...
+        let along = [(cells[0], 1), (cells[1], cells[0])];
+        for (j, (out_0, out_1)) in [(&mut *k0, &mut *k1), (&mut *rhs, &mut *flux)]
+            .into_iter()
+            .enumerate()
+        {
+            let (len, stride) = along[j];
+            if len < 2 {
+                out_0.fill(R::ZERO);
+                out_1.fill(R::ZERO);
+            } else {
+                let w = R::TWO * h[j];
+                direction::central_difference(out_0, u0, stride, w);
+                direction::central_difference(out_1, u1, stride, w);
+            }
+        }
+        // ... then the cells at the ends of a line, one-sided or periodic, as
+        // `velocity_gradient_at` has them (the whole gradient of each: corners twice).
+        let (nx, nz) = (cells[0], cells[1]);
+        if nx == 0 || nz == 0 {
+            return;
+        }
+        let mut mend = |x: usize, z: usize| {
+            let i = x + nx * z;
+            let mut at = [0usize; D];
+            at[0] = x;
+            at[1] = z;
+            let g = direction::velocity_gradient_at(&self.grid, &self.bc, &self.u, i, at);
+            (k0[i], k1[i], rhs[i], flux[i]) = (g[0][0], g[1][0], g[0][1], g[1][1]);
+        };
+        for x in 0..nx {
+            mend(x, 0);
+            mend(x, nz - 1);
+        }
+        for z in 0..nz {
+            mend(0, z);
+            mend(nx - 1, z);
+        }
+        // B: the entries a, b, d of the symmetric gradient and r^2 (vectorised), r (libm's
+        // sqrt, cell by cell), the normal and m . m (vectorised).
+        direction::normal_2d_parts(k0, k1, rhs, flux);
+        for r in flux.iter_mut() {
+            *r = r.sqrt();
+        }
+        direction::normal_2d_finish([k0, k1], rhs, flux, [u0, u1], [fallback[0], fallback[1]]);
     }
 
     /// The largest time step the Courant condition allows (`R::MAX` if nothing moves).
