@@ -619,7 +619,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
 /// So it is held, fields and all, and evaluated ([`sieve_core::diagnose_fields`], the bits of
 /// `diagnose`) only if the next sample may cross; a later sample that cannot cross replaces
 /// it. The timer sees the same samples with the same Psi wherever it matters: the same
-/// segregation time to the bit (docs/silo.md, "Cost").
+/// segregation time to the bit (docs/implicit-pressure.md, "Where the time goes").
 struct StepTimer<R> {
     timer: SegregationTimer,
     threshold: f64,

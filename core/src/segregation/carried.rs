@@ -148,20 +148,22 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // Pass B: each cell keeps the share s_i of both phases. Tracked fraction q (phi or
         // psi) stays in `q`, the untracked one `c - q` goes to `k[0]` (scratch), the donor's
         // qhat to `flux`.
+        // One branch-free loop (selects; it vectorises), then the guard's sum in cell order.
+        let any = keep_shares(
+            &mut self.q[..n],
+            &mut self.carry[..n],
+            &self.c[..n],
+            &mut self.rhs[..n],
+            &mut self.flux[..n],
+            &mut self.k[0][..n],
+        );
         let mut guarded = R::ZERO;
-        for i in 0..n {
-            let c = self.c[i];
-            let q = guard_tracked(self.q[i] + self.carry[i], c, &mut guarded);
-            self.carry[i] = R::ZERO;
-            let r = c - q;
-            let (qhat, keep) = if c > R::ZERO {
-                ((q / c).min(R::ONE), ((c - self.rhs[i]) / c).max(R::ZERO))
-            } else {
-                (R::ZERO, R::ONE)
-            };
-            self.flux[i] = qhat;
-            self.q[i] = q * keep;
-            self.k[0][i] = r * keep;
+        if any {
+            for &moved in &self.rhs[..n] {
+                if moved != R::ZERO {
+                    guarded += moved;
+                }
+            }
         }
         out.guarded = guarded * vol;
         // Pass C: what each cell receives, in the same face order.
@@ -269,6 +271,52 @@ pub(super) fn guard_tracked<R: Real>(q: R, c: R, guarded: &mut R) -> R {
     } else {
         q
     }
+}
+
+/// Pass B of [`Segregation::carry_mass_fluxes`] over the cells: the tracked `q + carry`
+/// guarded into `[0, c]` (`guard_tracked`), the donor fraction `qhat` into `flux`, the kept
+/// shares of both phases into `q` and `untracked`, carry cleared. What the guard moved goes
+/// to `rhs` in the cell's place (the outflow `O_i` is read there first; 0 where nothing
+/// moved: a guarded cell moves a nonzero amount), so that the caller sums it in cell order,
+/// and `guard_tracked`'s `guarded -= q` is `guarded + (-q)` to the bit. Selects only, so the
+/// loop vectorises: its two divisions per cell were the cost of the pass. Returns whether any
+/// cell was guarded.
+fn keep_shares<R: Real>(
+    q: &mut [R],
+    carry: &mut [R],
+    c: &[R],
+    rhs: &mut [R],
+    flux: &mut [R],
+    untracked: &mut [R],
+) -> bool {
+    let n = q.len();
+    let (carry, c, rhs) = (&mut carry[..n], &c[..n], &mut rhs[..n]);
+    let (flux, untracked) = (&mut flux[..n], &mut untracked[..n]);
+    let mut any = false;
+    for i in 0..n {
+        let ci = c[i];
+        let q0 = q[i] + carry[i];
+        let (qi, moved) = if q0 < R::ZERO {
+            (R::ZERO, -q0)
+        } else if q0 > ci {
+            (ci, ci - q0)
+        } else {
+            (q0, R::ZERO)
+        };
+        any |= (q0 < R::ZERO) | (q0 > ci);
+        carry[i] = R::ZERO;
+        let r = ci - qi;
+        let (qhat, keep) = if ci > R::ZERO {
+            ((qi / ci).min(R::ONE), ((ci - rhs[i]) / ci).max(R::ZERO))
+        } else {
+            (R::ZERO, R::ONE)
+        };
+        flux[i] = qhat;
+        q[i] = qi * keep;
+        untracked[i] = r * keep;
+        rhs[i] = moved;
+    }
+    any
 }
 
 /// The small-phase part of an amount `f >= 0` with tracked fraction `qhat` (the tracked phase

@@ -712,8 +712,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
         // Pass 2: S, k and the two rates of every cell, one straight loop without branches
         // (selects only) that the compiler vectorises: its divisions were most of the cost
-        // of a coupled step's prepare (docs/silo.md, "Cost"). The same
-        // operations in the same order per cell as the one-pass loop before: the same bits.
+        // of a coupled step's prepare (docs/implicit-pressure.md, "Where the time goes").
+        // The same operations in the same order per cell as the one-pass loop before: the
+        // same bits.
         // The cell rates go to the scratch `rhs` and `flux`; their maxima are taken in cell
         // order after (pass 3), so even a NaN rate picks what the one-pass loop picked.
         let fixed = Fixed {
@@ -748,9 +749,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// Pass 1 of `derive_coefficients` for the 2D direction from the flow with T given (every
     /// coupled 2D scene): [`direction::segregation_normal`] of every cell in passes over the
     /// arrays, three of which vectorise; the divisions and branches of the gradient and of
-    /// `direction_2d` cost as much as the rest of the prepare together (docs/silo.md,
-    /// "Cost"). The same operations per cell: the same bits. Leaves the normal `m` in `k`
-    /// and `m . m` in the scratch `flux` (pass 2 reads them); `rhs` is scratch too.
+    /// `direction_2d` cost as much as the rest of the prepare together
+    /// (docs/implicit-pressure.md, "Where the time goes"). The same operations per cell: the
+    /// same bits. Leaves the normal `m` in `k` and `m . m` in the scratch `flux` (pass 2
+    /// reads them); `rhs` is scratch too.
     fn flow_normals_2d(&mut self, fallback: [R; D]) {
         let n = self.grid.len();
         let cells = self.grid.cells();
