@@ -107,11 +107,10 @@ fn prepare_in_passes_has_the_per_cell_bits() {
             let mut u = [[0.0; N]; 2];
             for i in 0..grid.len() {
                 let [x, z] = grid.coords(i);
-                let still = x < 3 && z < 3;
+                // a still block, and a still row between shearing ones
+                let still = (x < 3 && z < 3) || z == 4;
                 let (ux, uz) = if still {
                     (0.0, 0.0)
-                } else if z == 4 {
-                    (0.0, 0.0) // a still row between shearing ones
                 } else {
                     (rng.next() - 0.5, 0.3 * (rng.next() - 0.5))
                 };
