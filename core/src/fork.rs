@@ -12,8 +12,8 @@
 //! by the same arithmetic whichever chunk holds it, and a sum is cut only at [`sum::BLOCK`]
 //! boundaries into the block partials of the serial blocked sum, folded in block order by one
 //! thread ([`sum::fold`]). So [`Fork::parts`] is a hint on how many chunks to cut, never an
-//! input of the result; `tests/tests/flow_threads.rs` asserts equal state hashes for 1 to 5
-//! parts, step by step.
+//! input of the result; `tests/tests/flow_threads.rs` asserts equal state bits for 1 to 4
+//! parts after every step, `tests/tests/flow_cg.rs` equal solves for 1 to 5 parts.
 
 use core::ops::Range;
 

@@ -59,7 +59,7 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
         return (1, None);
     }
     let why = if is_coupled(scene) {
-        None // the flow's solves on a pool ([`flow_pool`])
+        return (1, None); // the segregation rides on the flow: [`coupled_threads`]
     } else if scene.geometry.is_some() {
         Some("cut-cell (geometry) scenes")
     } else {
@@ -84,13 +84,15 @@ pub fn is_coupled(scene: &Scene) -> bool {
 }
 
 /// How many threads a coupled run's linear solves take ([`flow_pool`]), with a note when
-/// `--threads` asked for more than it gets. Below [`AUTO_MIN_CELLS`] cells the solves stay on
-/// one thread even when asked: on these 2-core machines a fork of the pool costs more than
-/// it saves there (column collapse on 160 x 32 cells: 1.45x slower on 2 threads; on
-/// 640 x 128: 1.05x faster; docs/parallel.md "The coupled flow on threads").
+/// `--threads` asked for more than it gets. Only when asked (`--threads`; the default is one
+/// thread), and only on grids of at least [`AUTO_MIN_CELLS`] cells: on these 2-core machines
+/// a fork of the pool costs more than it saves below that (column collapse on 160 x 32
+/// cells: 1.45x slower on 2 threads) and saves nothing measurable above it (640 x 128:
+/// 1.00x), because the line solves stay serial; docs/parallel.md "The coupled flow on
+/// threads".
 pub fn coupled_threads(scene: &Scene) -> (usize, Option<String>) {
     let requested = requested_threads();
-    let (wanted, _) = plan(scene, requested);
+    let wanted = requested.unwrap_or(1);
     if wanted <= 1 {
         return (1, None);
     }

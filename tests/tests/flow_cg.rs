@@ -222,8 +222,8 @@ fn fused_product_has_the_face_by_face_bits() {
     }
 }
 
-/// The threaded solve (core/src/fork.rs: products cut between lines, line solves in column
-/// blocks, sums cut at block boundaries) gives the serial bits for 2 to 5 parts, cut down to
+/// The threaded solve (core/src/fork.rs: products and coarse residuals cut between lines,
+/// sums cut at block boundaries, vector updates element by element) gives the serial bits for 2 to 5 parts, cut down to
 /// 64 cells a part: the same iterations, residual and solution, with the lines alone and with
 /// the V-cycle, periodic or not, in 2D and 3D (the first 40 iterations of the random systems,
 /// which need a thousand; the cold layer to convergence).
