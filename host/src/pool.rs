@@ -71,10 +71,10 @@ mod tests {
     #[test]
     fn every_item_once_and_the_serial_sums() {
         let pool = Pool::new(3).expect("threads");
-        let mut v: Vec<f64> = (0..100_000)
+        let mut v: Vec<f64> = (0..100_000usize)
             .map(|i| ((i * 7919) % 1000) as f64 * 1e-3 - 0.4)
             .collect();
-        let w: Vec<f64> = (0..100_000)
+        let w: Vec<f64> = (0..100_000usize)
             .map(|i| ((i * 104_729) % 997) as f64 * 1e-2)
             .collect();
         let mut partials = vec![0.0; v.len()];
