@@ -76,8 +76,9 @@ pub fn cuts(n: usize, parts: usize, unit: usize) -> Cuts {
     out
 }
 
-/// Elements per worker below which a loop runs on the caller's thread: a fork and join of
-/// a pool costs a few microseconds, a pass over 2,048 cells about as much.
+/// Elements per worker below which a loop runs on the caller's thread: waking a pool's
+/// worker for a fork costs microseconds (an empty fork between busy workers 0.09 us,
+/// `host/benches/fork.rs`), a pass over 2,048 cells about as much.
 pub const MIN_PER_PART: usize = 8 * BLOCK;
 
 /// Whether a loop of `n` elements is worth cutting: more than one worker and at least
@@ -98,8 +99,24 @@ pub fn split<'a, T>(mut s: &'a mut [T], cuts: &Cuts) -> heapless::Vec<&'a mut [T
 }
 
 /// `f(start, chunk)` for chunks of `out` that start at multiples of `unit`: an element-wise
-/// loop (each output element written from shared inputs) on the fork's workers.
+/// loop (each output element written from shared inputs) on the fork's workers, or
+/// `f(0, out)` on the caller's thread when `out` is not [`worth`] cutting (the same bits:
+/// each element is written by the same arithmetic in any chunk).
 pub fn chunks<T: Send, F: Fork>(
+    fork: &F,
+    out: &mut [T],
+    unit: usize,
+    f: impl Fn(usize, &mut [T]) + Sync,
+) {
+    if worth(fork, out.len()) {
+        each_chunk(fork, out, unit, f);
+    } else {
+        f(0, out);
+    }
+}
+
+/// [`chunks`] cut whatever the length (the caller decided it is worth it).
+fn each_chunk<T: Send, F: Fork>(
     fork: &F,
     out: &mut [T],
     unit: usize,
@@ -121,7 +138,7 @@ pub fn dot<R: Real, F: Fork>(fork: &F, a: &[R], b: &[R], partials: &mut [R]) -> 
         return sum::dot(a, b);
     }
     let nb = n.div_ceil(BLOCK);
-    chunks(fork, &mut partials[..nb], 1, |first, p| {
+    each_chunk(fork, &mut partials[..nb], 1, |first, p| {
         for (k, pk) in p.iter_mut().enumerate() {
             let s = (first + k) * BLOCK;
             let e = (s + BLOCK).min(n);

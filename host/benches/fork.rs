@@ -68,34 +68,13 @@ fn main() {
             kf: &kf,
         };
         let reps = (4_000_000 / n).max(4);
-        let (mut a1, mut a2, mut z1, mut z2, mut part) = (
-            vec![0.0; N],
-            vec![0.0; N],
-            vec![0.0; N],
-            vec![0.0; N],
-            vec![0.0; N],
-        );
-        let run = |f: &dyn Fork2, a: &mut [f64], z: &mut [f64], part: &mut [f64]| {
-            let tp = best(reps, || f.apply(&st, &diag, &x, a));
-            let mut r: Vec<f64> = x.clone();
-            // x += alpha p, r -= alpha q from the same start for every fork (a few thousand
-            // passes of 1e-9: the values stay finite and normal)
-            z[..n].fill(0.0);
-            let tl = best(reps, || {
-                f.update(1e-9, &x[..n], &diag[..n], &mut z[..n], &mut r[..n], part)
-            });
-            (tp, tl)
-        };
-        let (p1, l1) = run(&Serial, &mut a1, &mut z1, &mut part);
-        let (p2, l2) = pool.install(|| run(&pool, &mut a2, &mut z2, &mut part));
-        let same = a1[..n]
+        let (p1, l1, a1, z1) = time(&Serial, &st, &diag, &x, reps);
+        let (p2, l2, a2, z2) = pool.install(|| time(&pool, &st, &diag, &x, reps));
+        let same = a1
             .iter()
-            .zip(&a2[..n])
-            .all(|(u, v)| u.to_bits() == v.to_bits())
-            && z1[..n]
-                .iter()
-                .zip(&z2[..n])
-                .all(|(u, v)| u.to_bits() == v.to_bits());
+            .chain(&z1)
+            .zip(a2.iter().chain(&z2))
+            .all(|(u, v)| u.to_bits() == v.to_bits());
         println!(
             "| {side} x {side} | {p1:.1} | {p2:.1} | {:.2}x | {l1:.1} | {l2:.1} | {:.2}x | {same} |",
             p1 / p2,
@@ -104,33 +83,30 @@ fn main() {
     }
 }
 
-/// The two loops, through a fork chosen at run time.
-trait Fork2: Sync {
-    fn apply(&self, st: &Stencil<'_, f64, 2, N>, diag: &[f64], x: &[f64], out: &mut [f64]);
-    fn update(
-        &self,
-        alpha: f64,
-        p: &[f64],
-        q: &[f64],
-        x: &mut [f64],
-        r: &mut [f64],
-        part: &mut [f64],
-    );
-}
-
-impl<F: Fork> Fork2 for F {
-    fn apply(&self, st: &Stencil<'_, f64, 2, N>, diag: &[f64], x: &[f64], out: &mut [f64]) {
-        st.apply_on(self, diag, x, out);
-    }
-    fn update(
-        &self,
-        alpha: f64,
-        p: &[f64],
-        q: &[f64],
-        x: &mut [f64],
-        r: &mut [f64],
-        part: &mut [f64],
-    ) {
-        std::hint::black_box(fork::update(self, alpha, p, q, x, r, part));
-    }
+/// Best times per pass [us] of the product and of the CG update on `fork`, and their outputs.
+fn time<F: Fork>(
+    fork: &F,
+    st: &Stencil<'_, f64, 2, N>,
+    diag: &[f64],
+    x: &[f64],
+    reps: usize,
+) -> (f64, f64, Vec<f64>, Vec<f64>) {
+    let n = st.grid.len();
+    let (mut a, mut z, mut part) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    let tp = best(reps, || st.apply_on(fork, diag, x, &mut a));
+    // x += alpha p, r -= alpha q from the same start on every fork (a few thousand passes of
+    // 1e-9: the values stay finite and normal)
+    let mut r = x[..n].to_vec();
+    let tu = best(reps, || {
+        std::hint::black_box(fork::update(
+            fork,
+            1e-9,
+            &x[..n],
+            &diag[..n],
+            &mut z,
+            &mut r,
+            &mut part,
+        ));
+    });
+    (tp, tu, a, z)
 }

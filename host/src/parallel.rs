@@ -76,7 +76,7 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
 }
 
 /// Whether the scene runs the coupled flow.
-pub fn is_coupled(scene: &Scene) -> bool {
+fn is_coupled(scene: &Scene) -> bool {
     scene
         .flow
         .as_ref()
@@ -87,7 +87,7 @@ pub fn is_coupled(scene: &Scene) -> bool {
 /// `--threads` asked for more than it gets. Only when asked (`--threads`; the default is one
 /// thread), and only on grids of at least [`AUTO_MIN_CELLS`] cells: on these 2-core machines
 /// a fork of the pool costs more than it saves below that (column collapse on 160 x 32
-/// cells: 1.45x slower on 2 threads) and saves nothing measurable above it (640 x 128:
+/// cells: 1.47x slower on 2 threads) and saves nothing measurable above it (640 x 128:
 /// 1.00x), because the line solves stay serial; docs/parallel.md "The coupled flow on
 /// threads".
 pub fn coupled_threads(scene: &Scene) -> (usize, Option<String>) {

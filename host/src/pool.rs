@@ -7,7 +7,7 @@
 //! established engine, and safe code on our side).
 
 use rayon::prelude::*;
-use sieve_core::fork::Fork;
+use sieve_core::fork::{self, Fork};
 
 /// `parts` workers for the loops of one run.
 pub struct Pool {
@@ -17,9 +17,10 @@ pub struct Pool {
 }
 
 impl Pool {
-    /// A pool of `threads` workers (at least 1), or `None` if the system refuses the threads.
+    /// A pool of `threads` workers (1 to [`fork::MAX_PARTS`]: a loop is never cut into more
+    /// parts), or `None` if the system refuses the threads.
     pub fn new(threads: usize) -> Option<Self> {
-        let threads = threads.max(1);
+        let threads = threads.clamp(1, fork::MAX_PARTS);
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|k| format!("sieve-fork-{k}"))
@@ -28,7 +29,7 @@ impl Pool {
         Some(Self {
             pool,
             parts: threads,
-            min: sieve_core::fork::MIN_PER_PART,
+            min: fork::MIN_PER_PART,
         })
     }
 
@@ -64,7 +65,6 @@ impl Fork for Pool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sieve_core::fork;
 
     /// The pool runs every item exactly once, from inside and outside the pool, and the
     /// threaded sums it drives have the serial bits.

@@ -14,11 +14,11 @@
 //! split into chunks at block boundaries (what a threaded driver does).
 
 use proptest::prelude::*;
+use sieve::pool::Pool;
 use sieve_core::flow::cg::{solve_on, workspace_len, Preconditioner, Scratch, Stencil, Stop};
 use sieve_core::fork::{Fork, Serial};
 use sieve_core::sum;
 use sieve_core::Grid;
-use sieve_tests::Threads;
 
 const N: usize = 4096;
 
@@ -239,8 +239,8 @@ fn threaded_solves_have_the_serial_bits() {
             let serial = sys.solve_on(&Serial, pc, room, max);
             assert!(serial.iterations > 0, "{what} {pc:?}");
             for parts in 2..=5 {
-                let fork = Threads { parts, min: 64 };
-                let t = sys.solve_on(&fork, pc, room, max);
+                let pool = Pool::new(parts).expect("threads").cutting_down_to(64);
+                let t = pool.install(|| sys.solve_on(&pool, pc, room, max));
                 let at = format!("{what} {pc:?} {parts} parts");
                 assert_eq!(t.iterations, serial.iterations, "{at}");
                 assert_eq!(t.recursive.to_bits(), serial.recursive.to_bits(), "{at}");

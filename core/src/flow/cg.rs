@@ -148,9 +148,6 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
         out: &mut [R],
     ) {
         let n = self.grid.len();
-        if !fork::worth(fork, n) {
-            return self.product::<RES>(diag, b, x, out);
-        }
         let n0 = self.grid.cells()[0];
         fork::chunks(fork, &mut out[..n], n0, |start, o| {
             self.product_lines::<RES>(diag, b, x, start / n0, o);
@@ -170,7 +167,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
         let cells = self.grid.cells();
         let n0 = cells[0];
         let lines = out.len() / n0;
-        let mut k = self.grid.coords(first * n0);
+        let mut k = line_start(cells, first);
         let empty: &[R] = &[];
         let kf: [&[R]; D] = core::array::from_fn(|a| &self.kf[a][..]);
         let strides: [usize; D] = core::array::from_fn(|a| self.grid.stride(a));
@@ -444,6 +441,18 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
             }
         }
     }
+}
+
+/// The coordinates of the first cell of line `line` along axis 0 (`k[0] = 0`): where a
+/// product over a chunk of lines starts counting.
+fn line_start<const D: usize>(cells: [usize; D], line: usize) -> [usize; D] {
+    let mut k = [0usize; D];
+    let mut rest = line;
+    for a in 1..D {
+        k[a] = rest % cells[a];
+        rest /= cells[a];
+    }
+    k
 }
 
 /// One line along axis 0 of [`Stencil::product`]: its values and the `M` face terms of the
@@ -830,36 +839,23 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
 
     /// `out = b - A x`, line by line along axis 0 with each value built in a register, in
     /// the order of the face-by-face passes it replaced (so with their bits): `b - adiag x`,
-    /// then per axis the face to `+a`, the face from `-a`, the wrap faces.
-    fn residual(&self, b: &[R], x: &[R], out: &mut [R]) {
-        let n: usize = self.cells.iter().product();
-        self.residual_lines(b, x, 0, &mut out[..n]);
-    }
-
-    /// [`Self::residual`] on the threads of `fork`, cut between lines (the same bits).
+    /// then per axis the face to `+a`, the face from `-a`, the wrap faces; cut between lines
+    /// on the threads of `fork` (the same bits as one pass).
     fn residual_on<F: Fork>(&self, fork: &F, b: &[R], x: &[R], out: &mut [R]) {
         let n: usize = self.cells.iter().product();
-        if !fork::worth(fork, n) {
-            return self.residual(b, x, out);
-        }
         let n0 = self.cells[0];
         fork::chunks(fork, &mut out[..n], n0, |start, o| {
             self.residual_lines(b, x, start / n0, o);
         });
     }
 
-    /// [`Self::residual`] on the whole lines along axis 0 that `out` covers, the first
-    /// being line `first`.
+    /// `out = b - A x` on the whole lines along axis 0 that `out` covers, the first being
+    /// line `first`.
     fn residual_lines(&self, b: &[R], x: &[R], first: usize, out: &mut [R]) {
         let cells = self.cells;
         let n0 = cells[0];
         let lines = out.len() / n0;
-        let mut k = [0usize; D];
-        let mut rest = first;
-        for a in 1..D {
-            k[a] = rest % cells[a];
-            rest /= cells[a];
-        }
+        let mut k = line_start(cells, first);
         let empty: &[R] = &[];
         let k0 = self.kf[0];
         for line in first..first + lines {
@@ -1194,17 +1190,11 @@ impl<R: Real, const D: usize> Cycle<R, D> {
         let shared = rest.len() - lv.n[1];
         let w = self.omega_c;
         let (b, d): (&[R], &[R]) = (b, op.adiag);
-        if fork::worth(fork, n) {
-            fork::chunks(fork, x, 1, |start, xc| {
-                for (k, v) in xc.iter_mut().enumerate() {
-                    *v = w * b[start + k] / d[start + k];
-                }
-            });
-        } else {
-            for i in 0..n {
-                x[i] = w * b[i] / d[i];
+        fork::chunks(fork, x, 1, |start, xc| {
+            for (k, v) in xc.iter_mut().enumerate() {
+                *v = w * b[start + k] / d[start + k];
             }
-        }
+        });
         {
             let (deeper, t) = rest.split_at_mut(shared);
             op.residual_on(fork, b, x, t);
@@ -1217,17 +1207,11 @@ impl<R: Real, const D: usize> Cycle<R, D> {
         let t = &mut rest[shared..];
         op.residual_on(fork, b, x, t);
         let t: &[R] = t;
-        if fork::worth(fork, n) {
-            fork::chunks(fork, x, 1, |start, xc| {
-                for (k, v) in xc.iter_mut().enumerate() {
-                    *v += w * t[start + k] / d[start + k];
-                }
-            });
-        } else {
-            for i in 0..n {
-                x[i] += w * t[i] / d[i];
+        fork::chunks(fork, x, 1, |start, xc| {
+            for (k, v) in xc.iter_mut().enumerate() {
+                *v += w * t[start + k] / d[start + k];
             }
-        }
+        });
     }
 }
 
@@ -1349,18 +1333,12 @@ pub fn solve_on<R: Real, const D: usize, const N: usize, F: Fork>(
         let rz_new = pc.apply(r, ap);
         let beta = rz_new / rz;
         rz = rz_new;
-        if fork::worth(fork, n) {
-            let ap: &[R] = ap;
-            fork::chunks(fork, p, 1, |start, pc| {
-                for (k, v) in pc.iter_mut().enumerate() {
-                    *v = ap[start + k] + beta * *v;
-                }
-            });
-        } else {
-            for i in 0..n {
-                p[i] = ap[i] + beta * p[i];
+        let ap: &[R] = ap;
+        fork::chunks(fork, p, 1, |start, pc| {
+            for (k, v) in pc.iter_mut().enumerate() {
+                *v = ap[start + k] + beta * *v;
             }
-        }
+        });
     }
     Solve {
         iterations: it,

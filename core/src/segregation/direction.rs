@@ -171,27 +171,39 @@ fn direction_2d<R: Real>(k: [[R; 2]; 2], u: [R; 2], fallback: [R; 2]) -> Option<
     if !(r > R::EPSILON * (a.abs() + b.abs() + d.abs())) || r == R::ZERO {
         return None;
     }
-    let cos2 = -(b / r);
-    let sin2 = half_diff / r;
+    let (m1, m2) = shear_normals(-(b / r), half_diff / r);
+    Some(more_orthogonal(m1, m2, u, fallback))
+}
+
+/// The normals `m1`, `m2` of the two planes of largest shear from `cos 2phi`, `sin 2phi`, by
+/// the half-angle identities of [`direction_2d`] (equal lengths).
+#[inline(always)]
+fn shear_normals<R: Real>(cos2: R, sin2: R) -> ([R; 2], [R; 2]) {
     let m1 = if cos2 >= R::ZERO {
         [R::ONE + cos2, sin2]
     } else {
         [sin2, R::ONE - cos2]
     };
-    let m2 = [-m1[1], m1[0]];
+    (m1, [-m1[1], m1[0]])
+}
+
+/// Of `m1` and `m2` (equal lengths), the one more nearly orthogonal to `u`; a tie within the
+/// dot products' round-off goes towards `fallback` ([`direction_2d`]). Selects only.
+#[inline(always)]
+fn more_orthogonal<R: Real>(m1: [R; 2], m2: [R; 2], u: [R; 2], fallback: [R; 2]) -> [R; 2] {
     let dot = |n: [R; 2], v: [R; 2]| (n[0] * v[0] + n[1] * v[1]).abs();
     let (dot1, dot2) = (dot(m1, u), dot(m2, u));
-    Some(if (dot1 - dot2).abs() <= R::EPSILON * (dot1 + dot2) {
-        if dot(m2, fallback) > dot(m1, fallback) {
-            m2
-        } else {
-            m1
-        }
-    } else if dot2 < dot1 {
+    let tie = (dot1 - dot2).abs() <= R::EPSILON * (dot1 + dot2);
+    let pick_m2 = if tie {
+        dot(m2, fallback) > dot(m1, fallback)
+    } else {
+        dot2 < dot1
+    };
+    if pick_m2 {
         m2
     } else {
         m1
-    })
+    }
 }
 
 /// `out[i] = (u[i + s] - u[i - s]) / w` for the cells `s..n - s` (`n = out.len()`), the
@@ -239,25 +251,12 @@ pub(crate) fn normal_2d_finish<R: Real>(
     let n = n.min(u[0].len()).min(u[1].len());
     let (m0, m1, d, r) = (&mut m0[..n], &mut m1[..n], &d[..n], &mut r[..n]);
     let (u0, u1) = (&u[0][..n], &u[1][..n]);
-    let dot = |n: [R; 2], v: [R; 2]| (n[0] * v[0] + n[1] * v[1]).abs();
     for i in 0..n {
         let (a, b, d, r_i) = (m0[i], m1[i], d[i], r[i]);
         let half_diff = (a - d) * R::HALF;
         let sheared = r_i > R::EPSILON * (a.abs() + b.abs() + d.abs()) && r_i != R::ZERO;
-        let cos2 = -(b / r_i);
-        let sin2 = half_diff / r_i;
-        let p = if cos2 >= R::ZERO {
-            [R::ONE + cos2, sin2]
-        } else {
-            [sin2, R::ONE - cos2]
-        };
-        let q = [-p[1], p[0]];
-        let v = [u0[i], u1[i]];
-        let (dot1, dot2) = (dot(p, v), dot(q, v));
-        let tie = (dot1 - dot2).abs() <= R::EPSILON * (dot1 + dot2);
-        let towards = dot(q, fallback) > dot(p, fallback);
-        let pick_q = if tie { towards } else { dot2 < dot1 };
-        let best = if pick_q { q } else { p };
+        let (p, q) = shear_normals(-(b / r_i), half_diff / r_i);
+        let best = more_orthogonal(p, q, [u0[i], u1[i]], fallback);
         let (out, mm) = if sheared {
             (best, best[0] * best[0] + best[1] * best[1])
         } else {
