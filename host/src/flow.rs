@@ -474,9 +474,10 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
     };
     let mut flow_seconds = 0.0;
     let mut discharge = crate::silo::has_outlets(scene).then(crate::silo::DischargeSeries::default);
-    let mut first = 0;
+    let (mut first, mut resumed) = (0, false);
     if let Some(ck) = ckpt.as_deref() {
         if let (Some(e), Some(p)) = (ck.resumed(), ck.progress(scene)?) {
+            resumed = true;
             use crate::checkpoint as cp;
             let restore = |cpl: &mut Coupled<'_, R, D, N>| -> Result<()> {
                 cp::restore_flow(e, cpl.flow)?;
@@ -490,15 +491,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
             }
         }
     }
-    let mut timer = SegregationTimer::new(scene.psi_threshold);
-    for r in &stats.series {
-        timer.sample(r.t, r.psi);
-    }
-    if let Some(t) = stats.segregation_time {
-        // resumed after the crossing: the step-resolved time the checkpoint kept
-        timer = SegregationTimer::crossed(scene.psi_threshold, t);
-    }
-    let mut timer = StepTimer::new(timer, scene.psi_threshold, cpl.seg, geo);
+    let mut timer = StepTimer::start(scene.psi_threshold, &stats, cpl.seg, geo, resumed);
     let mut checked = false;
     'outputs: for (k, &t) in times.iter().enumerate().skip(first) {
         let target = R::from_f64(t);
@@ -653,6 +646,33 @@ impl<R: Real> StepTimer<R> {
         }
     }
 
+    /// The timer a run starts with: `stats` holds a resumed run's output rows and, when it
+    /// had crossed, the step-resolved time its checkpoint kept. Resumed before the crossing,
+    /// the restored state is sampled as the step it is: the uninterrupted run's last sample
+    /// was that step, not the last output row, and a crossing in the first step after the
+    /// resume interpolates from it (docs/resume.md).
+    fn start<const D: usize, const N: usize>(
+        threshold: f64,
+        stats: &LoopStats,
+        seg: &Segregation<R, D, N>,
+        geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
+        resumed: bool,
+    ) -> Self {
+        let mut timer = SegregationTimer::new(threshold);
+        for r in &stats.series {
+            timer.sample(r.t, r.psi);
+        }
+        if let Some(t) = stats.segregation_time {
+            // resumed after the crossing: the step-resolved time the checkpoint kept
+            timer = SegregationTimer::crossed(threshold, t);
+        }
+        let mut timer = Self::new(timer, threshold, seg, geo);
+        if resumed && timer.time().is_none() {
+            timer.sample_step(seg.time().to_f64(), seg);
+        }
+        timer
+    }
+
     fn time(&self) -> Option<f64> {
         self.timer.time()
     }
@@ -761,7 +781,54 @@ pub fn profiles(scene: &Scene, snap: &Snapshot) -> Profiles {
 
 #[cfg(test)]
 mod tests {
-    use super::collapsed_step;
+    use super::{collapsed_step, StepTimer};
+    use crate::data::{LoopStats, SeriesRow};
+    use sieve_core::{Boundary, Grid, Segregation, SegregationConfig};
+
+    /// A 1D bed of 8 cells at time `t`, a fraction `s` of the way from mixed (phi = c/2
+    /// everywhere) to fully segregated (the fines all in the lower half).
+    fn bed(t: f64, s: f64) -> Box<Segregation<f64, 1, 8>> {
+        let mut seg = Box::new(Segregation::<f64, 1, 8>::zeroed());
+        let grid = Grid::new([8], [0.0], [1.0], 8).unwrap();
+        seg.setup(grid, [[Boundary::Wall; 2]], SegregationConfig::new())
+            .unwrap();
+        for i in 0..8 {
+            let target = if i < 4 { 0.6 } else { 0.0 };
+            seg.set_cell(i, 0.6, 1.0, [0.0], 0.3 + s * (target - 0.3));
+        }
+        seg.set_clock(t, 1);
+        seg
+    }
+
+    #[test]
+    fn a_resumed_timer_interpolates_from_the_checkpoints_step() {
+        let threshold = 0.5;
+        let (mixed, step, crossed) = (bed(0.0, 0.0), bed(0.3, 0.5), bed(0.4, 1.0));
+        let psi = |s: &Segregation<f64, 1, 8>| sieve_core::diagnose(s).psi;
+        assert!(psi(&mixed) > 0.99 && psi(&step) > threshold && psi(&crossed) < threshold);
+        // uninterrupted: the output row at t = 0, then every step
+        let mut stats = LoopStats::default();
+        stats.series.push(SeriesRow {
+            t: 0.0,
+            psi: psi(&mixed),
+            mass: 0.0,
+            overshoot_max: 0.0,
+            undershoot_max: 0.0,
+        });
+        let mut run = StepTimer::start(threshold, &stats, &*mixed, None, false);
+        run.sample_step(0.3, &*step);
+        run.sample_step(0.4, &*crossed);
+        let t = run.time().expect("crossed");
+        assert!(t > 0.3 && t < 0.4, "{t}");
+        // killed after the step at t = 0.3 (its checkpoint), resumed: the same time, bit for bit
+        let mut resumed = StepTimer::start(threshold, &stats, &*step, None, true);
+        resumed.sample_step(0.4, &*crossed);
+        assert_eq!(resumed.time().map(f64::to_bits), Some(t.to_bits()));
+        // from the output row alone (the timer before the fix) the crossing moves
+        let mut rows_only = StepTimer::start(threshold, &stats, &*step, None, false);
+        rows_only.sample_step(0.4, &*crossed);
+        assert!(rows_only.time().unwrap() < 0.3, "{:?}", rows_only.time());
+    }
 
     #[test]
     fn a_step_a_billion_times_below_the_first_stops_the_run() {
