@@ -355,29 +355,24 @@ fn fold_flushed<R: Real>(start: R, chunks: &[Chunk<R>]) -> R {
 }
 
 /// [`sieve_core::diagnose`] with the per-cell entropy terms (two `libm` logarithms each, most
-/// of a diagnosis) evaluated on `threads` scoped threads; the sums then run in cell order
+/// of a diagnosis) evaluated on `pool`'s workers into `terms`; the sums then run in cell order
 /// ([`sieve_core::diagnose_with_terms`]), so the result has `diagnose`'s bits. The run loop
-/// takes it with its driver's thread count, at outputs and in the step-by-step replay that
+/// takes it with a pool of its driver's threads, at outputs and in the step-by-step replay that
 /// resolves the segregation time (a Psi after every step of an interval).
 pub fn diagnose_on<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
-    threads: usize,
+    pool: Option<&crate::pool::Pool>,
+    terms: &mut Vec<R>,
 ) -> sieve_core::Diagnostics<R> {
-    let n = s.len();
-    if threads <= 1 || n < 2 * threads {
+    let Some(pool) = pool else {
         return sieve_core::diagnose(s);
-    }
+    };
     let vacuum = s.config().vacuum;
-    let mut terms = vec![R::ZERO; n];
-    let chunk = n.div_ceil(threads);
-    std::thread::scope(|scope| {
-        for (k, part) in terms.chunks_mut(chunk).enumerate() {
-            scope.spawn(move || {
-                for (j, t) in part.iter_mut().enumerate() {
-                    let i = k * chunk + j;
-                    *t = sieve_core::entropy_term(s.phi(i), s.c(i), vacuum);
-                }
-            });
+    terms.clear();
+    terms.resize(s.len(), R::ZERO);
+    sieve_core::fork::chunks(pool, terms, 1, |start, part| {
+        for (j, t) in part.iter_mut().enumerate() {
+            *t = sieve_core::entropy_term(s.phi(start + j), s.c(start + j), vacuum);
         }
     });
     sieve_core::diagnose_with_terms(s, |i| terms[i])

@@ -315,6 +315,7 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
     mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>) -> Result<()>,
 ) -> Result<LoopStats> {
     let Workers { stepper, threads } = workers;
+    let mut diagnoser = Diagnoser::new(threads);
     let times = output_times(scene.t_end, scene.output_interval);
     let dt = geo
         .map_or_else(|| s.stable_dt(), |g| s.stable_dt_embedded(g))
@@ -397,7 +398,7 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
                 })?;
             }
         }
-        let d = diagnosis(s, geo, threads);
+        let d = diagnoser.of(s, geo);
         let row = SeriesRow {
             t,
             psi: d.psi.to_f64(),
@@ -408,7 +409,7 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
         timer.sample(t, row.psi);
         if let Some(cp) = before {
             if timer.time().is_some() {
-                timer = resolve_crossing(s, cp, target, geo, threads, advance);
+                timer = resolve_crossing(s, cp, target, geo, &mut diagnoser, advance);
             }
         }
         stats.series.push(row);
@@ -420,15 +421,34 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
 }
 
 /// The diagnostics of the current state: the cut cells' ([`sieve_core::diagnose_embedded`])
-/// or the box's, on `threads` threads ([`crate::parallel::diagnose_on`], the same bits).
-fn diagnosis<R: Real, const D: usize, const N: usize>(
-    s: &Segregation<R, D, N>,
-    geo: Option<&CutCells<R, D, N>>,
-    threads: usize,
-) -> sieve_core::Diagnostics<R> {
-    match geo {
-        Some(g) => sieve_core::diagnose_embedded(s, g),
-        None => crate::parallel::diagnose_on(s, threads),
+/// or the box's, the latter's entropy terms on a pool of the run's threads
+/// ([`crate::parallel::diagnose_on`], the same bits). The pool and the terms' buffer live as
+/// long as the loop: the step-by-step replay of [`resolve_crossing`] diagnoses after every
+/// step, where a thread spawn and a buffer per call would cost as much as the step.
+struct Diagnoser<R> {
+    pool: Option<crate::pool::Pool>,
+    terms: Vec<R>,
+}
+
+impl<R: Real> Diagnoser<R> {
+    fn new(threads: usize) -> Self {
+        Self {
+            pool: (threads > 1)
+                .then(|| crate::pool::Pool::new(threads))
+                .flatten(),
+            terms: Vec::new(),
+        }
+    }
+
+    fn of<const D: usize, const N: usize>(
+        &mut self,
+        s: &Segregation<R, D, N>,
+        geo: Option<&CutCells<R, D, N>>,
+    ) -> sieve_core::Diagnostics<R> {
+        match geo {
+            Some(g) => sieve_core::diagnose_embedded(s, g),
+            None => crate::parallel::diagnose_on(s, self.pool.as_ref(), &mut self.terms),
+        }
     }
 }
 
@@ -472,7 +492,7 @@ fn resolve_crossing<R: Real, const D: usize, const N: usize>(
     cp: Checkpoint<R>,
     target: R,
     geo: Option<&CutCells<R, D, N>>,
-    threads: usize,
+    diagnoser: &mut Diagnoser<R>,
     advance: impl Fn(&mut Segregation<R, D, N>, R, u64) -> u64,
 ) -> SegregationTimer {
     #[cfg(debug_assertions)]
@@ -490,7 +510,7 @@ fn resolve_crossing<R: Real, const D: usize, const N: usize>(
     // evaluation each (on 512 x 512 cells one cost about 7 single-thread steps in perf).
     while s.time() < target && timer.time().is_none() {
         advance(s, target, 1);
-        timer.sample(s.time().to_f64(), diagnosis(s, geo, threads).psi.to_f64());
+        timer.sample(s.time().to_f64(), diagnoser.of(s, geo).psi.to_f64());
     }
     while s.time() < target {
         advance(s, target, 1 << 20);
