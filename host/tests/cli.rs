@@ -1,9 +1,7 @@
 //! The CLI contract of issue 2: exit codes and one-line messages for bad input, the files a run
 //! writes and their headers, atomic output directories, `--set` overrides, reproducibility.
 
-mod common;
-
-use common::run_full;
+use crate::common::run_full;
 
 use std::path::{Path, PathBuf};
 

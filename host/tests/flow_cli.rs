@@ -2,9 +2,7 @@
 //! writes the flow block, p and the flow plots; bad flow keys exit 2 with one line naming file,
 //! key and range; `sieve fit` reproduces its target time; the coupled mode runs.
 
-mod common;
-
-use common::run_full;
+use crate::common::run_full;
 
 use std::path::Path;
 

@@ -1,9 +1,7 @@
 //! Issue 10, "Never hang, never compute garbage silently", "Messages" and "Accuracy details":
 //! each case below was seen to hang, stay silent or mislead before; each test reproduces it.
 
-mod common;
-
-use common::{run_env, run_full};
+use crate::common::{run_env, run_full};
 
 use std::path::Path;
 use std::time::{Duration, Instant};

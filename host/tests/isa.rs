@@ -13,9 +13,7 @@
 //! so on stderr. In the default (native) build the baseline is itself wide code; the portable
 //! build (`RUSTFLAGS="-C target-cpu=x86-64"`) compares SSE2 against AVX2 and AVX-512 code.
 
-mod common;
-
-use common::run_env;
+use crate::common::run_env;
 use sieve::isa::{self, Avx2, Avx512, Level};
 use sieve_core::segregation::{Baseline, Isa, SegregationConfig};
 use sieve_core::{

@@ -4,9 +4,7 @@
 //! 130/143/3); what a SIGKILL leaves is removed by the next run into the same DIR.
 //! docs/outputs.md, "Where sieve writes and what it never touches".
 
-mod common;
-
-use common::run_full;
+use crate::common::run_full;
 
 use assert_cmd::cargo::CommandCargoExt;
 use std::path::{Path, PathBuf};

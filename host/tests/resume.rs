@@ -9,9 +9,7 @@
 //! refusals: another scene, another build's or a damaged checkpoint, none at all, a fresh run
 //! over a checkpoint, a bad interval (exit 2, one line each). Last, the reader is fuzzed.
 
-mod common;
-
-use common::run_full;
+use crate::common::run_full;
 
 use proptest::prelude::*;
 use sieve::checkpoint::{decode, encode, Entries, Value};

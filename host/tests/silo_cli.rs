@@ -3,9 +3,7 @@
 //! amounts to round-off, phi stays in [0, c]; the orifice width is a `--set` key and a bad
 //! one exits 2 with one line naming file, key and range.
 
-mod common;
-
-use common::run_in;
+use crate::common::run_in;
 
 /// `sieve run silo` on the coarse 15 x 50 grid (~10 mm cells) to `t_end` with one `--set`.
 fn run_coarse_silo(dir: &std::path::Path, t_end: &str, set: &str) -> (i32, String) {

@@ -5,9 +5,7 @@
 //! Also the hopper scene (cut cells + outlet) through the CLI: its fines are counted by open
 //! volume (in + out = initial to round-off).
 
-mod common;
-
-use common::run_in;
+use crate::common::run_in;
 use std::path::Path;
 
 fn is_png(path: &Path) -> bool {

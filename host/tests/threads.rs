@@ -10,9 +10,7 @@
 //! (halo 2), compensated updates, the large phase, and cells that are flushed (docs/model.md
 //! 5.6). Through the CLI: `--threads 1` and `--threads 3` write the same files byte for byte.
 
-mod common;
-
-use common::run_in;
+use crate::common::run_in;
 use sieve::parallel::Driver;
 use sieve_core::segregation::SegregationConfig;
 use sieve_core::{

@@ -5,9 +5,7 @@
 //! solver (another state hash than the donor rule on the same coupled drum), keeps the bounds
 //! exactly and the mass to round-off, and reruns bit for bit.
 
-mod common;
-
-use common::run_in;
+use crate::common::run_in;
 use std::path::Path;
 
 fn refused(args: &[&str], allowed: &str) {

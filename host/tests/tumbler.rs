@@ -3,9 +3,7 @@
 //! the allowed range), the `drum-settling` scene (mass to round-off, bounds exact, fines
 //! below the bed's centre, solid cells masked), and the rotating frame of a coupled flow.
 
-mod common;
-
-use common::run_full;
+use crate::common::run_full;
 
 use std::path::Path;
 

@@ -5,9 +5,7 @@
 //! cells. Then property tests on random c (vacuum, near-vacuum and jumps), T (with zeros),
 //! velocity fields and boundaries in 1D and 2D.
 
-mod common;
-
-use common::{boxed, column, config, run_watching, Column, Watch};
+use crate::common::{boxed, column, config, run_watching, Column, Watch};
 use proptest::prelude::*;
 use proptest::test_runner::TestCaseError;
 use sieve_core::{

@@ -6,9 +6,7 @@
 //! above) falls at S (1 - m) = 1/2; at t = 0.5 they sit at z = 0.25 and z = 0.75, and they meet
 //! at t = 1. The mixing index is Psi(t) = 1 - t.
 
-mod common;
-
-use common::{centres, column, crossing, observed_order, phihat, Column};
+use crate::common::{centres, column, crossing, observed_order, phihat, Column};
 use sieve_core::exact::ColumnA;
 use sieve_core::{diagnose, Phase, Real, Scheme, SegregationClock};
 

@@ -11,9 +11,7 @@
 //! phases keep their mass to round-off, `0 <= phi <= c` exactly, `c <= c_max`, `T >= 0`,
 //! no NaN; a rerun gives the same bits.
 
-mod drum_common;
-
-use drum_common::{half_drum, HalfDrum};
+use crate::drum_common::{half_drum, HalfDrum};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::diagnostics::diagnose_embedded;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode, PERCOLATION_SUBSTEPS};

@@ -1,9 +1,7 @@
 //! Segregation direction from the flow (model.md 3): the normal of the plane of largest shear,
 //! checked on simple shears, rotated shears, and 2D/3D solvers in `DirectionMode::Flow`.
 
-mod common;
-
-use common::{boxed, config};
+use crate::common::{boxed, config};
 use sieve_core::segregation::direction::{segregation_direction, segregation_normal};
 use sieve_core::{Boundary, DirectionMode, Grid, Phase, Scheme};
 

@@ -25,7 +25,7 @@ use sieve_core::segregation::direction::{segregation_direction, velocity_gradien
 use sieve_core::{Boundary, Grid};
 use sieve_tests::run_big;
 
-mod silo_common;
+use crate::silo_common;
 
 const N: usize = 1024;
 

@@ -26,7 +26,7 @@
 //! every number asserted to its last written digit (issue 10), so a change of the numerics
 //! that moves the deposit fails here until the README says so.
 
-mod readme;
+use crate::readme;
 
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
@@ -330,7 +330,7 @@ fn block_collapses_spreads_and_stops_near_the_friction_angle() {
 
 /// The same collapse on a 1 mm grid (100 x 32 cells over 0.1 m x 0.032 m): the README's
 /// "11.1 deg on 1 mm cells" (read from it). ~2 min at opt-level 3, so it is ignored by default
-/// (`cargo test -p sieve-tests --test flow_collapse -- --ignored`); it asserts the flank, the
+/// (`cargo test -p sieve-tests --test suite flow_collapse:: -- --ignored`); it asserts the flank, the
 /// invariants and that the deposit is at rest, like the 2 mm test.
 #[test]
 #[ignore = "~2 min: the 1 mm grid of the README's collapse row"]

@@ -6,9 +6,7 @@
 //! exactly in every cell after every step (cut cells and merged cells included), the
 //! segregation's c equal to the flow's, bit-identical reruns.
 
-mod drum_common;
-
-use drum_common::{half_drum, HalfDrum};
+use crate::drum_common::{half_drum, HalfDrum};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::diagnostics::diagnose_embedded;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};

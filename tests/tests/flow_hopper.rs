@@ -9,10 +9,8 @@
 //! outlet speed) where the flat silo of the same orifice on the same cells has its dead
 //! corners, and what leaves keeps the bed's composition longer.
 
-mod silo_common;
-
+use crate::silo_common::{discharge, Spec};
 use sieve_tests::run_big;
-use silo_common::{discharge, Spec};
 
 /// Coarse grid (15 x 50, ~10 mm cells), 0.145 m x 0.5 m filled to 0.4 m, W = 0.04 m.
 fn spec(hopper: Option<f64>, t_end: f64) -> Spec<2> {

@@ -6,10 +6,8 @@
 //! the column collapse ends where the explicit one does; the coupled drum on cut cells keeps
 //! both phases; the silo keeps in + out and discharges at the explicit rate.
 
-mod drum_common;
-mod silo_common;
-
-use drum_common::{half_drum, HalfDrum};
+use crate::drum_common::{half_drum, HalfDrum};
+use crate::silo_common::silo_material;
 use sieve::silo::DischargeSeries;
 use sieve_core::boundary::{Opening, Openings};
 use sieve_core::closure::{Material, Packing};
@@ -20,7 +18,6 @@ use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
 use sieve_core::{Boundary, Grid};
 use sieve_tests::run_big;
-use silo_common::silo_material;
 
 const N: usize = 4096;
 const IMPLICIT: PressureMode = PressureMode::Implicit;

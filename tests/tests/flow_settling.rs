@@ -5,7 +5,7 @@
 //! to its last written digit (issue 10): mass (f64 / f32), max c/c_rcp, peak and final T,
 //! lithostatic balance.
 
-mod readme;
+use crate::readme;
 
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};

@@ -12,7 +12,7 @@
 //! and every number in them asserted (issue 10); the expected sqrt(T)/shear ratio comes from
 //! the constants of model.md 2 and 7.4 written below, not from the code's `Material`.
 
-mod readme;
+use crate::readme;
 
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide};

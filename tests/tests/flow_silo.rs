@@ -9,7 +9,7 @@
 //! no NaN at the free surface or the orifice; a granular, not fluid, discharge: the rate is
 //! constant while the bed is high (a liquid would drain like sqrt(h)).
 
-mod silo_common;
+use crate::silo_common::silo_material;
 use sieve::silo::{DischargeRow, DischargeSeries};
 use sieve_core::boundary::{Opening, Openings};
 use sieve_core::closure::{Material, Packing};
@@ -18,7 +18,6 @@ use sieve_core::flow::{Flow, FlowConfig, FlowSide, OutletPressure, Slip};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig};
 use sieve_core::{diagnose, Boundary, Grid, Phase};
 use sieve_tests::run_big;
-use silo_common::silo_material;
 
 const N: usize = 8192;
 

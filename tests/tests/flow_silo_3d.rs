@@ -7,10 +7,8 @@
 //! discharge (the rate roughly constant while the bed is high); and the side walls' friction
 //! slows the discharge per unit depth against the 2D silo on the same cells.
 
-mod silo_common;
-
+use crate::silo_common::{discharge, Spec};
 use sieve_tests::run_big;
-use silo_common::{discharge, Spec};
 
 /// Coarse (~10 mm cells, 4 across the depth), a shortened silo (0.3 m tall, filled to 0.25 m,
 /// still more than one silo width), a 6-cell slot W = 0.06 m, 1.6 s.

@@ -5,11 +5,9 @@
 //! --threads` (host/src/pool.rs; cut down to 64 cells a part, so that these small grids are
 //! cut in odd places). A difference names the first step where the two runs part.
 
-mod silo_common;
-
+use crate::silo_common::{discharge_on, Spec, N};
 use sieve_core::flow::coupled::Coupled;
 use sieve_core::fork::{Fork, Serial};
-use silo_common::{discharge_on, Spec, N};
 
 /// FNV-1a over the bits of everything a step carries forward.
 fn state_bits<const D: usize>(cpl: &Coupled<'_, f64, D, N>) -> u64 {

@@ -20,7 +20,7 @@
 //! re-mint every one of them after an intended change of the numerics:
 //!
 //! ```sh
-//! SIEVE_REMINT=1 cargo test -p sieve-tests --test goldens
+//! SIEVE_REMINT=1 cargo test -p sieve-tests --test suite goldens::
 //! ```
 //!
 //! which rewrites `tests/goldens.txt` with the hashes of this build (and passes); commit it
@@ -215,7 +215,7 @@ fn read_goldens(text: &str) -> BTreeMap<String, u64> {
 const HEADER: &str = "\
 # Golden state hashes of tests/tests/goldens.rs (what each guards: see that file's header).
 # Re-mint all of them after an intended change of the numerics, and commit with the reason:
-#   SIEVE_REMINT=1 cargo test -p sieve-tests --test goldens
+#   SIEVE_REMINT=1 cargo test -p sieve-tests --test suite goldens::
 ";
 
 #[test]
@@ -245,7 +245,7 @@ fn golden_state_hashes() {
     }
     assert!(
         bad.is_empty(),
-        "golden mismatches (if intended: SIEVE_REMINT=1 cargo test -p sieve-tests --test goldens):\n{}",
+        "golden mismatches (if intended: SIEVE_REMINT=1 cargo test -p sieve-tests --test suite goldens::):\n{}",
         bad.join("\n")
     );
 }

@@ -12,9 +12,7 @@
 //! meet at the full-segregation distance L = u_mean h / S = 1 (plug and shear alike), after
 //! which a flat shock separates the phases at m h = 0.6 (plug) or h sqrt(m) = 0.7746 (shear).
 
-mod common;
-
-use common::{
+use crate::common::{
     centres, column_profile, crossing, gray_thornton, max_change, phis, Inflow, Profile, N2,
 };
 use sieve_core::exact::GrayThornton;

@@ -2,9 +2,9 @@
 //! mirror symmetry under flipping gravity, consistency of every numerical flux, the closed-form
 //! Godunov flux against its definition, and phase independence of the modified scheme.
 
-mod common;
+use crate::common;
 
-use common::{boxed, column, column_with_gravity, config, phis, Column, N1};
+use crate::common::{boxed, column, column_with_gravity, config, phis, Column, N1};
 use proptest::prelude::*;
 use sieve_core::segregation::flux;
 use sieve_core::{diagnose, Boundary, DirectionMode, Grid, Phase, Scheme, Segregation};

@@ -7,11 +7,9 @@
 //! and came in through the sides) to round-off, the carried c equal to `c - out + in`, and
 //! bit-identical reruns.
 
-mod common;
+use crate::drum_common;
 
-mod drum_common;
-
-use common::boxed;
+use crate::common::boxed;
 use proptest::prelude::*;
 use proptest::test_runner::TestCaseError;
 use sieve_core::segregation::MassFluxes;

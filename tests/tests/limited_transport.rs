@@ -7,9 +7,7 @@
 //! the limited face value about 2 (van Leer flattens the extrema a little). Mass to
 //! round-off and 0 <= phi <= c exactly after every step are asserted on the way.
 
-mod common;
-
-use common::boxed;
+use crate::common::boxed;
 use sieve_core::segregation::MassFluxes;
 use sieve_core::{Boundary, Grid, Segregation, SegregationConfig, Transport};
 use std::f64::consts::PI;

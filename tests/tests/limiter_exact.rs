@@ -7,9 +7,7 @@
 //! (core/src/flow/step.rs, `spendable`), so every cell stays at `c >= 0` exactly; the mass is
 //! still conserved to round-off (every flux leaves one cell and enters the other).
 
-mod drum_common;
-
-use drum_common::{half_drum, HalfDrum};
+use crate::drum_common::{half_drum, HalfDrum};
 use sieve_core::closure::Material;
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, PressureMode, Slip};
 use sieve_core::real::Real;

@@ -14,10 +14,9 @@
 //!   100..800 cells and their observed order, against the exact solution of model.md 7.1a
 //!   written here (shocks at S m t and 1 - S (1 - m) t; `sieve_core::exact` is not used).
 
-mod common;
-mod readme;
+use crate::readme;
 
-use common::{centres, column, crossing, observed_order, phihat, Column};
+use crate::common::{centres, column, crossing, observed_order, phihat, Column};
 use sieve_core::{Phase, Scheme};
 
 use sieve::soft_sensor::{record_scene, replay_bytes, ReplayOptions, SceneRecordOptions};

@@ -6,9 +6,7 @@
 //! the golden test fails and prints the new `(cells, steps, hash)`: check the physics tests
 //! still pass, then update the constants here in the same commit.
 
-mod common;
-
-use common::{column, gray_thornton, Column, Inflow, Profile, N2};
+use crate::common::{column, gray_thornton, Column, Inflow, Profile, N2};
 use sieve_core::{state_hash, Phase, Real, Scheme};
 
 /// Column a (c = 0.64, T = 1, S = 1, phi = c/2, walls) on 200 cells, modified flux, small phase,

@@ -25,7 +25,7 @@
 //! mean over ticks of the mean over estimator cells of |phihat_est - exact cell average|.
 //! The table of docs/soft-sensor.md ("Accuracy") is read back and every cell asserted.
 
-mod readme;
+use crate::readme;
 
 use sieve::soft_sensor::{record_to_bytes, RecordOptions, Scene, ESTIMATOR_CAPACITY};
 use sieve_core::diagnostics::mixing_entropy_density;

@@ -4,7 +4,7 @@
 //! constants are the same.
 //!
 //! To regenerate after an intended change: `SIEVE_BLESS=1 cargo test -p sieve-tests --test
-//! sensor_golden`, then update the constants below from the printed values.
+//! suite sensor_golden::`, then update the constants below from the printed values.
 
 use sieve::soft_sensor::{record_to_bytes, replay_bytes, RecordOptions, ReplayOptions, Scene};
 use sieve_core::sensor::feeder::Faults;

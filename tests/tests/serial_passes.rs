@@ -4,9 +4,7 @@
 //! its per-step Psi only where it can cross the threshold (`psi_floor`, `diagnose_fields`).
 //! These tests hold the passes to the per-cell formulas of model.md 3 and 6, bit for bit.
 
-mod common;
-
-use common::{boxed, config};
+use crate::common::{boxed, config};
 use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
 use sieve_core::segregation::direction::{segregation_normal, velocity_gradient};
 use sieve_core::{

@@ -7,9 +7,7 @@
 //! subnormal, the mass in the cells plus the flushed mass is the initial mass to round-off,
 //! and every cell that never came near the floor has the same bits as without the flush.
 
-mod common;
-
-use common::{boxed, config, Column, N1};
+use crate::common::{boxed, config, Column, N1};
 use sieve_core::{
     diagnose, Boundaries, Boundary, DirectionMode, Grid, Phase, Real, Scheme, Segregation,
 };

@@ -4,9 +4,7 @@
 //! of +0.0 (the same physics: every face velocity is still +0) runs the general five-array
 //! loop. Both must agree bit for bit, step by step, in 1D and 2D, for every flux and phase.
 
-mod common;
-
-use common::{boxed, config, Column, N1, N2};
+use crate::common::{boxed, config, Column, N1, N2};
 use sieve_core::{state_hash, Boundary, DirectionMode, Grid, Phase, Real, Scheme, Segregation};
 
 const STEPS: usize = 400;
