@@ -130,6 +130,10 @@ pub struct Coupled<'a, R: Real, const D: usize, const N: usize> {
     /// Cut-cell walls (coupled mode only): the flow carries them itself
     /// ([`Flow::set_geometry`]); the segregation runs its embedded step on them.
     geo: Option<&'a CutCells<R, D, N>>,
+    /// The percolation stage's limit as of the last [`Self::prepare_segregation`]: the
+    /// driver's `stable_dt` and the step both read it, and on cut cells it is a pass over
+    /// every cell (once per step, not twice).
+    percolation_dt: R,
 }
 
 impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
@@ -182,14 +186,20 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
             out_total: [[R::ZERO; 2]; D],
             last: None,
             geo: None,
+            percolation_dt: R::MAX,
         }
     }
 
     fn prepare_segregation(&mut self) -> Result<(), SetupError> {
         match self.geo {
-            Some(g) => self.seg.prepare_embedded(g),
-            None => self.seg.prepare(),
+            Some(g) => self.seg.prepare_embedded(g)?,
+            None => self.seg.prepare()?,
         }
+        self.percolation_dt = match self.geo {
+            Some(g) => self.seg.stable_dt_percolation_embedded(g),
+            None => self.seg.stable_dt_percolation(),
+        };
+        Ok(())
     }
 
     /// Couples two solvers set up on the same grid (the flow with its initial fields, the
@@ -216,7 +226,8 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
                 s.set_segregation_cells();
                 s.apply_packing();
                 s.flow.prepare().map_err(CouplingError::Flow)?;
-                s.seg.prepare().map_err(CouplingError::Segregation)?;
+                s.prepare_segregation()
+                    .map_err(CouplingError::Segregation)?;
             }
         }
         Ok(s)
@@ -275,7 +286,8 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     pub fn hand_over(&mut self) -> Result<(), CouplingError> {
         self.sync_gravity();
         self.set_segregation_cells();
-        self.seg.prepare().map_err(CouplingError::Segregation)
+        self.prepare_segregation()
+            .map_err(CouplingError::Segregation)
     }
 
     /// Hands the flow over keeping each cell's composition `phihat = phi / c` (new
@@ -300,7 +312,8 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
                 (phihat * c).min(c),
             );
         }
-        self.seg.prepare().map_err(CouplingError::Segregation)
+        self.prepare_segregation()
+            .map_err(CouplingError::Segregation)
     }
 
     /// Frozen mode: settles the flow ([`Self::settle`]), applies the packing switch and hands
@@ -374,12 +387,9 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
         }
     }
 
-    /// The percolation stage's own limit (coupled mode).
+    /// The percolation stage's own limit (coupled mode), as prepared.
     fn percolation_dt(&self) -> R {
-        match self.geo {
-            Some(g) => self.seg.stable_dt_percolation_embedded(g),
-            None => self.seg.stable_dt_percolation(),
-        }
+        self.percolation_dt
     }
 
     /// One coupled step of length `dt` (at most [`Self::stable_dt`]): percolation (in as
