@@ -150,6 +150,41 @@ pub fn dot<R: Real, F: Fork>(fork: &F, a: &[R], b: &[R], partials: &mut [R]) -> 
     sum::fold(&partials[..nb])
 }
 
+/// `out_i = new(i, out_i)` for every element, then `sum_i w_i out_i` with `w = with` (or `out`
+/// itself when `None`), in the bits of [`sum::dot`]: one fused pass on the caller's thread
+/// when `out` is not [`worth`] cutting, else the element-wise pass and [`dot`] on the
+/// workers. `partials` as for [`dot`].
+pub fn set_and_dot<R: Real, F: Fork>(
+    fork: &F,
+    out: &mut [R],
+    with: Option<&[R]>,
+    new: impl Fn(usize, R) -> R + Sync,
+    partials: &mut [R],
+) -> R {
+    let n = out.len();
+    if !worth(fork, n) {
+        return match with {
+            None => sum::reduce(n, |i| {
+                out[i] = new(i, out[i]);
+                out[i] * out[i]
+            }),
+            Some(w) => sum::reduce(n, |i| {
+                out[i] = new(i, out[i]);
+                w[i] * out[i]
+            }),
+        };
+    }
+    each_chunk(fork, out, 1, |start, chunk| {
+        for (k, v) in chunk.iter_mut().enumerate() {
+            *v = new(start + k, *v);
+        }
+    });
+    match with {
+        None => dot(fork, out, out, partials),
+        Some(w) => dot(fork, w, out, partials),
+    }
+}
+
 /// The conjugate-gradient update `x += alpha p; r -= alpha q`, returning `sum r_i^2` with the
 /// bits of [`sum::update`], on the fork's workers. `partials` as for [`dot`].
 pub fn update<R: Real, F: Fork>(

@@ -628,24 +628,6 @@ struct StepTimer<R> {
 }
 
 impl<R: Real> StepTimer<R> {
-    fn new<const D: usize, const N: usize>(
-        timer: SegregationTimer,
-        threshold: f64,
-        seg: &Segregation<R, D, N>,
-        geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
-    ) -> Self {
-        Self {
-            timer,
-            threshold,
-            pending: None,
-            fields: [Vec::new(), Vec::new()],
-            held: [Vec::new(), Vec::new()],
-            volume: geo.map(|g| g.volumes().to_vec()),
-            vacuum: seg.config().vacuum,
-            cell_volume: seg.grid().cell_volume(),
-        }
-    }
-
     /// The timer a run starts with: `stats` holds a resumed run's output rows and, when it
     /// had crossed, the step-resolved time its checkpoint kept. Resumed before the crossing,
     /// the restored state is sampled as the step it is: the uninterrupted run's last sample
@@ -666,7 +648,16 @@ impl<R: Real> StepTimer<R> {
             // resumed after the crossing: the step-resolved time the checkpoint kept
             timer = SegregationTimer::crossed(threshold, t);
         }
-        let mut timer = Self::new(timer, threshold, seg, geo);
+        let mut timer = Self {
+            timer,
+            threshold,
+            pending: None,
+            fields: [Vec::new(), Vec::new()],
+            held: [Vec::new(), Vec::new()],
+            volume: geo.map(|g| g.volumes().to_vec()),
+            vacuum: seg.config().vacuum,
+            cell_volume: seg.grid().cell_volume(),
+        };
         if resumed && timer.time().is_none() {
             timer.sample_step(seg.time().to_f64(), seg);
         }

@@ -55,24 +55,19 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
         None if scene.len() < AUTO_MIN_CELLS => 1,
         None => std::thread::available_parallelism().map_or(1, |n| n.get()),
     };
-    if wanted <= 1 {
+    if wanted <= 1 || is_coupled(scene) {
+        // a coupled scene's segregation rides on the flow: [`coupled_threads`]
         return (1, None);
     }
-    let why = if is_coupled(scene) {
-        return (1, None); // the segregation rides on the flow: [`coupled_threads`]
-    } else if scene.geometry.is_some() {
-        Some("cut-cell (geometry) scenes")
-    } else {
-        None
-    };
-    match why {
-        Some(w) => (
-            1,
-            requested
-                .map(|n| format!("note: --threads {n}: {w} run on one thread (docs/parallel.md)")),
-        ),
-        None => (wanted, None),
+    if scene.geometry.is_none() {
+        return (wanted, None);
     }
+    let note = requested.map(|n| {
+        format!(
+            "note: --threads {n}: cut-cell (geometry) scenes run on one thread (docs/parallel.md)"
+        )
+    });
+    (1, note)
 }
 
 /// Whether the scene runs the coupled flow.
@@ -91,22 +86,18 @@ fn is_coupled(scene: &Scene) -> bool {
 /// 1.00x), because the line solves stay serial; docs/parallel.md "The coupled flow on
 /// threads".
 pub fn coupled_threads(scene: &Scene) -> (usize, Option<String>) {
-    let requested = requested_threads();
-    let wanted = requested.unwrap_or(1);
-    if wanted <= 1 {
+    let Some(n) = requested_threads().filter(|&n| n > 1) else {
         return (1, None);
+    };
+    if scene.len() >= AUTO_MIN_CELLS {
+        return (n, None);
     }
-    if scene.len() < AUTO_MIN_CELLS {
-        let note = requested.map(|n| {
-            format!(
-                "note: --threads {n}: a coupled grid of {} cells runs its solves on one thread \
-                 (below {AUTO_MIN_CELLS} cells a fork costs more than it saves; docs/parallel.md)",
-                scene.len()
-            )
-        });
-        return (1, note);
-    }
-    (wanted, None)
+    let note = format!(
+        "note: --threads {n}: a coupled grid of {} cells runs its solves on one thread \
+         (below {AUTO_MIN_CELLS} cells a fork costs more than it saves; docs/parallel.md)",
+        scene.len()
+    );
+    (1, Some(note))
 }
 
 /// The pool whose workers run a coupled run's linear solves ([`sieve_core::fork`]; the same

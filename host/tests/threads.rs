@@ -358,42 +358,28 @@ fn cli_threads_refusals_and_notes() {
         assert!(err.contains("--threads"), "--threads {bad}: {err}");
     }
     // a scene the split does not take (cut cells) runs on one thread, with a one-line note
-    let (code, err) = run_in(
-        d.path(),
-        &[
-            "run",
-            "drum-settling",
-            "--t-end",
-            "0.1",
-            "--threads",
-            "2",
-            "--out",
-            "g",
-        ],
-    );
-    assert_eq!(code, 0, "{err}");
-    let note: Vec<&str> = err.lines().filter(|l| l.starts_with("note:")).collect();
-    assert_eq!(note.len(), 1, "{err}");
-    assert!(note[0].contains("one thread"), "{err}");
+    let note = one_note(d.path(), &["drum-settling", "--t-end", "0.1", "--out", "g"]);
+    assert!(note.contains("one thread"), "{note}");
     // a coupled grid below 65,536 cells runs its solves on one thread, with a one-line note
-    let (code, err) = run_in(
+    let note = one_note(
         d.path(),
-        &[
-            "run",
-            "column-collapse",
-            "--t-end",
-            "0.001",
-            "--threads",
-            "2",
-            "--out",
-            "c",
-        ],
+        &["column-collapse", "--t-end", "0.001", "--out", "c"],
     );
-    assert_eq!(code, 0, "{err}");
-    let note: Vec<&str> = err.lines().filter(|l| l.starts_with("note:")).collect();
-    assert_eq!(note.len(), 1, "{err}");
     assert!(
-        note[0].contains("1280 cells runs its solves on one thread"),
-        "{err}"
+        note.contains("1280 cells runs its solves on one thread"),
+        "{note}"
     );
+}
+
+/// Runs `sieve run ARGS --threads 2` in `dir`; asserts success and exactly one note on stderr,
+/// which it returns.
+fn one_note(dir: &Path, args: &[&str]) -> String {
+    let mut a = vec!["run"];
+    a.extend_from_slice(args);
+    a.extend_from_slice(&["--threads", "2"]);
+    let (code, err) = run_in(dir, &a);
+    assert_eq!(code, 0, "{args:?}: {err}");
+    let notes: Vec<&str> = err.lines().filter(|l| l.starts_with("note:")).collect();
+    assert_eq!(notes.len(), 1, "{args:?}: {err}");
+    notes[0].to_string()
 }

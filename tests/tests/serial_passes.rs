@@ -9,7 +9,7 @@ use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
 use sieve_core::segregation::direction::{segregation_normal, velocity_gradient};
 use sieve_core::{
     diagnose, diagnose_embedded, diagnose_fields, psi_floor, Boundaries, Boundary, DirectionMode,
-    Grid, Phase, Scheme, Segregation,
+    Grid, Phase, Scheme, Segregation, SegregationConfig,
 };
 
 const N: usize = 256;
@@ -177,25 +177,36 @@ fn state(s: &mut Segregation<f64, 2, N>, grid: Grid<f64, 2>, seed: u64, mix: f64
     }
 }
 
-#[test]
-fn psi_floor_is_below_psi_and_diagnose_fields_has_its_bits() {
-    let grid = Grid::new([12, 20], [0.0; 2], [0.1, 0.2], N).unwrap();
-    let bc = [[Boundary::Wall; 2]; 2];
-    let cfg = config(
+/// The modified flux on the small phase, settling under gravity along -z.
+fn settling() -> SegregationConfig<f64, 2> {
+    config(
         Scheme::Modified,
         Phase::Small,
         [0.0, -1.0],
         DirectionMode::Gravity,
-    );
+    )
+}
+
+/// `phi` and `c` of every cell, as a driver copies them for [`diagnose_fields`].
+fn fields<const M: usize>(s: &Segregation<f64, 2, M>) -> (Vec<f64>, Vec<f64>) {
+    (
+        (0..s.len()).map(|i| s.phi(i)).collect(),
+        (0..s.len()).map(|i| s.c(i)).collect(),
+    )
+}
+
+#[test]
+fn psi_floor_is_below_psi_and_diagnose_fields_has_its_bits() {
+    let grid = Grid::new([12, 20], [0.0; 2], [0.1, 0.2], N).unwrap();
+    let bc = [[Boundary::Wall; 2]; 2];
+    let cfg = settling();
     let mut s = boxed::<f64, 2, N>();
     s.setup(grid, bc, cfg).unwrap();
     let mut ratios = Vec::new();
     for (k, mix) in [1.0, 0.9, 0.5, 0.2, 0.05, 0.0].into_iter().enumerate() {
         state(&mut s, grid, 3 + k as u64, mix);
         s.prepare().unwrap();
-        let n = grid.len();
-        let phi: Vec<f64> = (0..n).map(|i| s.phi(i)).collect();
-        let c: Vec<f64> = (0..n).map(|i| s.c(i)).collect();
+        let (phi, c) = fields(&s);
         let (vac, vol) = (s.config().vacuum, grid.cell_volume());
         let d = diagnose(&s);
         let f = diagnose_fields(&phi, &c, None, vac, vol);
@@ -243,12 +254,7 @@ fn diagnose_fields_has_the_cut_cell_bits() {
         DEFAULT_SMALL,
     )
     .unwrap();
-    let cfg = config(
-        Scheme::Modified,
-        Phase::Small,
-        [0.0, -1.0],
-        DirectionMode::Gravity,
-    );
+    let cfg = settling();
     let mut s = boxed::<f64, 2, M>();
     s.setup(grid, [[Boundary::Wall; 2]; 2], cfg).unwrap();
     let mut rng = Lcg(99);
@@ -261,9 +267,7 @@ fn diagnose_fields_has_the_cut_cell_bits() {
         s.set_cell(i, c, 1.0, [0.0; 2], c * rng.next());
     }
     s.prepare_embedded(&geo).unwrap();
-    let n = grid.len();
-    let phi: Vec<f64> = (0..n).map(|i| s.phi(i)).collect();
-    let c: Vec<f64> = (0..n).map(|i| s.c(i)).collect();
+    let (phi, c) = fields(&s);
     let (vac, vol) = (s.config().vacuum, grid.cell_volume());
     let d = diagnose_embedded(&s, &geo);
     let f = diagnose_fields(&phi, &c, Some(geo.volumes()), vac, vol);

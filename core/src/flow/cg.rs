@@ -61,7 +61,6 @@
 use crate::fork::{self, Fork};
 use crate::grid::Grid;
 use crate::real::Real;
-use crate::sum;
 
 /// Damping of the finest smoother (the line solve): `omega M^-1`. Below 1 so that the
 /// line-Jacobi smoother is convergent for any coefficients (`2 M / omega - A` is positive
@@ -1152,19 +1151,8 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         // post-smoothing: z += omega M^-1 (r - A z), with r . z on the way
         st.residual_on(fork, self.diag, r, z, tmp);
         st.line_solve(factor.0, factor.1, tmp);
-        if !fork::worth(fork, n) {
-            return sum::reduce(n, |i| {
-                z[i] += tmp[i];
-                r[i] * z[i]
-            });
-        }
         let tmp: &[R] = tmp;
-        fork::chunks(fork, z, 1, |start, zc| {
-            for (k, v) in zc.iter_mut().enumerate() {
-                *v += tmp[start + k];
-            }
-        });
-        fork::dot(fork, r, z, self.part)
+        fork::set_and_dot(fork, z, Some(r), |i, zi| zi + tmp[i], self.part)
     }
 }
 
@@ -1242,8 +1230,9 @@ pub fn solve<R: Real, const D: usize, const N: usize>(
 /// on the caller's thread: a vertical line is a recurrence from floor to lid, and the lines
 /// of a row-major array cannot be cut into slices; sweeping column blocks into scratch and
 /// copying them back cost 0.38x - 1.09x the serial sweep on 2 threads (64 x 64 to 512 x 512,
-/// docs/parallel.md). Restriction, prolongation and the coarsest sweeps stay there too. The same bits for any number of parts (module [`crate::fork`]); a
-/// `Scratch::part` shorter than the grid runs the serial solve.
+/// docs/parallel.md). Restriction, prolongation and the coarsest sweeps stay there too.
+/// The same bits for any number of parts (module [`crate::fork`]); a `Scratch::part`
+/// shorter than the grid runs the serial solve.
 pub fn solve_on<R: Real, const D: usize, const N: usize, F: Fork>(
     fork: &F,
     st: &Stencil<'_, R, D, N>,
@@ -1270,19 +1259,9 @@ pub fn solve_on<R: Real, const D: usize, const N: usize, F: Fork>(
         };
     }
     st.apply_on(fork, diag, x, ap);
-    let mut rr = if fork::worth(fork, n) {
+    let mut rr = {
         let ap: &[R] = ap;
-        fork::chunks(fork, r, 1, |start, rc| {
-            for (k, v) in rc.iter_mut().enumerate() {
-                *v = b[start + k] - ap[start + k];
-            }
-        });
-        fork::dot(fork, r, r, part)
-    } else {
-        sum::reduce(n, |i| {
-            r[i] = b[i] - ap[i];
-            r[i] * r[i]
-        })
+        fork::set_and_dot(fork, r, None, |i, _| b[i] - ap[i], part)
     };
     let target = tol * bnorm.max(floor);
     if rr.sqrt() <= target {

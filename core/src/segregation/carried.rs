@@ -258,27 +258,36 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     }
 }
 
-/// The tracked amount `q` of a cell brought into `[0, c]` (round-off of the previous stage),
-/// the amount moved added to `guarded`. Shared by the donor and the limited transport.
+/// The tracked amount `q` of a cell brought into `[0, c]` (round-off of the previous stage)
+/// and the amount that moved: `-q`, `c - q`, or 0 where `q` was in range (a guarded cell
+/// moves a nonzero amount).
+#[inline(always)]
+fn guard<R: Real>(q: R, c: R) -> (R, R) {
+    if q < R::ZERO {
+        (R::ZERO, -q)
+    } else if q > c {
+        (c, c - q)
+    } else {
+        (q, R::ZERO)
+    }
+}
+
+/// [`guard`], the amount moved added to `guarded` (`guarded - q` is `guarded + (-q)` to the
+/// bit). Shared by the donor and the limited transport.
 #[inline(always)]
 pub(super) fn guard_tracked<R: Real>(q: R, c: R, guarded: &mut R) -> R {
-    if q < R::ZERO {
-        *guarded -= q;
-        R::ZERO
-    } else if q > c {
-        *guarded += c - q;
-        c
-    } else {
-        q
+    let (kept, moved) = guard(q, c);
+    if moved != R::ZERO {
+        *guarded += moved;
     }
+    kept
 }
 
 /// Pass B of [`Segregation::carry_mass_fluxes`] over the cells: the tracked `q + carry`
 /// guarded into `[0, c]` (`guard_tracked`), the donor fraction `qhat` into `flux`, the kept
 /// shares of both phases into `q` and `untracked`, carry cleared. What the guard moved goes
-/// to `rhs` in the cell's place (the outflow `O_i` is read there first; 0 where nothing
-/// moved: a guarded cell moves a nonzero amount), so that the caller sums it in cell order,
-/// and `guard_tracked`'s `guarded -= q` is `guarded + (-q)` to the bit. Selects only, so the
+/// to `rhs` in the cell's place (the outflow `O_i` is read there first; [`guard`]), so that
+/// the caller sums it in cell order, as `guard_tracked` would. Selects only, so the
 /// loop vectorises: its two divisions per cell were the cost of the pass. Returns whether any
 /// cell was guarded.
 fn keep_shares<R: Real>(
@@ -295,15 +304,8 @@ fn keep_shares<R: Real>(
     let mut any = false;
     for i in 0..n {
         let ci = c[i];
-        let q0 = q[i] + carry[i];
-        let (qi, moved) = if q0 < R::ZERO {
-            (R::ZERO, -q0)
-        } else if q0 > ci {
-            (ci, ci - q0)
-        } else {
-            (q0, R::ZERO)
-        };
-        any |= (q0 < R::ZERO) | (q0 > ci);
+        let (qi, moved) = guard(q[i] + carry[i], ci);
+        any |= moved != R::ZERO;
         carry[i] = R::ZERO;
         let r = ci - qi;
         let (qhat, keep) = if ci > R::ZERO {

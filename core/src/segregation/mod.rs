@@ -653,14 +653,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let from_shear = matches!(cfg.temperature, TemperatureMode::FromShear { .. });
         // Pass 1, cell by cell (branches; `libm::sqrt` is an inline `sqrtsd`, which no loop
         // vectorises): where the velocity gradient is needed, T from the shear and the
-        // direction from the flow; and sqrt(T) of every cell. sqrt(T) goes into the scratch
-        // `rhs`, the direction `d` into `k` and `d . d` into the scratch `flux`, which pass 2
-        // reads back in the same cell and overwrites.
+        // direction from the flow, `d` into `k` and `d . d` into the scratch `flux`; then
+        // sqrt(T) of every cell into the scratch `rhs`. Pass 2 reads them back in the same
+        // cell and overwrites them.
         if flow_dir && !from_shear && D == 2 {
             self.flow_normals_2d(gravity_dir);
-            for (r, t) in self.rhs[..n].iter_mut().zip(&self.temp[..n]) {
-                *r = t.sqrt();
-            }
         } else if flow_dir || from_shear {
             let cells = self.grid.cells();
             // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
@@ -691,7 +688,6 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                     };
                     self.temp[i] = heating * eta0 / eps0 * kk;
                 }
-                self.rhs[i] = self.temp[i].sqrt();
                 if flow_dir {
                     let ui: [R; D] = core::array::from_fn(|a| self.u[a][i]);
                     // d is the segregation direction up to length and sign, dd = d . d:
@@ -705,10 +701,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                     self.flux[i] = dd;
                 }
             }
-        } else {
-            for (r, t) in self.rhs[..n].iter_mut().zip(&self.temp[..n]) {
-                *r = t.sqrt();
-            }
+        }
+        for (r, t) in self.rhs[..n].iter_mut().zip(&self.temp[..n]) {
+            *r = t.sqrt();
         }
         // Pass 2: S, k and the two rates of every cell, one straight loop without branches
         // (selects only) that the compiler vectorises: its divisions were most of the cost
