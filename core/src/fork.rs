@@ -17,6 +17,7 @@
 
 use core::ops::Range;
 
+use crate::hot::{Baseline, HotLoop, Isa};
 use crate::real::Real;
 use crate::sum::{self, BLOCK};
 
@@ -39,6 +40,28 @@ pub trait Fork: Sync {
     /// Tests lower it to cut small grids in odd places.
     fn min_per_part(&self) -> usize {
         MIN_PER_PART
+    }
+
+    /// Runs one hot loop of the flow's solves compiled for the instruction set the host chose
+    /// at run time ([`crate::hot`], docs/simd.md); the default is the crate's own features.
+    /// Every choice gives the same bits.
+    #[inline(always)]
+    fn hot<H: HotLoop>(&self, hot: H) -> H::Out {
+        Baseline::run(hot)
+    }
+}
+
+/// A closure as a [`HotLoop`]: its body is compiled into the runner that calls it when the
+/// closure and the functions it calls are `#[inline(always)]`. `FnMut`, not `FnOnce`: calling
+/// a borrowing closure through `FnOnce` goes through a shim of the standard library that is
+/// not inlined, and the loop would stay at the baseline (seen in the profile).
+pub struct Call<F>(pub F);
+
+impl<T, F: FnMut() -> T> HotLoop for Call<F> {
+    type Out = T;
+    #[inline(always)]
+    fn run(mut self) -> T {
+        (self.0)()
     }
 }
 
@@ -135,17 +158,25 @@ fn each_chunk<T: Send, F: Fork>(
 pub fn dot<R: Real, F: Fork>(fork: &F, a: &[R], b: &[R], partials: &mut [R]) -> R {
     let n = a.len().min(b.len());
     if !worth(fork, n) {
-        return sum::dot(a, b);
+        return fork.hot(Call(
+            #[inline(always)]
+            || sum::dot(a, b),
+        ));
     }
     let nb = n.div_ceil(BLOCK);
     each_chunk(fork, &mut partials[..nb], 1, |first, p| {
-        for (k, pk) in p.iter_mut().enumerate() {
-            let s = (first + k) * BLOCK;
-            let e = (s + BLOCK).min(n);
-            // one block of the serial sum: `0 + its lane tree`, exactly what the serial loop
-            // adds to its running total
-            *pk = sum::dot(&a[s..e], &b[s..e]);
-        }
+        fork.hot(Call(
+            #[inline(always)]
+            || {
+                for (k, pk) in p.iter_mut().enumerate() {
+                    let s = (first + k) * BLOCK;
+                    let e = (s + BLOCK).min(n);
+                    // one block of the serial sum: `0 + its lane tree`, exactly what the serial
+                    // loop adds to its running total
+                    *pk = sum::dot(&a[s..e], &b[s..e]);
+                }
+            },
+        ))
     });
     sum::fold(&partials[..nb])
 }
@@ -163,21 +194,29 @@ pub fn set_and_dot<R: Real, F: Fork>(
 ) -> R {
     let n = out.len();
     if !worth(fork, n) {
-        return match with {
-            None => sum::reduce(n, |i| {
-                out[i] = new(i, out[i]);
-                out[i] * out[i]
-            }),
-            Some(w) => sum::reduce(n, |i| {
-                out[i] = new(i, out[i]);
-                w[i] * out[i]
-            }),
-        };
+        return fork.hot(Call(
+            #[inline(always)]
+            || match with {
+                None => sum::reduce(n, |i| {
+                    out[i] = new(i, out[i]);
+                    out[i] * out[i]
+                }),
+                Some(w) => sum::reduce(n, |i| {
+                    out[i] = new(i, out[i]);
+                    w[i] * out[i]
+                }),
+            },
+        ));
     }
     each_chunk(fork, out, 1, |start, chunk| {
-        for (k, v) in chunk.iter_mut().enumerate() {
-            *v = new(start + k, *v);
-        }
+        fork.hot(Call(
+            #[inline(always)]
+            || {
+                for (k, v) in chunk.iter_mut().enumerate() {
+                    *v = new(start + k, *v);
+                }
+            },
+        ))
     });
     match with {
         None => dot(fork, out, out, partials),
@@ -198,7 +237,10 @@ pub fn update<R: Real, F: Fork>(
 ) -> R {
     let n = x.len().min(r.len()).min(p.len()).min(q.len());
     if !worth(fork, n) {
-        return sum::update(alpha, p, q, x, r);
+        return fork.hot(Call(
+            #[inline(always)]
+            || sum::update(alpha, p, q, x, r),
+        ));
     }
     let nb = n.div_ceil(BLOCK);
     let cuts = cuts(n, fork.parts(), BLOCK);
@@ -216,12 +258,17 @@ pub fn update<R: Real, F: Fork>(
         let _ = items.push((c.start, xc, rc, pc));
     }
     fork.each(&mut items, |(start, xc, rc, pc)| {
-        let blocks = xc.chunks_mut(BLOCK).zip(rc.chunks_mut(BLOCK));
-        for (k, (xb, rb)) in blocks.enumerate() {
-            let s = *start + k * BLOCK;
-            let e = s + xb.len();
-            pc[k] = sum::update(alpha, &p[s..e], &q[s..e], xb, rb);
-        }
+        fork.hot(Call(
+            #[inline(always)]
+            || {
+                let blocks = xc.chunks_mut(BLOCK).zip(rc.chunks_mut(BLOCK));
+                for (k, (xb, rb)) in blocks.enumerate() {
+                    let s = *start + k * BLOCK;
+                    let e = s + xb.len();
+                    pc[k] = sum::update(alpha, &p[s..e], &q[s..e], xb, rb);
+                }
+            },
+        ))
     });
     drop(items);
     sum::fold(&partials[..nb])

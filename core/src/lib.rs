@@ -23,6 +23,7 @@ pub mod frame;
 pub mod geometry;
 pub mod grid;
 pub mod hash;
+pub mod hot;
 mod messages;
 pub mod real;
 pub mod segregation;

@@ -118,7 +118,9 @@ pub fn sum<R: Real>(x: &[R]) -> R {
 }
 
 /// `sum_i a_i b_i` over the common length (the bits of `reduce(n, |i| a[i] * b[i])`, written
-/// with chunked slices so that no index is checked in the loop).
+/// with chunked slices so that no index is checked in the loop). Inlined, so that a wider
+/// runner ([`crate::hot`]) compiles it at its width.
+#[inline(always)]
 pub fn dot<R: Real>(a: &[R], b: &[R]) -> R {
     let n = a.len().min(b.len());
     let mut total = R::ZERO;
@@ -140,7 +142,8 @@ pub fn dot<R: Real>(a: &[R], b: &[R]) -> R {
 }
 
 /// The conjugate-gradient update `x += alpha p; r -= alpha q`, returning `sum r_i^2` with the
-/// bits of [`reduce`] (one pass over the four vectors).
+/// bits of [`reduce`] (one pass over the four vectors). Inlined, as [`dot`].
+#[inline(always)]
 pub fn update<R: Real>(alpha: R, p: &[R], q: &[R], x: &mut [R], r: &mut [R]) -> R {
     let n = x.len().min(r.len()).min(p.len()).min(q.len());
     let mut total = R::ZERO;

@@ -27,6 +27,7 @@ use sieve_core::flow::{
     CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, PressureMode, Slip,
     Stress,
 };
+use sieve_core::fork::Serial;
 use sieve_core::frame::{Frame, Rotation};
 use sieve_core::{Boundary, Grid, Real, Segregation};
 use std::time::Instant;
@@ -265,7 +266,7 @@ pub fn spin_up<R: Real, const D: usize, const N: usize>(
             };
             return Err(stop.error(None));
         }
-        flow.step(flow.stable_dt());
+        flow.step_on(flow.stable_dt(), &crate::isa::AtLevel::new(&Serial));
         let k = flow.steps();
         if k >= fm.min_steps && flow.residual() < tol {
             break;
@@ -506,8 +507,9 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
                 Some(r) => Err(r),
                 None => match &pool {
                     // the step on a worker: its loops fork from inside the pool
-                    Some(p) => p.install(|| cpl.step_with_on(dt, p)),
-                    None => cpl.step_with(dt),
+                    // its solves' hot loops at the widest vector unit (docs/simd.md)
+                    Some(p) => p.install(|| cpl.step_with_on(dt, &crate::isa::AtLevel::new(p))),
+                    None => cpl.step_with_on(dt, &crate::isa::AtLevel::new(&Serial)),
                 }
                 .map_err(|e| {
                     // The core names what it refused; a non-finite cell says more.

@@ -1,13 +1,14 @@
-//! Run-time dispatch of the segregation step's hot loops to the widest vector unit of the
-//! machine (issue 12, docs/simd.md).
+//! Run-time dispatch of the hot loops (the segregation step's, the coupled flow's solves') to
+//! the widest vector unit of the machine (issue 12, docs/simd.md).
 //!
 //! A portable x86-64 binary is compiled for SSE2; the step's loops then run about half as fast
 //! as in a binary compiled for the local CPU. The core stays free of `unsafe` and compiled at
 //! the crate's features: it runs each hot loop through an [`Isa`] type parameter
-//! ([`Segregation::step_on`]), and this module supplies runners whose `run` calls a
-//! `#[target_feature]` function into which the loop (`#[inline(always)]`) is compiled. The
-//! level is chosen once per process: the `SIEVE_ISA` environment variable (`auto`, the default;
-//! `baseline`; `avx2`; `avx512`), checked against what the CPU has.
+//! ([`Segregation::step_on`]) or through the fork of the flow's solves ([`AtLevel`]), and this
+//! module supplies runners whose `run` calls a `#[target_feature]` function into which the loop
+//! (`#[inline(always)]`) is compiled. The level is chosen once per process: the `SIEVE_ISA`
+//! environment variable (`auto`, the default; `baseline`; `avx2`; `avx512`), checked against
+//! what the CPU has.
 //!
 //! Same bits on every level: the loops are the same IEEE additions, multiplications,
 //! divisions, square roots and exact maxima in the same order. Rust never contracts `a*b+c`
@@ -16,7 +17,8 @@
 //! compares the state hashes level by level).
 
 use crate::error::{Error, Result};
-use sieve_core::segregation::{Baseline, HotLoop, Isa};
+use sieve_core::fork::Fork;
+use sieve_core::hot::{Baseline, HotLoop, Isa};
 use sieve_core::{Real, Segregation};
 use std::sync::OnceLock;
 
@@ -153,6 +155,50 @@ pub fn step_at<R: Real, const D: usize, const N: usize>(
 /// [`Segregation::step`] at this process's [`level`].
 pub fn step<R: Real, const D: usize, const N: usize>(s: &mut Segregation<R, D, N>, dt: R) {
     step_at(level(), s, dt)
+}
+
+/// A fork whose hot loops run at a level: how the coupled flow's solves (its CG products,
+/// line solves and sums, [`Fork::hot`]) reach the wider vector units. The flow takes its fork
+/// as a value at run time, so the level is a value here, not a type as for the segregation
+/// step. Everything else is the inner fork's.
+pub struct AtLevel<'f, F: Fork> {
+    fork: &'f F,
+    level: Level,
+}
+
+impl<'f, F: Fork> AtLevel<'f, F> {
+    /// `fork` at this process's [`level`].
+    pub fn new(fork: &'f F) -> Self {
+        Self::at(fork, level())
+    }
+
+    /// `fork` at `level`.
+    pub fn at(fork: &'f F, level: Level) -> Self {
+        AtLevel { fork, level }
+    }
+}
+
+impl<F: Fork> Fork for AtLevel<'_, F> {
+    fn parts(&self) -> usize {
+        self.fork.parts()
+    }
+
+    fn each<T: Send, G: Fn(&mut T) + Sync>(&self, items: &mut [T], f: G) {
+        self.fork.each(items, f)
+    }
+
+    fn min_per_part(&self) -> usize {
+        self.fork.min_per_part()
+    }
+
+    #[inline(always)]
+    fn hot<H: HotLoop>(&self, hot: H) -> H::Out {
+        match self.level {
+            Level::Baseline => Baseline::run(hot),
+            Level::Avx2 => Avx2::run(hot),
+            Level::Avx512 => Avx512::run(hot),
+        }
+    }
 }
 
 /// The x86-64-v3 runner. Only [`Level::Avx2`] selects it, and only when the CPU has it.

@@ -14,6 +14,7 @@
 //! split into chunks at block boundaries (what a threaded driver does).
 
 use proptest::prelude::*;
+use sieve::isa::{AtLevel, Level};
 use sieve::pool::Pool;
 use sieve_core::flow::cg::{solve_on, workspace_len, Preconditioner, Scratch, Stencil, Stop};
 use sieve_core::fork::{Fork, Serial};
@@ -222,6 +223,14 @@ fn fused_product_has_the_face_by_face_bits() {
     }
 }
 
+/// The same iterations, residual and solution bits as `serial` (`at` names the case).
+fn assert_same_solve(t: &Outcome, serial: &Outcome, at: &str) {
+    assert_eq!(t.iterations, serial.iterations, "{at}");
+    assert_eq!(t.recursive.to_bits(), serial.recursive.to_bits(), "{at}");
+    let first = (0..t.x.len()).find(|&i| t.x[i].to_bits() != serial.x[i].to_bits());
+    assert_eq!(first, None, "{at}: first differing cell");
+}
+
 /// The threaded solve (core/src/fork.rs: products and coarse residuals cut between lines,
 /// sums cut at block boundaries, vector updates element by element) gives the serial bits for 2 to 5 parts, cut down to
 /// 64 cells a part: the same iterations, residual and solution, with the lines alone and with
@@ -241,12 +250,7 @@ fn threaded_solves_have_the_serial_bits() {
             for parts in 2..=5 {
                 let pool = Pool::new(parts).expect("threads").cutting_down_to(64);
                 let t = pool.install(|| sys.solve_on(&pool, pc, room, max));
-                let at = format!("{what} {pc:?} {parts} parts");
-                assert_eq!(t.iterations, serial.iterations, "{at}");
-                assert_eq!(t.recursive.to_bits(), serial.recursive.to_bits(), "{at}");
-                let first =
-                    (0..sys.grid.len()).find(|&i| t.x[i].to_bits() != serial.x[i].to_bits());
-                assert_eq!(first, None, "{at}: first differing cell");
+                assert_same_solve(&t, &serial, &format!("{what} {pc:?} {parts} parts"));
             }
         }
     }
@@ -268,6 +272,44 @@ fn threaded_solves_have_the_serial_bits() {
     let layer = layer(48, 85, false, 10);
     check(&layer, "cold layer 48 x 85", 400);
     assert!(layer.full(Preconditioner::Multigrid).residual < 1e-9);
+}
+
+/// The solves' hot loops run at every vector width this CPU has (host/src/isa.rs
+/// `AtLevel`, docs/simd.md): the products, line solves and sums compiled for AVX2 or AVX-512
+/// give the bits of the baseline, on one thread and on three.
+#[test]
+fn solves_at_every_vector_width_have_the_serial_bits() {
+    fn check<const D: usize>(sys: &System<D>, what: &str, max: u32) {
+        let room = workspace_len(sys.grid.cells());
+        let pool = Pool::new(3).expect("threads").cutting_down_to(64);
+        for pc in [Preconditioner::Lines, Preconditioner::Multigrid] {
+            let serial = sys.solve_on(&Serial, pc, room, max);
+            assert!(serial.iterations > 0, "{what} {pc:?}");
+            for level in [Level::Baseline, Level::Avx2, Level::Avx512] {
+                if !level.available() {
+                    eprintln!("note: this CPU has no {}: not compared", level.name());
+                    continue;
+                }
+                let one = sys.solve_on(&AtLevel::at(&Serial, level), pc, room, max);
+                let three =
+                    pool.install(|| sys.solve_on(&AtLevel::at(&pool, level), pc, room, max));
+                for (t, threads) in [(one, 1usize), (three, 3usize)] {
+                    let at = format!("{what} {pc:?} {} on {threads}", level.name());
+                    assert_same_solve(&t, &serial, &at);
+                }
+            }
+        }
+    }
+    check(
+        &random_system([61, 67], [false, true], 11),
+        "2D 61 x 67 periodic",
+        40,
+    );
+    check(
+        &random_system([13, 17, 18], [true, false, false], 12),
+        "3D 13 x 17 x 18",
+        40,
+    );
 }
 
 #[test]

@@ -58,7 +58,7 @@
 //! Allocation-free: the coarse levels live in the caller's workspace ([`Scratch::coarse`],
 //! [`workspace_len`]); if it is short, fewer levels are used.
 
-use crate::fork::{self, Fork};
+use crate::fork::{self, Call, Fork};
 use crate::grid::Grid;
 use crate::real::Real;
 
@@ -149,12 +149,17 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
         let n = self.grid.len();
         let n0 = self.grid.cells()[0];
         fork::chunks(fork, &mut out[..n], n0, |start, o| {
-            self.product_lines::<RES>(diag, b, x, start / n0, o);
+            fork.hot(Call(
+                #[inline(always)]
+                || self.product_lines::<RES>(diag, b, x, start / n0, o),
+            ));
         });
     }
 
     /// `out = A x` (or `b - A x`) on the whole lines along axis 0 that `out` covers, the
-    /// first being line `first` (`out` starts at cell `first * n0`).
+    /// first being line `first` (`out` starts at cell `first * n0`). Inlined into the runner
+    /// of [`Fork::hot`], as are the line solves below.
+    #[inline(always)]
     fn product_lines<const RES: bool>(
         &self,
         diag: &[R],
@@ -339,6 +344,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
 
     /// `m = diag + sum of the adjacent face coefficients`: A's diagonal. (A periodic axis of
     /// one cell has a wrap face from the cell to itself, which A does not see.)
+    #[inline(always)]
     fn diagonal(&self, diag: &[R], m: &mut [R]) {
         let n = self.grid.len();
         m[..n].copy_from_slice(&diag[..n]);
@@ -368,6 +374,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
     /// along the last axis (without a periodic wrap face), tridiagonal on each vertical line.
     /// Writes `inv_d = 1 / D` and the multipliers `l` (`l[i] = k / d` of the face below cell
     /// `i`; 0 on the bottom row).
+    #[inline(always)]
     pub fn line_factor(&self, diag: &[R], inv_d: &mut [R], l: &mut [R]) {
         let n = self.grid.len();
         let s = self.grid.stride(D - 1);
@@ -391,6 +398,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
 
     /// `z = M^-1 r` with the factor of [`Self::line_factor`]: forward and backward sweeps row
     /// by row.
+    #[inline(always)]
     pub fn precondition(&self, inv_d: &[R], l: &[R], r: &[R], z: &mut [R]) {
         let n = self.grid.len();
         let s = self.grid.stride(D - 1);
@@ -408,6 +416,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
     }
 
     /// `z = M^-1 z` in place.
+    #[inline(always)]
     fn line_solve(&self, inv_d: &[R], l: &[R], z: &mut [R]) {
         let n = self.grid.len();
         let s = self.grid.stride(D - 1);
@@ -424,6 +433,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
     }
 
     /// The diagonal scaling and the backward sweep of the line solve (one pass).
+    #[inline(always)]
     fn line_backward(&self, inv_d: &[R], l: &[R], z: &mut [R]) {
         let n = self.grid.len();
         let s = self.grid.stride(D - 1);
@@ -844,12 +854,16 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
         let n: usize = self.cells.iter().product();
         let n0 = self.cells[0];
         fork::chunks(fork, &mut out[..n], n0, |start, o| {
-            self.residual_lines(b, x, start / n0, o);
+            fork.hot(Call(
+                #[inline(always)]
+                || self.residual_lines(b, x, start / n0, o),
+            ));
         });
     }
 
     /// `out = b - A x` on the whole lines along axis 0 that `out` covers, the first being
     /// line `first`.
+    #[inline(always)]
     fn residual_lines(&self, b: &[R], x: &[R], first: usize, out: &mut [R]) {
         let cells = self.cells;
         let n0 = cells[0];
@@ -1045,7 +1059,10 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         tmp: &'s mut [R],
         coarse: &'s mut [R],
     ) -> Self {
-        st.line_factor(diag, pre, line);
+        fork.hot(Call(
+            #[inline(always)]
+            || st.line_factor(diag, pre, line),
+        ));
         Self {
             fork,
             part,
@@ -1130,7 +1147,10 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         let lv = self.cyc.levels;
         let factor = (&self.pre[..], self.line);
         if lv.count < 2 {
-            st.precondition(factor.0, factor.1, r, z);
+            fork.hot(Call(
+                #[inline(always)]
+                || st.precondition(factor.0, factor.1, r, z),
+            ));
             return fork::dot(fork, r, z, self.part);
         }
         let cells = lv.cells[0];
@@ -1138,7 +1158,10 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         let (ops, work) = self.coarse.split_at_mut(lv.op_offset(lv.count));
         let ops: &[R] = ops;
         // pre-smoothing from 0: z = omega M^-1 r (omega is in `pre`)
-        st.precondition(factor.0, factor.1, r, z);
+        fork.hot(Call(
+            #[inline(always)]
+            || st.precondition(factor.0, factor.1, r, z),
+        ));
         let tmp = &mut self.tmp[..n];
         st.residual_on(fork, self.diag, r, z, tmp);
         {
@@ -1150,7 +1173,10 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         prolong(cells, &sc, &work[..n1], z);
         // post-smoothing: z += omega M^-1 (r - A z), with r . z on the way
         st.residual_on(fork, self.diag, r, z, tmp);
-        st.line_solve(factor.0, factor.1, tmp);
+        fork.hot(Call(
+            #[inline(always)]
+            || st.line_solve(factor.0, factor.1, tmp),
+        ));
         let tmp: &[R] = tmp;
         fork::set_and_dot(fork, z, Some(r), |i, zi| zi + tmp[i], self.part)
     }

@@ -14,10 +14,10 @@ pub mod flux;
 mod limited;
 mod step;
 
+pub use crate::hot::{Baseline, HotLoop, Isa};
 pub use carried::{Discharge, MassFluxes};
 pub use flux::Scheme;
 pub use limited::Transport;
-pub use step::{Baseline, HotLoop, Isa};
 
 use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};
 use crate::grid::Grid;

@@ -8,6 +8,7 @@
 use super::flux::{self, Scheme};
 use super::Segregation;
 use crate::boundary::Boundary;
+use crate::hot::{Baseline, HotLoop, Isa};
 use crate::real::Real;
 use core::marker::PhantomData;
 
@@ -139,39 +140,6 @@ pub(super) fn positive_zero<R: Real>(x: R) -> R {
         R::ZERO
     } else {
         x
-    }
-}
-
-/// One hot loop of the step, packaged as a value so that an [`Isa`] can run it inside a
-/// function of its choosing. `run` is `#[inline(always)]` in every implementation: the loop
-/// is compiled into the caller, at the caller's target features.
-pub trait HotLoop {
-    /// What the loop returns.
-    type Out;
-    /// Runs the loop.
-    fn run(self) -> Self::Out;
-}
-
-/// How the step runs its hot loops ([`Segregation::step_on`]): the instruction set they are
-/// compiled for. The core has no `unsafe` and is compiled at the crate's target features
-/// ([`Baseline`]); a host that detects a wider vector unit at run time supplies a runner
-/// whose `run` calls a `#[target_feature]` function into which the loop is inlined (sieve's
-/// host/src/isa.rs, docs/simd.md). The arithmetic is the same IEEE operations in the same
-/// order either way (Rust never contracts `a*b+c` into an FMA, and every sum has a fixed
-/// order), so every runner gives the same bits.
-pub trait Isa {
-    /// Runs `hot`, compiled for this instruction set.
-    fn run<H: HotLoop>(hot: H) -> H::Out;
-}
-
-/// The crate's own target features: exactly the step's code without a runner (each hot
-/// loop one out-of-line function, as `interior_block` was).
-pub struct Baseline;
-
-impl Isa for Baseline {
-    #[inline(never)]
-    fn run<H: HotLoop>(hot: H) -> H::Out {
-        hot.run()
     }
 }
 
