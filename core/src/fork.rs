@@ -181,6 +181,21 @@ pub fn dot<R: Real, F: Fork>(fork: &F, a: &[R], b: &[R], partials: &mut [R]) -> 
     sum::fold(&partials[..nb])
 }
 
+/// `out_i = new(i, out_i)` for every element: an element-wise pass, cut among the workers
+/// when [`worth`] it, each part a hot loop ([`Fork::hot`]). The same bits in any part.
+pub fn set<R: Real, F: Fork>(fork: &F, out: &mut [R], new: impl Fn(usize, R) -> R + Sync) {
+    chunks(fork, out, 1, |start, chunk| {
+        fork.hot(Call(
+            #[inline(always)]
+            || {
+                for (k, v) in chunk.iter_mut().enumerate() {
+                    *v = new(start + k, *v);
+                }
+            },
+        ))
+    });
+}
+
 /// `out_i = new(i, out_i)` for every element, then `sum_i w_i out_i` with `w = with` (or `out`
 /// itself when `None`), in the bits of [`sum::dot`]: one fused pass on the caller's thread
 /// when `out` is not [`worth`] cutting, else the element-wise pass and [`dot`] on the
@@ -208,16 +223,7 @@ pub fn set_and_dot<R: Real, F: Fork>(
             },
         ));
     }
-    each_chunk(fork, out, 1, |start, chunk| {
-        fork.hot(Call(
-            #[inline(always)]
-            || {
-                for (k, v) in chunk.iter_mut().enumerate() {
-                    *v = new(start + k, *v);
-                }
-            },
-        ))
-    });
+    set(fork, out, new);
     match with {
         None => dot(fork, out, out, partials),
         Some(w) => dot(fork, w, out, partials),

@@ -359,23 +359,26 @@ fn data_files(dir: &Path) -> Vec<std::path::PathBuf> {
     out
 }
 
+/// The arguments of `sieve run SCENE --grid G --t-end T --threads 1 --out OUT -q`.
+fn run_args<'a>(scene: &'a str, grid: &'a str, t_end: &'a str, out: &'a str) -> [&'a str; 11] {
+    [
+        "run",
+        scene,
+        "--grid",
+        grid,
+        "--t-end",
+        t_end,
+        "--threads",
+        "1",
+        "--out",
+        out,
+        "-q",
+    ]
+}
+
 /// `sieve run` of `scene` at `SIEVE_ISA=baseline` and `auto` writes the same data files.
 fn same_files_at_baseline_and_auto(d: &Path, scene: &str, grid: &str, t_end: &str) {
-    let args = |out: &'static str| {
-        [
-            "run",
-            scene,
-            "--grid",
-            grid,
-            "--t-end",
-            t_end,
-            "--threads",
-            "1",
-            "--out",
-            out,
-            "-q",
-        ]
-    };
+    let args = |out| run_args(scene, grid, t_end, out);
     let (code, _, err) = run_env(d, &args("base"), &[("SIEVE_ISA", "baseline")]);
     assert_eq!(code, 0, "{scene}: {err}");
     let (code, _, err) = run_env(d, &args("auto"), &[("SIEVE_ISA", "auto")]);
@@ -403,21 +406,7 @@ fn cli_same_files_at_every_level_and_bad_values() {
     let d = tempfile::tempdir().unwrap();
     same_files_at_baseline_and_auto(d.path(), "gray-thornton-plug", "60x31", "0.2");
     same_files_at_baseline_and_auto(d.path(), "column-collapse", "48x12", "0.05");
-    let args = |out: &'static str| {
-        [
-            "run",
-            "gray-thornton-plug",
-            "--grid",
-            "60x31",
-            "--t-end",
-            "0.2",
-            "--threads",
-            "1",
-            "--out",
-            out,
-            "-q",
-        ]
-    };
+    let args = |out| run_args("gray-thornton-plug", "60x31", "0.2", out);
     for bad in ["sse9", "AVX2 please"] {
         let (code, _, err) = run_env(d.path(), &args("bad"), &[("SIEVE_ISA", bad)]);
         assert_eq!(code, 2, "{bad}: {err}");

@@ -1181,22 +1181,19 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         let (r, z) = (&r[..n], &mut z[..n]);
         let lv = self.cyc.levels;
         let factor = (&self.pre[..], self.line);
+        // z = M^-1 r: the lines alone, or the V-cycle's pre-smoothing from 0 (then `pre`
+        // holds omega, so z = omega M^-1 r)
+        fork.hot(Call(
+            #[inline(always)]
+            || st.precondition(factor.0, factor.1, r, z),
+        ));
         if lv.count < 2 {
-            fork.hot(Call(
-                #[inline(always)]
-                || st.precondition(factor.0, factor.1, r, z),
-            ));
             return fork::dot(fork, r, z, self.part);
         }
         let cells = lv.cells[0];
         let (n1, sc) = (lv.n[1], strides(lv.cells[1]));
         let (ops, work) = self.coarse.split_at_mut(lv.op_offset(lv.count));
         let ops: &[R] = ops;
-        // pre-smoothing from 0: z = omega M^-1 r (omega is in `pre`)
-        fork.hot(Call(
-            #[inline(always)]
-            || st.precondition(factor.0, factor.1, r, z),
-        ));
         let tmp = &mut self.tmp[..n];
         st.residual_on(fork, self.diag, r, z, tmp);
         {
@@ -1239,16 +1236,7 @@ impl<R: Real, const D: usize> Cycle<R, D> {
         let shared = rest.len() - lv.n[1];
         let w = self.omega_c;
         let (b, d): (&[R], &[R]) = (b, op.adiag);
-        fork::chunks(fork, x, 1, |start, xc| {
-            fork.hot(Call(
-                #[inline(always)]
-                || {
-                    for (k, v) in xc.iter_mut().enumerate() {
-                        *v = w * b[start + k] / d[start + k];
-                    }
-                },
-            ))
-        });
+        fork::set(fork, x, |i, _| w * b[i] / d[i]);
         {
             let (deeper, t) = rest.split_at_mut(shared);
             op.residual_on(fork, b, x, t);
@@ -1261,16 +1249,7 @@ impl<R: Real, const D: usize> Cycle<R, D> {
         let t = &mut rest[shared..];
         op.residual_on(fork, b, x, t);
         let t: &[R] = t;
-        fork::chunks(fork, x, 1, |start, xc| {
-            fork.hot(Call(
-                #[inline(always)]
-                || {
-                    for (k, v) in xc.iter_mut().enumerate() {
-                        *v += w * t[start + k] / d[start + k];
-                    }
-                },
-            ))
-        });
+        fork::set(fork, x, |i, xi| xi + w * t[i] / d[i]);
     }
 }
 
@@ -1384,16 +1363,7 @@ pub fn solve_on<R: Real, const D: usize, const N: usize, F: Fork>(
         let beta = rz_new / rz;
         rz = rz_new;
         let ap: &[R] = ap;
-        fork::chunks(fork, p, 1, |start, pc| {
-            fork.hot(Call(
-                #[inline(always)]
-                || {
-                    for (k, v) in pc.iter_mut().enumerate() {
-                        *v = ap[start + k] + beta * *v;
-                    }
-                },
-            ))
-        });
+        fork::set(fork, p, |i, pi| ap[i] + beta * pi);
     }
     Solve {
         iterations: it,
