@@ -29,6 +29,13 @@ pub type Cuts = heapless::Vec<Range<usize>, MAX_PARTS>;
 
 /// Runs the items of one loop, possibly several at once, and returns when all are done.
 pub trait Fork: Sync {
+    /// The instruction set this fork's hot loops are compiled for ([`crate::hot`],
+    /// docs/simd.md): a type, so that a step generic over the fork runs every hot loop of its
+    /// stages (the flow's solves, the segregation's percolation and prepare) at that width,
+    /// whichever way it reaches them ([`Self::hot`] or `Self::Isa` as a type parameter).
+    /// Every choice gives the same bits.
+    type Isa: Isa;
+
     /// How many parts a loop should be cut into (at least 1): the number of workers. The
     /// results never depend on it.
     fn parts(&self) -> usize;
@@ -42,12 +49,10 @@ pub trait Fork: Sync {
         MIN_PER_PART
     }
 
-    /// Runs one hot loop of the flow's solves compiled for the instruction set the host chose
-    /// at run time ([`crate::hot`], docs/simd.md); the default is the crate's own features.
-    /// Every choice gives the same bits.
+    /// Runs one hot loop compiled for [`Self::Isa`].
     #[inline(always)]
     fn hot<H: HotLoop>(&self, hot: H) -> H::Out {
-        Baseline::run(hot)
+        Self::Isa::run(hot)
     }
 }
 
@@ -70,6 +75,8 @@ impl<T, F: FnMut() -> T> HotLoop for Call<F> {
 pub struct Serial;
 
 impl Fork for Serial {
+    type Isa = Baseline;
+
     fn parts(&self) -> usize {
         1
     }

@@ -6,8 +6,9 @@
 //! `#[inline(always)]` is compiled into whichever function calls it, at that function's
 //! target features. So the core hands its hottest loops to an [`Isa`] (the segregation step,
 //! as a type parameter: [`crate::Segregation::step_on`]) or to a [`crate::fork::Fork`] (the
-//! coupled flow's solves, at run time: [`crate::fork::Fork::hot`]), and the host's runner calls
-//! them inside a `#[target_feature]` function.
+//! coupled and flow steps: the fork's type names its instruction set, `Fork::Isa`, and
+//! [`crate::fork::Fork::hot`] runs a loop with it), and the host's runner calls them inside a
+//! `#[target_feature]` function.
 //!
 //! Same bits at every width: the loops are the same IEEE additions, multiplications,
 //! divisions, square roots and exact maxima in the same order. Rust never contracts `a*b+c`

@@ -266,7 +266,8 @@ pub fn spin_up<R: Real, const D: usize, const N: usize>(
             };
             return Err(stop.error(None));
         }
-        flow.step_on(flow.stable_dt(), &crate::isa::AtLevel::new(&Serial));
+        let stable = flow.stable_dt();
+        crate::on_level!(crate::isa::level(), &Serial, |f| flow.step_on(stable, f));
         let k = flow.steps();
         if k >= fm.min_steps && flow.residual() < tol {
             break;
@@ -494,6 +495,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
     }
     let mut timer = StepTimer::start(scene.psi_threshold, &stats, cpl.seg, geo, resumed);
     let mut checked = false;
+    let level = crate::isa::level();
     'outputs: for (k, &t) in times.iter().enumerate().skip(first) {
         let target = R::from_f64(t);
         let start = Instant::now();
@@ -508,8 +510,10 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
                 None => match &pool {
                     // the step on a worker: its loops fork from inside the pool
                     // its solves' hot loops at the widest vector unit (docs/simd.md)
-                    Some(p) => p.install(|| cpl.step_with_on(dt, &crate::isa::AtLevel::new(p))),
-                    None => cpl.step_with_on(dt, &crate::isa::AtLevel::new(&Serial)),
+                    Some(p) => {
+                        p.install(|| crate::on_level!(level, p, |f| cpl.step_with_on(dt, f)))
+                    }
+                    None => crate::on_level!(level, &Serial, |f| cpl.step_with_on(dt, f)),
                 }
                 .map_err(|e| {
                     // The core names what it refused; a non-finite cell says more.

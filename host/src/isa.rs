@@ -1,10 +1,11 @@
-//! Run-time dispatch of the hot loops (the segregation step's, the coupled flow's solves') to
-//! the widest vector unit of the machine (issue 12, docs/simd.md).
+//! Run-time dispatch of the hot loops (the segregation step's, the coupled and flow steps')
+//! to the widest vector unit of the machine (issue 12, docs/simd.md).
 //!
 //! A portable x86-64 binary is compiled for SSE2; the step's loops then run about half as fast
 //! as in a binary compiled for the local CPU. The core stays free of `unsafe` and compiled at
 //! the crate's features: it runs each hot loop through an [`Isa`] type parameter
-//! ([`Segregation::step_on`]) or through the fork of the flow's solves ([`AtLevel`]), and this
+//! ([`Segregation::step_on`]) or through the fork of the coupled and flow steps, whose type
+//! names the instruction set ([`AtLevel`], [`on_level!`](crate::on_level)), and this
 //! module supplies runners whose `run` calls a `#[target_feature]` function into which the loop
 //! (`#[inline(always)]`) is compiled. The level is chosen once per process: the `SIEVE_ISA`
 //! environment variable (`auto`, the default; `baseline`; `avx2`; `avx512`), checked against
@@ -18,8 +19,10 @@
 
 use crate::error::{Error, Result};
 use sieve_core::fork::Fork;
-use sieve_core::hot::{Baseline, HotLoop, Isa};
+pub use sieve_core::hot::Baseline;
+use sieve_core::hot::{HotLoop, Isa};
 use sieve_core::{Real, Segregation};
+use std::marker::PhantomData;
 use std::sync::OnceLock;
 
 /// An instruction-set level of the step's hot loops.
@@ -157,28 +160,29 @@ pub fn step<R: Real, const D: usize, const N: usize>(s: &mut Segregation<R, D, N
     step_at(level(), s, dt)
 }
 
-/// A fork whose hot loops run at a level: how the coupled flow's solves (its CG products,
-/// line solves and sums, [`Fork::hot`]) reach the wider vector units. The flow takes its fork
-/// as a value at run time, so the level is a value here, not a type as for the segregation
-/// step. Everything else is the inner fork's.
-pub struct AtLevel<'f, F: Fork> {
+/// A fork whose hot loops run compiled for `I`: how a coupled or flow step (its solves
+/// through [`Fork::hot`], its segregation stages through `Fork::Isa`) reaches the wider
+/// vector units. The level is a type, so one step is compiled once per level and the choice
+/// is made once per step ([`on_level!`](crate::on_level)), not once per loop. Everything
+/// else is the inner fork's.
+pub struct AtLevel<'f, F: Fork, I: Isa> {
     fork: &'f F,
-    level: Level,
+    isa: PhantomData<fn() -> I>,
 }
 
-impl<'f, F: Fork> AtLevel<'f, F> {
-    /// `fork` at this process's [`level`].
+impl<'f, F: Fork, I: Isa> AtLevel<'f, F, I> {
+    /// `fork` with its hot loops compiled for `I`.
     pub fn new(fork: &'f F) -> Self {
-        Self::at(fork, level())
-    }
-
-    /// `fork` at `level`.
-    pub fn at(fork: &'f F, level: Level) -> Self {
-        AtLevel { fork, level }
+        AtLevel {
+            fork,
+            isa: PhantomData,
+        }
     }
 }
 
-impl<F: Fork> Fork for AtLevel<'_, F> {
+impl<F: Fork, I: Isa> Fork for AtLevel<'_, F, I> {
+    type Isa = I;
+
     fn parts(&self) -> usize {
         self.fork.parts()
     }
@@ -190,15 +194,29 @@ impl<F: Fork> Fork for AtLevel<'_, F> {
     fn min_per_part(&self) -> usize {
         self.fork.min_per_part()
     }
+}
 
-    #[inline(always)]
-    fn hot<H: HotLoop>(&self, hot: H) -> H::Out {
-        match self.level {
-            Level::Baseline => Baseline::run(hot),
-            Level::Avx2 => Avx2::run(hot),
-            Level::Avx512 => Avx512::run(hot),
+/// `on_level!(level, fork, |f| body)`: `body` with `f` bound to `fork` at `level`
+/// ([`AtLevel`]), one monomorphised copy of `body` per level.
+#[macro_export]
+macro_rules! on_level {
+    ($level:expr, $fork:expr, |$f:ident| $body:expr) => {{
+        let fork = $fork;
+        match $level {
+            $crate::isa::Level::Baseline => {
+                let $f = &$crate::isa::AtLevel::<_, $crate::isa::Baseline>::new(fork);
+                $body
+            }
+            $crate::isa::Level::Avx2 => {
+                let $f = &$crate::isa::AtLevel::<_, $crate::isa::Avx2>::new(fork);
+                $body
+            }
+            $crate::isa::Level::Avx512 => {
+                let $f = &$crate::isa::AtLevel::<_, $crate::isa::Avx512>::new(fork);
+                $body
+            }
         }
-    }
+    }};
 }
 
 /// The x86-64-v3 runner. Only [`Level::Avx2`] selects it, and only when the CPU has it.

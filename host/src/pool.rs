@@ -47,6 +47,8 @@ impl Pool {
 }
 
 impl Fork for Pool {
+    type Isa = sieve_core::hot::Baseline;
+
     fn parts(&self) -> usize {
         self.parts
     }

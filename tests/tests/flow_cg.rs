@@ -14,7 +14,7 @@
 //! split into chunks at block boundaries (what a threaded driver does).
 
 use proptest::prelude::*;
-use sieve::isa::{AtLevel, Level};
+use sieve::isa::Level;
 use sieve::pool::Pool;
 use sieve_core::flow::cg::{solve_on, workspace_len, Preconditioner, Scratch, Stencil, Stop};
 use sieve_core::fork::{Fork, Serial};
@@ -275,7 +275,7 @@ fn threaded_solves_have_the_serial_bits() {
 }
 
 /// The solves' hot loops run at every vector width this CPU has (host/src/isa.rs
-/// `AtLevel`, docs/simd.md): the products, line solves and sums compiled for AVX2 or AVX-512
+/// `AtLevel`, `on_level!`, docs/simd.md): the products, line solves and sums compiled for AVX2 or AVX-512
 /// give the bits of the baseline, on one thread and on three.
 #[test]
 fn solves_at_every_vector_width_have_the_serial_bits() {
@@ -290,9 +290,9 @@ fn solves_at_every_vector_width_have_the_serial_bits() {
                     eprintln!("note: this CPU has no {}: not compared", level.name());
                     continue;
                 }
-                let one = sys.solve_on(&AtLevel::at(&Serial, level), pc, room, max);
-                let three =
-                    pool.install(|| sys.solve_on(&AtLevel::at(&pool, level), pc, room, max));
+                let one = sieve::on_level!(level, &Serial, |f| sys.solve_on(f, pc, room, max));
+                let three = pool
+                    .install(|| sieve::on_level!(level, &pool, |f| sys.solve_on(f, pc, room, max)));
                 for (t, threads) in [(one, 1usize), (three, 3usize)] {
                     let at = format!("{what} {pc:?} {} on {threads}", level.name());
                     assert_same_solve(&t, &serial, &at);

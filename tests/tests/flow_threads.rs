@@ -3,9 +3,11 @@
 //! friction walls give the same state, bit for bit, after every step, whether the linear
 //! solves' loops run on one thread or are cut into 2, 3 or 4 parts on the pool of `sieve run
 //! --threads` (host/src/pool.rs; cut down to 64 cells a part, so that these small grids are
-//! cut in odd places). A difference names the first step where the two runs part.
+//! cut in odd places), and at every vector width the CPU has (host/src/isa.rs). A difference
+//! names the first step where the two runs part.
 
 use crate::silo_common::{discharge_on, Spec, N};
+use sieve::isa::Level;
 use sieve_core::flow::coupled::Coupled;
 use sieve_core::fork::{Fork, Serial};
 
@@ -66,6 +68,28 @@ fn check<const D: usize>(spec: Spec<D>, what: &str) {
             "{what}, {parts} parts: the first step that differs"
         );
         assert_eq!(threaded.len(), serial.len(), "{what}, {parts} parts: steps");
+    }
+    // Every stage's hot loops at every vector width this CPU has (`Fork::Isa`,
+    // docs/simd.md): the percolation, the carried transport, the prepare, the flow's
+    // transport and solves compiled for AVX2 or AVX-512 give the serial bits, on one thread
+    // and on two parts. (In a build for the local CPU every level is that CPU's code; the
+    // comparison bites in a portable build, as docs/simd.md runs it.)
+    let pool = sieve::pool::Pool::new(2)
+        .expect("threads")
+        .cutting_down_to(64);
+    for level in [Level::Baseline, Level::Avx2, Level::Avx512] {
+        if !level.available() {
+            eprintln!("note: this CPU has no {}: not compared", level.name());
+            continue;
+        }
+        let (one, _) = sieve::on_level!(level, &Serial, |f| run(spec, f));
+        let (two, _) = pool.install(|| sieve::on_level!(level, &pool, |f| run(spec, f)));
+        for (bits, on) in [(one, "1 thread"), (two, "2 parts")] {
+            let first = serial.iter().zip(&bits).position(|(a, b)| a != b);
+            let at = format!("{what}, {} on {on}", level.name());
+            assert_eq!(first, None, "{at}: the first step that differs");
+            assert_eq!(bits.len(), serial.len(), "{at}: steps");
+        }
     }
 }
 

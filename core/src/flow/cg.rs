@@ -721,7 +721,9 @@ fn for_each_line<const D: usize>(
     }
 }
 
-/// `coarse[parent(i)] += fine[i]` over the cells of `cells` (restriction, `P^T`).
+/// `coarse[parent(i)] += fine[i]` over the cells of `cells` (restriction, `P^T`). Inlined
+/// into a hot loop ([`Fork::hot`]) at each call.
+#[inline(always)]
 fn restrict<R: Real, const D: usize>(
     cells: [usize; D],
     sc: &[usize; D],
@@ -742,7 +744,8 @@ fn restrict<R: Real, const D: usize>(
     });
 }
 
-/// `fine[i] += coarse[parent(i)]` (prolongation, `P`).
+/// `fine[i] += coarse[parent(i)]` (prolongation, `P`). Inlined into a hot loop.
+#[inline(always)]
 fn prolong<R: Real, const D: usize>(
     cells: [usize; D],
     sc: &[usize; D],
@@ -1199,10 +1202,18 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         {
             let b1 = &mut work[n1..2 * n1];
             b1.fill(R::ZERO);
-            restrict(cells, &sc, tmp, b1);
+            let tmp: &[R] = tmp;
+            fork.hot(Call(
+                #[inline(always)]
+                || restrict(cells, &sc, tmp, b1),
+            ));
         }
         self.cyc.vcycle(fork, ops, 1, work);
-        prolong(cells, &sc, &work[..n1], z);
+        let coarse: &[R] = &work[..n1];
+        fork.hot(Call(
+            #[inline(always)]
+            || prolong(cells, &sc, coarse, z),
+        ));
         // post-smoothing: z += omega M^-1 (r - A z), with r . z on the way
         st.residual_on(fork, self.diag, r, z, tmp);
         fork.hot(Call(
@@ -1242,10 +1253,18 @@ impl<R: Real, const D: usize> Cycle<R, D> {
             op.residual_on(fork, b, x, t);
             let bc = &mut deeper[nc..2 * nc];
             bc.fill(R::ZERO);
-            restrict(op.cells, &sc, &t[..n], bc);
+            let t: &[R] = &t[..n];
+            fork.hot(Call(
+                #[inline(always)]
+                || restrict(op.cells, &sc, t, bc),
+            ));
         }
         self.vcycle(fork, ops, l + 1, rest);
-        prolong(op.cells, &sc, &rest[..nc], x);
+        let coarse: &[R] = &rest[..nc];
+        fork.hot(Call(
+            #[inline(always)]
+            || prolong(op.cells, &sc, coarse, x),
+        ));
         let t = &mut rest[shared..];
         op.residual_on(fork, b, x, t);
         let t: &[R] = t;

@@ -32,6 +32,7 @@ use super::{Flow, FlowError};
 use crate::closure::Packing;
 use crate::fork::{Fork, Serial};
 use crate::geometry::CutCells;
+use crate::hot::{Baseline, Isa};
 use crate::real::Real;
 use crate::segregation::{Discharge, Segregation, SetupError};
 
@@ -191,9 +192,13 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     }
 
     fn prepare_segregation(&mut self) -> Result<(), SetupError> {
+        self.prepare_segregation_on::<Baseline>()
+    }
+
+    fn prepare_segregation_on<I: Isa>(&mut self) -> Result<(), SetupError> {
         match self.geo {
             Some(g) => self.seg.prepare_embedded(g)?,
-            None => self.seg.prepare()?,
+            None => self.seg.prepare_on::<I>()?,
         }
         self.percolation_dt = match self.geo {
             Some(g) => self.seg.stable_dt_percolation_embedded(g),
@@ -403,14 +408,17 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     /// bits for any number of threads: [`Flow::step_on`]).
     pub fn step_with_on<F: Fork>(&mut self, dt: R, fork: &F) -> Result<(), CouplingError> {
         let limit = self.percolation_dt();
+        // Every stage's hot loops at the fork's instruction set (docs/simd.md).
         self.seg
-            .step_percolation_substeps(dt, limit, PERCOLATION_SUBSTEPS, self.geo);
+            .step_percolation_substeps_on::<F::Isa>(dt, limit, PERCOLATION_SUBSTEPS, self.geo);
         self.flow.step_on(dt, fork);
         let d = match self.geo {
             Some(g) => self
                 .seg
                 .carry_mass_fluxes_embedded(self.flow.mass_fluxes(), g),
-            None => self.seg.carry_mass_fluxes(self.flow.mass_fluxes()),
+            None => self
+                .seg
+                .carry_mass_fluxes_on::<F::Isa>(self.flow.mass_fluxes()),
         };
         for a in 0..D {
             for side in 0..2 {
@@ -426,7 +434,7 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
             self.seg
                 .set_flow_state(i, self.flow.temperature(i), self.flow.velocity(i));
         }
-        self.prepare_segregation()
+        self.prepare_segregation_on::<F::Isa>()
             .map_err(CouplingError::Segregation)
     }
 

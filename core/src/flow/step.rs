@@ -4,7 +4,7 @@ use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
 use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip, Stress};
 use crate::boundary::Boundary;
 use crate::closure;
-use crate::fork::{Fork, Serial};
+use crate::fork::{Call, Fork, Serial};
 use crate::frame::{turn_by, Frame};
 use crate::real::Real;
 use crate::segregation::flux::transport as upwind;
@@ -41,20 +41,35 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             // momentum update below both use it (model.md 5.3, implicit pressure).
             self.implicit_pressure(dt, fork);
         }
-        self.transport(dt);
-        if implicit {
-            // the linearised pressure at the content the transport delivered
-            self.consistent_pressure();
-        } else {
-            self.pressures(); // new c, old T: forward-backward acoustics
-        }
-        self.pressure_and_gravity(dt);
-        self.coefficients();
-        self.velocity_from_momentum();
+        // The stages' own loops as hot loops too, at the fork's instruction set (docs/simd.md):
+        // what is inlined into them is compiled for it, the rest keeps the crate's features.
+        fork.hot(Call(
+            #[inline(always)]
+            || self.transport(dt),
+        ));
+        fork.hot(Call(
+            #[inline(always)]
+            || {
+                if implicit {
+                    // the linearised pressure at the content the transport delivered
+                    self.consistent_pressure();
+                } else {
+                    self.pressures(); // new c, old T: forward-backward acoustics
+                }
+                self.pressure_and_gravity(dt);
+                self.coefficients();
+                self.velocity_from_momentum();
+            },
+        ));
         self.viscous(dt, fork);
         self.temperature_stage(dt, fork);
-        self.pressures();
-        self.residual = self.step_residual(dt);
+        self.residual = fork.hot(Call(
+            #[inline(always)]
+            || {
+                self.pressures();
+                self.step_residual(dt)
+            },
+        ));
         self.time += dt;
         self.steps += 1;
     }
@@ -115,6 +130,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// cell accelerations. It vanishes at a discrete rest state and on smooth flows (O(h^2)),
     /// and it drives a mass flux against the odd-even (checkerboard) pressure modes that the
     /// collocated central pressure gradient cannot see, so those are damped, not frozen in.
+    #[inline(always)]
     fn transport(&mut self, dt: R) {
         let n = self.grid.len();
         let h = self.grid.spacing();

@@ -37,7 +37,9 @@
 
 use super::{Phase, Segregation, Transport};
 use crate::boundary::Boundary;
+use crate::fork::Call;
 use crate::geometry::CutCells;
+use crate::hot::{Baseline, Isa};
 use crate::real::Real;
 
 /// The face mass fluxes one flow step applied (time-integrated, in content units: the change
@@ -136,6 +138,12 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// advance the clock (the percolation stage does: [`Self::step_percolation`]). The face
     /// coefficients are used as scratch: call [`Self::prepare`] before the next step.
     pub fn carry_mass_fluxes(&mut self, fx: MassFluxes<'_, R, D, N>) -> Discharge<R, D> {
+        self.carry_mass_fluxes_on::<Baseline>(fx)
+    }
+
+    /// [`Self::carry_mass_fluxes`] with its passes over the cells run by `I` (the same bits
+    /// for every `I`).
+    pub fn carry_mass_fluxes_on<I: Isa>(&mut self, fx: MassFluxes<'_, R, D, N>) -> Discharge<R, D> {
         if self.transport == Transport::Limited {
             return self.carry_limited(fx, None);
         }
@@ -149,14 +157,19 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // psi) stays in `q`, the untracked one `c - q` goes to `k[0]` (scratch), the donor's
         // qhat to `flux`.
         // One branch-free loop (selects; it vectorises), then the guard's sum in cell order.
-        let any = keep_shares(
-            &mut self.q[..n],
-            &mut self.carry[..n],
-            &self.c[..n],
-            &mut self.rhs[..n],
-            &mut self.flux[..n],
-            &mut self.k[0][..n],
-        );
+        let any = I::run(Call(
+            #[inline(always)]
+            || {
+                keep_shares(
+                    &mut self.q[..n],
+                    &mut self.carry[..n],
+                    &self.c[..n],
+                    &mut self.rhs[..n],
+                    &mut self.flux[..n],
+                    &mut self.k[0][..n],
+                )
+            },
+        ));
         let mut guarded = R::ZERO;
         if any {
             for &moved in &self.rhs[..n] {
@@ -289,7 +302,8 @@ pub(super) fn guard_tracked<R: Real>(q: R, c: R, guarded: &mut R) -> R {
 /// to `rhs` in the cell's place (the outflow `O_i` is read there first; [`guard`]), so that
 /// the caller sums it in cell order, as `guard_tracked` would. Selects only, so the
 /// loop vectorises: its two divisions per cell were the cost of the pass. Returns whether any
-/// cell was guarded.
+/// cell was guarded. Inlined into its hot loop (`carry_mass_fluxes_on`).
+#[inline(always)]
 fn keep_shares<R: Real>(
     q: &mut [R],
     carry: &mut [R],

@@ -209,6 +209,7 @@ fn more_orthogonal<R: Real>(m1: [R; 2], m2: [R; 2], u: [R; 2], fallback: [R; 2])
 /// `out[i] = (u[i + s] - u[i - s]) / w` for the cells `s..n - s` (`n = out.len()`), the
 /// central difference of [`velocity_gradient_at`] along an axis of stride `s` with
 /// `w = 2 h`; the other cells are left alone. A straight loop that vectorises.
+#[inline(always)]
 pub(crate) fn central_difference<R: Real>(out: &mut [R], u: &[R], s: usize, w: R) {
     let n = out.len().min(u.len());
     if n <= 2 * s {
@@ -224,6 +225,7 @@ pub(crate) fn central_difference<R: Real>(out: &mut [R], u: &[R], s: usize, w: R
 /// First part of [`direction_2d`] over arrays: from the gradient `(g00, g10, g01, g11)` of
 /// each cell (in `x0, x1, x2, x3`) the entries `a = 2 g00`, `b = g01 + g10`, `d = 2 g11` of
 /// `k = g + g^T` and `r^2 = ((a - d)/2)^2 + b^2`, in their place. Vectorises.
+#[inline(always)]
 pub(crate) fn normal_2d_parts<R: Real>(x0: &mut [R], x1: &mut [R], x2: &mut [R], x3: &mut [R]) {
     let n = x0.len().min(x1.len()).min(x2.len()).min(x3.len());
     let (x0, x1, x2, x3) = (&mut x0[..n], &mut x1[..n], &mut x2[..n], &mut x3[..n]);
@@ -239,6 +241,7 @@ pub(crate) fn normal_2d_parts<R: Real>(x0: &mut [R], x1: &mut [R], x2: &mut [R],
 /// (selects only: vectorises): from `a, b` (in `m`), `d` and `r` of each cell and its
 /// velocity `u`, the normal `m` (into `m`) and `m . m` (into `r`); `fallback` and 1 where
 /// the shear vanishes. The same operations as the per-cell functions: the same bits.
+#[inline(always)]
 pub(crate) fn normal_2d_finish<R: Real>(
     m: [&mut [R]; 2],
     d: &[R],

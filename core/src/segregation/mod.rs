@@ -20,6 +20,7 @@ pub use flux::Scheme;
 pub use limited::Transport;
 
 use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};
+use crate::fork::Call;
 use crate::grid::Grid;
 use crate::real::Real;
 use serde::{Deserialize, Serialize};
@@ -493,13 +494,23 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// Validates the fields and derives T (if from shear), the segregation direction, the face
     /// coefficients `k` and the stable rate. Needed after any change of u, c or T.
     pub fn prepare(&mut self) -> Result<(), SetupError> {
+        self.prepare_on::<Baseline>()
+    }
+
+    /// [`Self::prepare`] with its passes over the cells run by `I` (compiled for its
+    /// instruction set; the same bits for every `I`): a coupled step prepares after every
+    /// step, at its fork's width ([`crate::flow::Coupled::step_with_on`]).
+    pub fn prepare_on<I: Isa>(&mut self) -> Result<(), SetupError> {
         let n = self.grid.len();
         // The checks of every cell as one branch-free pass (vectorises; a coupled run
         // prepares after every step); the loop below names the first failing cell.
-        if !self.fields_valid() {
+        if !I::run(Call(
+            #[inline(always)]
+            || self.fields_valid(),
+        )) {
             self.first_invalid_cell()?;
         }
-        self.derive_coefficients(0..n);
+        self.derive_coefficients::<I>(0..n);
         self.detect_uniform();
         self.prepared = true;
         Ok(())
@@ -507,6 +518,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// Whether every cell passes the checks of [`Self::first_invalid_cell`]: the same
     /// comparisons, combined without short circuits so that the loop vectorises.
+    #[inline(always)]
     fn fields_valid(&self) -> bool {
         let n = self.grid.len().min(N);
         let (q, carry, c, t, ghost) = (
@@ -588,7 +600,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 });
             }
         }
-        self.derive_coefficients(0..n);
+        self.derive_coefficients::<Baseline>(0..n);
         self.detect_uniform();
         self.prepared = true;
         Ok(())
@@ -615,7 +627,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// Derives T, the direction, `k` and the stable rate; the rate is the maximum over the
     /// cells `owned` only (all cells but for a subdomain, whose outermost halo layer sees a
     /// one-sided velocity gradient: [`Self::prepare_owned`]).
-    fn derive_coefficients(&mut self, owned: core::ops::Range<usize>) {
+    fn derive_coefficients<I: Isa>(&mut self, owned: core::ops::Range<usize>) {
+        // One hot loop: its passes (and the 2D normals') are `#[inline(always)]`.
+        I::run(Call(
+            #[inline(always)]
+            || self.derive_coefficients_inline(owned.clone()),
+        ))
+    }
+
+    #[inline(always)]
+    fn derive_coefficients_inline(&mut self, owned: core::ops::Range<usize>) {
         let n = self.grid.len();
         let cfg = self.cfg;
         let h = self.grid.spacing();
@@ -748,6 +769,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// (docs/implicit-pressure.md, "Where the time goes"). The same operations per cell: the
     /// same bits. Leaves the normal `m` in `k` and `m . m` in the scratch `flux` (pass 2
     /// reads them); `rhs` is scratch too.
+    #[inline(always)]
     fn flow_normals_2d(&mut self, fallback: [R; D]) {
         let n = self.grid.len();
         let cells = self.grid.cells();
@@ -842,6 +864,18 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         max_substeps: usize,
         geo: Option<&crate::geometry::CutCells<R, D, N>>,
     ) -> usize {
+        self.step_percolation_substeps_on::<Baseline>(dt, stable_dt, max_substeps, geo)
+    }
+
+    /// [`Self::step_percolation_substeps`] with the box step's hot loops run by `I` (the
+    /// same bits for every `I`; cut cells keep their own loops).
+    pub fn step_percolation_substeps_on<I: Isa>(
+        &mut self,
+        dt: R,
+        stable_dt: R,
+        max_substeps: usize,
+        geo: Option<&crate::geometry::CutCells<R, D, N>>,
+    ) -> usize {
         let (time, steps) = (self.time, self.steps);
         let mut k = 1;
         while k < max_substeps && R::from_usize(k) * stable_dt < dt {
@@ -851,7 +885,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         for _ in 0..k {
             match geo {
                 Some(g) => self.step_percolation_embedded(sub, g),
-                None => self.step_percolation(sub),
+                None => self.step_percolation_on::<I>(sub),
             }
         }
         self.time = time + dt;
@@ -1028,7 +1062,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.prepare()?;
         self.tally = (owned.start, owned.end);
         if owned != (0..self.grid.len()) {
-            self.derive_coefficients(owned);
+            self.derive_coefficients::<Baseline>(owned);
         }
         Ok(())
     }
@@ -1124,7 +1158,9 @@ struct Cells<'a, R, const D: usize, const N: usize> {
 /// there), else they are `f.dir` and 1. Writes `k_a = S_a / c` (0 in empty cells) and each cell's rate and
 /// percolation rate. `S = -S0 sqrt(T) (g . d) d / (d . d)` (model.md 3), signed for the
 /// tracked phase. Every array is cut to `n` first, so the loop has no bounds checks.
-#[inline(never)]
+/// Inlined into `derive_coefficients`' hot loop (its arrays arrive as separate arguments, so
+/// the vectoriser still knows they do not overlap).
+#[inline(always)]
 fn cell_coefficients<R: Real, const D: usize, const N: usize, const FLOW: bool>(
     f: Fixed<R, D>,
     cells: Cells<'_, R, D, N>,
