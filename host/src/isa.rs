@@ -19,6 +19,7 @@
 
 use crate::error::{Error, Result};
 use sieve_core::fork::Fork;
+use sieve_core::geometry::CutCells;
 pub use sieve_core::hot::Baseline;
 use sieve_core::hot::{HotLoop, Isa};
 use sieve_core::{Real, Segregation};
@@ -140,6 +141,21 @@ pub fn advance_to<R: Real, const D: usize, const N: usize>(
     max_steps: u64,
 ) -> u64 {
     advance_to_at(level(), s, t_end, max_steps)
+}
+
+/// [`Segregation::advance_to_embedded`] (cut cells) at this process's [`level`]: the same
+/// steps and bits.
+pub fn advance_to_embedded<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    t_end: R,
+    max_steps: u64,
+    geo: &CutCells<R, D, N>,
+) -> u64 {
+    match level() {
+        Level::Baseline => s.advance_to_embedded_on::<Baseline>(t_end, max_steps, geo),
+        Level::Avx2 => s.advance_to_embedded_on::<Avx2>(t_end, max_steps, geo),
+        Level::Avx512 => s.advance_to_embedded_on::<Avx512>(t_end, max_steps, geo),
+    }
 }
 
 /// [`Segregation::step`] at `level`: the same bits.

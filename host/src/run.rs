@@ -353,7 +353,7 @@ pub fn time_loop_driven<R: Real, const D: usize, const N: usize>(
     let mut checked = false;
     let advance = |s: &mut Segregation<R, D, N>, target: R, n: u64| match (stepper, geo) {
         (Some(d), _) => d(s, target, n),
-        (None, Some(g)) => s.advance_to_embedded(target, n, g),
+        (None, Some(g)) => crate::isa::advance_to_embedded(s, target, n, g),
         (None, None) => crate::isa::advance_to(s, target, n),
     };
     if dt == 0.0 {

@@ -399,13 +399,16 @@ fn same_files_at_baseline_and_auto(d: &Path, scene: &str, grid: &str, t_end: &st
     }
 }
 
-/// The segregation step (gray-thornton-plug) and the coupled flow, whose CG solves dispatch
-/// through `AtLevel` (column-collapse).
+/// The segregation step (gray-thornton-plug), the same on cut cells (drum-settling), and the
+/// coupled flow in a box (column-collapse) and on cut cells (tumbler), whose steps dispatch
+/// through `AtLevel` (`Fork::Isa`).
 #[test]
 fn cli_same_files_at_every_level_and_bad_values() {
     let d = tempfile::tempdir().unwrap();
     same_files_at_baseline_and_auto(d.path(), "gray-thornton-plug", "60x31", "0.2");
+    same_files_at_baseline_and_auto(d.path(), "drum-settling", "32x32", "0.2");
     same_files_at_baseline_and_auto(d.path(), "column-collapse", "48x12", "0.05");
+    same_files_at_baseline_and_auto(d.path(), "tumbler", "32x32", "0.2");
     let args = |out| run_args("gray-thornton-plug", "60x31", "0.2", out);
     for bad in ["sse9", "AVX2 please"] {
         let (code, _, err) = run_env(d.path(), &args("bad"), &[("SIEVE_ISA", bad)]);

@@ -44,7 +44,9 @@
 use super::step::{face, AxisConst, Godunov, Kernel, Modified, Percolation, Side, Slices, Upwind};
 use super::{Scheme, Segregation, SetupError};
 use crate::boundary::Boundary;
+use crate::fork::Call;
 use crate::geometry::CutCells;
+use crate::hot::{Baseline, Isa};
 use crate::real::Real;
 
 /// A face flux weighted by its open fraction: the one place where the aperture enters the
@@ -62,8 +64,9 @@ fn aperture_flux<R: Real, K: Kernel<R>, const DIFFUSE: bool>(
 }
 
 /// The interior faces of one block (as the box step's `interior_block`, with apertures):
-/// stores each weighted face flux and subtracts it from its left cell.
-#[inline(never)]
+/// stores each weighted face flux and subtracts it from its left cell. Inlined into a hot
+/// loop of the step's `Isa` (one out-of-line function at `Baseline`, as before).
+#[inline(always)]
 fn interior_block<R: Real, K: Kernel<R>, const DIFFUSE: bool, const FIRST: bool>(
     out: &mut [R],
     rhs: &mut [R],
@@ -229,15 +232,21 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// One explicit step of length `dt` (at most [`Self::stable_dt_embedded`]) on cut cells.
     pub fn step_embedded(&mut self, dt: R, geo: &CutCells<R, D, N>) {
+        self.step_embedded_on::<Baseline>(dt, geo);
+    }
+
+    /// [`Self::step_embedded`] with its face blocks run by `I` (compiled for its instruction
+    /// set; the same bits for every `I`, docs/simd.md).
+    pub fn step_embedded_on<I: Isa>(&mut self, dt: R, geo: &CutCells<R, D, N>) {
         debug_assert!(self.prepared, "prepare_embedded() must follow any change");
         debug_assert!(self.check_geometry(geo).is_ok());
         match (self.cfg.scheme, self.cfg.diffusion > R::ZERO) {
-            (Scheme::Modified, false) => self.embedded_with::<Modified, false>(dt, geo),
-            (Scheme::Modified, true) => self.embedded_with::<Modified, true>(dt, geo),
-            (Scheme::Godunov, false) => self.embedded_with::<Godunov, false>(dt, geo),
-            (Scheme::Godunov, true) => self.embedded_with::<Godunov, true>(dt, geo),
-            (Scheme::Upwind, false) => self.embedded_with::<Upwind, false>(dt, geo),
-            (Scheme::Upwind, true) => self.embedded_with::<Upwind, true>(dt, geo),
+            (Scheme::Modified, false) => self.embedded_with::<I, Modified, false>(dt, geo),
+            (Scheme::Modified, true) => self.embedded_with::<I, Modified, true>(dt, geo),
+            (Scheme::Godunov, false) => self.embedded_with::<I, Godunov, false>(dt, geo),
+            (Scheme::Godunov, true) => self.embedded_with::<I, Godunov, true>(dt, geo),
+            (Scheme::Upwind, false) => self.embedded_with::<I, Upwind, false>(dt, geo),
+            (Scheme::Upwind, true) => self.embedded_with::<I, Upwind, true>(dt, geo),
         }
         self.time += dt;
         self.steps += 1;
@@ -247,17 +256,22 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// the transport being carried by the flow's face mass fluxes
     /// ([`Self::carry_mass_fluxes_embedded`]).
     pub fn step_percolation_embedded(&mut self, dt: R, geo: &CutCells<R, D, N>) {
+        self.step_percolation_embedded_on::<Baseline>(dt, geo);
+    }
+
+    /// [`Self::step_percolation_embedded`] with its face blocks run by `I` (the same bits for
+    /// every `I`).
+    pub fn step_percolation_embedded_on<I: Isa>(&mut self, dt: R, geo: &CutCells<R, D, N>) {
         debug_assert!(self.prepared, "prepare_embedded() must follow any change");
         debug_assert!(self.check_geometry(geo).is_ok());
+        type P<K> = Percolation<K>;
         match (self.cfg.scheme, self.cfg.diffusion > R::ZERO) {
-            (Scheme::Modified, false) => {
-                self.embedded_with::<Percolation<Modified>, false>(dt, geo)
-            }
-            (Scheme::Modified, true) => self.embedded_with::<Percolation<Modified>, true>(dt, geo),
-            (Scheme::Godunov, false) => self.embedded_with::<Percolation<Godunov>, false>(dt, geo),
-            (Scheme::Godunov, true) => self.embedded_with::<Percolation<Godunov>, true>(dt, geo),
-            (Scheme::Upwind, false) => self.embedded_with::<Percolation<Upwind>, false>(dt, geo),
-            (Scheme::Upwind, true) => self.embedded_with::<Percolation<Upwind>, true>(dt, geo),
+            (Scheme::Modified, false) => self.embedded_with::<I, P<Modified>, false>(dt, geo),
+            (Scheme::Modified, true) => self.embedded_with::<I, P<Modified>, true>(dt, geo),
+            (Scheme::Godunov, false) => self.embedded_with::<I, P<Godunov>, false>(dt, geo),
+            (Scheme::Godunov, true) => self.embedded_with::<I, P<Godunov>, true>(dt, geo),
+            (Scheme::Upwind, false) => self.embedded_with::<I, P<Upwind>, false>(dt, geo),
+            (Scheme::Upwind, true) => self.embedded_with::<I, P<Upwind>, true>(dt, geo),
         }
         self.time += dt;
         self.steps += 1;
@@ -265,6 +279,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// [`Self::advance_to`] on cut cells.
     pub fn advance_to_embedded(
+        &mut self,
+        t_end: R,
+        max_steps: u64,
+        geo: &CutCells<R, D, N>,
+    ) -> u64 {
+        self.advance_to_embedded_on::<Baseline>(t_end, max_steps, geo)
+    }
+
+    /// [`Self::advance_to_embedded`] with every step's face blocks run by `I`.
+    pub fn advance_to_embedded_on<I: Isa>(
         &mut self,
         t_end: R,
         max_steps: u64,
@@ -279,17 +303,21 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         while self.time < t_end && taken < max_steps {
             let remaining = t_end - self.time;
             if remaining <= dt || remaining - dt <= slack {
-                self.step_embedded(remaining, geo);
+                self.step_embedded_on::<I>(remaining, geo);
                 self.time = t_end;
             } else {
-                self.step_embedded(dt, geo);
+                self.step_embedded_on::<I>(dt, geo);
             }
             taken += 1;
         }
         taken
     }
 
-    fn embedded_with<K: Kernel<R>, const DIFFUSE: bool>(&mut self, dt: R, geo: &CutCells<R, D, N>) {
+    fn embedded_with<I: Isa, K: Kernel<R>, const DIFFUSE: bool>(
+        &mut self,
+        dt: R,
+        geo: &CutCells<R, D, N>,
+    ) {
         let h = self.grid.spacing();
         let n = self.grid.len();
         for axis in 0..D {
@@ -298,7 +326,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 diffusion: self.cfg.diffusion / h[axis],
                 vacuum: self.cfg.vacuum,
             };
-            self.embedded_axis::<K, DIFFUSE>(axis, ax, axis == 0, geo);
+            self.embedded_axis::<I, K, DIFFUSE>(axis, ax, axis == 0, geo);
         }
         let (q, dq) = (&mut self.q[..n], &self.rhs[..n]);
         geo.apply_increment(q, dq);
@@ -339,7 +367,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// The content increments along `axis`, in the box step's order per cell (minus the
     /// high-face flux, then plus the low-face flux), so that full cells reproduce its bits.
-    fn embedded_axis<K: Kernel<R>, const DIFFUSE: bool>(
+    fn embedded_axis<I: Isa, K: Kernel<R>, const DIFFUSE: bool>(
         &mut self,
         axis: usize,
         ax: AxisConst<R>,
@@ -367,9 +395,15 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             let (out, rhs) = (&mut self.flux[l0..l0 + len], &mut self.rhs[l0..l0 + len]);
             let ap = &ap[l0..l0 + len];
             if first {
-                interior_block::<R, K, DIFFUSE, true>(out, rhs, ap, left, right, ax);
+                I::run(Call(
+                    #[inline(always)]
+                    || interior_block::<R, K, DIFFUSE, true>(out, rhs, ap, left, right, ax),
+                ));
             } else {
-                interior_block::<R, K, DIFFUSE, false>(out, rhs, ap, left, right, ax);
+                I::run(Call(
+                    #[inline(always)]
+                    || interior_block::<R, K, DIFFUSE, false>(out, rhs, ap, left, right, ax),
+                ));
             }
         }
         let high = self.bc[axis][1];

@@ -867,8 +867,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.step_percolation_substeps_on::<Baseline>(dt, stable_dt, max_substeps, geo)
     }
 
-    /// [`Self::step_percolation_substeps`] with the box step's hot loops run by `I` (the
-    /// same bits for every `I`; cut cells keep their own loops).
+    /// [`Self::step_percolation_substeps`] with the step's hot loops run by `I` (the same
+    /// bits for every `I`).
     pub fn step_percolation_substeps_on<I: Isa>(
         &mut self,
         dt: R,
@@ -884,7 +884,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let sub = dt / R::from_usize(k);
         for _ in 0..k {
             match geo {
-                Some(g) => self.step_percolation_embedded(sub, g),
+                Some(g) => self.step_percolation_embedded_on::<I>(sub, g),
                 None => self.step_percolation_on::<I>(sub),
             }
         }
