@@ -482,7 +482,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// `c_max` is taken out of every cell that has it (each phase by the cell's share, so
     /// `q <= c` stays) and handed first to its face neighbours with room, then, what they
     /// cannot take, to the bed's cells below `c_max`, each filled by the same fraction of its
-    /// room at the pooled mix ([`Self::pool_packing`]), so `c <= c_max` holds exactly and both
+    /// room at the pooled mix (`Self::pool_packing`), so `c <= c_max` holds exactly and both
     /// phases are conserved to round-off (docs/soft-sensor.md "A packing cap on the carried
     /// c"). `None`: no cap (the transport alone).
     pub fn carry_own_velocity(

@@ -94,7 +94,7 @@ pub fn segregation_direction<R: Real, const D: usize>(
 /// normalises: in 2D that saves the square roots of the normalisation (three of the five per
 /// cell on the soft sensor's Cortex-M4F, where `sqrtf` is a ~66-instruction software routine).
 ///
-/// In 2D `m` is the closed form of [`direction_2d`] with `2 <= m . m <= 4`; in 1D, in 3D and
+/// In 2D `m` is the closed form of `direction_2d` with `2 <= m . m <= 4`; in 1D, in 3D and
 /// where the shear vanishes (`fallback`, a unit vector) `m` is a unit vector and `m . m` is
 /// returned as exactly 1, so that dividing by it changes no bit.
 #[inline]

@@ -55,11 +55,11 @@ pub enum TemperatureMode<R: Real> {
     /// The T set per cell is used as is.
     Given,
     /// `T = a eta0 / eps0 * kappa:kappa` from the velocity gradient (steady uniform shear
-    /// balance, model.md 2): `a` heating prefactor, `eta0` [m], `eps0` [1/m].
+    /// balance, model.md 2): `a` heating prefactor, `eta0` \[m\], `eps0` [1/m].
     FromShear {
         /// heating prefactor a (3/2 in the source model)
         heating: R,
-        /// eta0 [m]
+        /// eta0 \[m\]
         eta0: R,
         /// eps0 [1/m]
         eps0: R,
@@ -499,7 +499,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// [`Self::prepare`] with its passes over the cells run by `I` (compiled for its
     /// instruction set; the same bits for every `I`): a coupled step prepares after every
-    /// step, at its fork's width ([`crate::flow::Coupled::step_with_on`]).
+    /// step, at its fork's width ([`crate::flow::coupled::Coupled::step_with_on`]).
     pub fn prepare_on<I: Isa>(&mut self) -> Result<(), SetupError> {
         let n = self.grid.len();
         // The checks of every cell as one branch-free pass (vectorises; a coupled run
@@ -1072,7 +1072,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// maxima `excess` (as [`Self::tracked_excess`]) and the flush of vanishing fractions
     /// (docs/model.md 5.6) with `floor` as [`SegregationConfig::flush_below`], exactly as
     /// [`Self::step`] does them after step number `steps_before` (counted before the step):
-    /// the flush every [`step::FLUSH_EVERY`] steps on `q`, or after every step on `q + carry`
+    /// the flush every `step::FLUSH_EVERY` steps on `q`, or after every step on `q + carry`
     /// when compensated. A subdomain steps with the flush off: its halo cells must not flush
     /// (the outermost halo row is updated against a wall that is not there). The maxima are
     /// the step's own, which count the owned cells only since [`Self::prepare_owned`] (the

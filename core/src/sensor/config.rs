@@ -40,9 +40,9 @@ pub struct SensorOpening<R> {
     pub axis: u8,
     /// The high side of that axis (false: the low side, e.g. the floor).
     pub high: bool,
-    /// Start of the opening along the other axis [m].
+    /// Start of the opening along the other axis \[m\].
     pub lower: R,
-    /// End of the opening along the other axis [m].
+    /// End of the opening along the other axis \[m\].
     pub upper: R,
 }
 
@@ -90,7 +90,7 @@ impl CycleBudget {
     };
 
     /// This cost model with the budget of a CPU at `clock_hz` granting the sensor the share
-    /// `share` (in (0, 1]) of every `period` [s]: `floor(clock_hz period share)` cycles,
+    /// `share` (in (0, 1]) of every `period` \[s\]: `floor(clock_hz period share)` cycles,
     /// saturating at `u32::MAX`.
     pub fn with_clock(self, clock_hz: f64, period: f64, share: f64) -> Self {
         let c = libm::floor(clock_hz * period * share);
@@ -167,7 +167,7 @@ pub const MAX_OUTFLOW_WINDOW: usize = 64;
 pub struct SensorConfig<R> {
     /// Estimator cells along x and z (their product must fit the capacity `N`).
     pub cells: [u16; 2],
-    /// Box size along x and z [m] (origin at 0).
+    /// Box size along x and z \[m\] (origin at 0).
     pub extent: [R; 2],
     /// Boundary kinds of the box (walls, periodic, inflow, outflow = outlet).
     pub bc: Boundaries<2>,
@@ -176,7 +176,7 @@ pub struct SensorConfig<R> {
     pub sensor: [u8; 2],
     /// Segregation rate S0 [s^2/m].
     pub s0: R,
-    /// eta0 [m] of `T = a eta0/eps0 kappa:kappa`.
+    /// eta0 \[m\] of `T = a eta0/eps0 kappa:kappa`.
     pub eta0: R,
     /// eps0 [1/m].
     pub eps0: R,
@@ -187,7 +187,7 @@ pub struct SensorConfig<R> {
     /// Volume fraction c of the bed at power-up (a field may replace it, see
     /// `SoftSensor::set_c_field`); from then on c is carried with the measured flow.
     pub c: R,
-    /// Height of the bed's free surface at power-up [m]: c below it, 0 above, the cell it
+    /// Height of the bed's free surface at power-up \[m\]: c below it, 0 above, the cell it
     /// crosses filled in proportion (a silo's fill level, e.g. from a level sensor); the box
     /// height for a full box.
     pub fill_level: R,
@@ -199,7 +199,7 @@ pub struct SensorConfig<R> {
     pub diffusion: R,
     /// Courant number of the substeps, in (0, 1).
     pub courant: R,
-    /// Nominal frame / tick period [s]; a held (stale) tick advances this much.
+    /// Nominal frame / tick period \[s\]; a held (stale) tick advances this much.
     pub tick_period: R,
     /// Largest accepted frame period, as a multiple of `tick_period` (frames with a longer or
     /// non-positive period are rejected as out of range).

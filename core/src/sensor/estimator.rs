@@ -1002,7 +1002,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
     pub fn counters(&self) -> &Counters {
         &self.counters
     }
-    /// Accumulated simulated-time shortfall [s].
+    /// Accumulated simulated-time shortfall \[s\].
     pub fn lag(&self) -> R {
         self.lag
     }

@@ -23,10 +23,10 @@ pub struct VelocityFrame {
     /// Sequence number; must advance (frame `k` covers the `k`-th period), in serial-number
     /// order: it may wrap past `u32::MAX` to 0 (see `estimator::seq_after`).
     pub seq: u32,
-    /// Sensor timestamp of the end of the period [s] (informative only; time is advanced by
+    /// Sensor timestamp of the end of the period \[s\] (informative only; time is advanced by
     /// `period`, so a drifting f32 clock cannot make runs irreproducible).
     pub time: f32,
-    /// Time this frame stands for [s]; the tick advances exactly this much.
+    /// Time this frame stands for \[s\]; the tick advances exactly this much.
     pub period: f32,
     /// Sensor points along x.
     pub nx: u8,
@@ -63,7 +63,7 @@ pub struct Estimate {
     pub seq: u32,
     /// Tick counter.
     pub tick: u32,
-    /// Simulated time of the estimator [s].
+    /// Simulated time of the estimator \[s\].
     pub time: f32,
     /// Mixing index psi (1 mixed, 0 segregated), model.md 6.
     pub psi: f32,
@@ -80,7 +80,7 @@ pub struct Estimate {
     pub health: u8,
     /// Substeps taken this tick.
     pub substeps: u16,
-    /// Accumulated simulated-time shortfall (budget limits, frozen or lost periods) [s].
+    /// Accumulated simulated-time shortfall (budget limits, frozen or lost periods) \[s\].
     pub lag: f32,
     /// Grain volume that left the box this tick (per unit depth, m^2 in 2D): the
     /// estimator's own outlet, outflow and inflow face fluxes (negative if more came in).
@@ -90,7 +90,7 @@ pub struct Estimate {
     pub outflow_fines: f32,
     /// Fines fraction of what left over the last `outflow_window` ticks; 0 if nothing left.
     pub outflow_fines_window: f32,
-    /// Predicted time until the outlet fines fraction leaves the band `fines_band` [s]:
+    /// Predicted time until the outlet fines fraction leaves the band `fines_band` \[s\]:
     /// 0 while it is out of the band (or a fines alarm is raised), `f32::INFINITY` when no
     /// exit is predicted (its trend is flat or heads into the band, or fewer than 3 ticks of
     /// outflow are known). See `SoftSensor` ("Off-spec prediction").

@@ -54,10 +54,10 @@ pub struct Kinematic {
 }
 
 impl Kinematic {
-    /// The shape for a silo of width `width` and height `height` [m] (the box of the
-    /// estimator), orifice `[lower, upper]` on the floor, kinematic constant `b` [m], on a
+    /// The shape for a silo of width `width` and height `height` \[m\] (the box of the
+    /// estimator), orifice `[lower, upper]` on the floor, kinematic constant `b` \[m\], on a
     /// sensor grid of `sensor` points; `density` [kg/m^3] of the grains, bulk `c` and `depth`
-    /// [m] for the conversion of the load cell's mass rate.
+    /// \[m\] for the conversion of the load cell's mass rate.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         width: f64,

@@ -47,7 +47,7 @@ pub struct RecordingHeader {
 pub struct TruthRecord {
     /// Frame sequence number.
     pub seq: u32,
-    /// Truth time [s].
+    /// Truth time \[s\].
     pub time: f32,
     /// Mixing index of the truth.
     pub psi: f32,
