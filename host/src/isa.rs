@@ -127,11 +127,7 @@ pub fn advance_to_at<R: Real, const D: usize, const N: usize>(
     t_end: R,
     max_steps: u64,
 ) -> u64 {
-    match level {
-        Level::Baseline => s.advance_to_on::<Baseline>(t_end, max_steps),
-        Level::Avx2 => s.advance_to_on::<Avx2>(t_end, max_steps),
-        Level::Avx512 => s.advance_to_on::<Avx512>(t_end, max_steps),
-    }
+    crate::with_isa!(level, |I| s.advance_to_on::<I>(t_end, max_steps))
 }
 
 /// [`Segregation::advance_to`] at this process's [`level`].
@@ -151,11 +147,8 @@ pub fn advance_to_embedded<R: Real, const D: usize, const N: usize>(
     max_steps: u64,
     geo: &CutCells<R, D, N>,
 ) -> u64 {
-    match level() {
-        Level::Baseline => s.advance_to_embedded_on::<Baseline>(t_end, max_steps, geo),
-        Level::Avx2 => s.advance_to_embedded_on::<Avx2>(t_end, max_steps, geo),
-        Level::Avx512 => s.advance_to_embedded_on::<Avx512>(t_end, max_steps, geo),
-    }
+    crate::with_isa!(level(), |I| s
+        .advance_to_embedded_on::<I>(t_end, max_steps, geo))
 }
 
 /// [`Segregation::step`] at `level`: the same bits.
@@ -164,11 +157,7 @@ pub fn step_at<R: Real, const D: usize, const N: usize>(
     s: &mut Segregation<R, D, N>,
     dt: R,
 ) {
-    match level {
-        Level::Baseline => s.step_on::<Baseline>(dt),
-        Level::Avx2 => s.step_on::<Avx2>(dt),
-        Level::Avx512 => s.step_on::<Avx512>(dt),
-    }
+    crate::with_isa!(level, |I| s.step_on::<I>(dt))
 }
 
 /// [`Segregation::step`] at this process's [`level`].
@@ -212,26 +201,39 @@ impl<F: Fork, I: Isa> Fork for AtLevel<'_, F, I> {
     }
 }
 
+/// `with_isa!(level, |I| body)`: `body` with the type `I` bound to the runner of `level`
+/// ([`Baseline`], [`Avx2`], [`Avx512`]), one monomorphised copy of `body` per level. The one
+/// place that maps a level to its runner.
+#[macro_export]
+macro_rules! with_isa {
+    ($level:expr, |$i:ident| $body:expr) => {
+        match $level {
+            $crate::isa::Level::Baseline => {
+                type $i = $crate::isa::Baseline;
+                $body
+            }
+            $crate::isa::Level::Avx2 => {
+                type $i = $crate::isa::Avx2;
+                $body
+            }
+            $crate::isa::Level::Avx512 => {
+                type $i = $crate::isa::Avx512;
+                $body
+            }
+        }
+    };
+}
+
 /// `on_level!(level, fork, |f| body)`: `body` with `f` bound to `fork` at `level`
-/// ([`AtLevel`]), one monomorphised copy of `body` per level.
+/// ([`AtLevel`] with the runner of [`with_isa!`](crate::with_isa)).
 #[macro_export]
 macro_rules! on_level {
     ($level:expr, $fork:expr, |$f:ident| $body:expr) => {{
         let fork = $fork;
-        match $level {
-            $crate::isa::Level::Baseline => {
-                let $f = &$crate::isa::AtLevel::<_, $crate::isa::Baseline>::new(fork);
-                $body
-            }
-            $crate::isa::Level::Avx2 => {
-                let $f = &$crate::isa::AtLevel::<_, $crate::isa::Avx2>::new(fork);
-                $body
-            }
-            $crate::isa::Level::Avx512 => {
-                let $f = &$crate::isa::AtLevel::<_, $crate::isa::Avx512>::new(fork);
-                $body
-            }
-        }
+        $crate::with_isa!($level, |LevelIsa| {
+            let $f = &$crate::isa::AtLevel::<_, LevelIsa>::new(fork);
+            $body
+        })
     }};
 }
 

@@ -856,19 +856,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// (`stable_dt` is its value). Percolation moves phi only, so `c`, `T`, `u` and with them
     /// the coefficients and the limit stay as [`Self::prepare`] left them through the
     /// sub-steps, and each sub-step keeps `0 <= phi <= c` and the mass like a single one. The
-    /// clock advances by exactly `dt` and counts one step. Returns `k`.
-    pub fn step_percolation_substeps(
-        &mut self,
-        dt: R,
-        stable_dt: R,
-        max_substeps: usize,
-        geo: Option<&crate::geometry::CutCells<R, D, N>>,
-    ) -> usize {
-        self.step_percolation_substeps_on::<Baseline>(dt, stable_dt, max_substeps, geo)
-    }
-
-    /// [`Self::step_percolation_substeps`] with the step's hot loops run by `I` (the same
-    /// bits for every `I`).
+    /// clock advances by exactly `dt` and counts one step. Returns `k`. The hot loops run by
+    /// `I` (the same bits for every `I`; the coupled step passes its fork's).
     pub fn step_percolation_substeps_on<I: Isa>(
         &mut self,
         dt: R,
