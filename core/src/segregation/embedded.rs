@@ -150,7 +150,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     }
 
     /// [`Self::stable_dt_percolation`] on cut cells: the limit of
-    /// [`Self::step_percolation_embedded`] alone (no transport term; the carried transport
+    /// [`Self::step_percolation_embedded_on`] alone (no transport term; the carried transport
     /// [`Self::carry_mass_fluxes_embedded`] keeps the bounds with the flow's donor limiter
     /// on groups, at any Courant number of the flow).
     pub fn stable_dt_percolation_embedded(&self, geo: &CutCells<R, D, N>) -> R {
@@ -254,12 +254,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// [`Self::step_percolation`] on cut cells: the segregation (and diffusion) flux alone,
     /// the transport being carried by the flow's face mass fluxes
-    /// ([`Self::carry_mass_fluxes_embedded`]).
-    pub fn step_percolation_embedded(&mut self, dt: R, geo: &CutCells<R, D, N>) {
-        self.step_percolation_embedded_on::<Baseline>(dt, geo);
-    }
-
-    /// [`Self::step_percolation_embedded`] with its face blocks run by `I` (the same bits for
+    /// ([`Self::carry_mass_fluxes_embedded`]). Its face blocks run by `I` (the same bits for
     /// every `I`).
     pub fn step_percolation_embedded_on<I: Isa>(&mut self, dt: R, geo: &CutCells<R, D, N>) {
         debug_assert!(self.prepared, "prepare_embedded() must follow any change");
