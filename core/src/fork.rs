@@ -88,6 +88,41 @@ impl Fork for Serial {
     }
 }
 
+/// A share of a fork's workers: `parts` of them, at the fork's instruction set. What the
+/// loops of one of several concurrent items run on (two velocity solves side by side each
+/// get half the workers); with one part they run on the item's own thread. The bits do not
+/// depend on it, as for any fork.
+pub struct Share<'a, F> {
+    fork: &'a F,
+    parts: usize,
+}
+
+impl<'a, F: Fork> Share<'a, F> {
+    /// `parts` (at least 1) of `fork`'s workers.
+    pub fn new(fork: &'a F, parts: usize) -> Self {
+        Self {
+            fork,
+            parts: parts.max(1),
+        }
+    }
+}
+
+impl<F: Fork> Fork for Share<'_, F> {
+    type Isa = F::Isa;
+
+    fn parts(&self) -> usize {
+        self.parts
+    }
+
+    fn each<T: Send, G: Fn(&mut T) + Sync>(&self, items: &mut [T], f: G) {
+        self.fork.each(items, f);
+    }
+
+    fn min_per_part(&self) -> usize {
+        self.fork.min_per_part()
+    }
+}
+
 /// Cuts `0..n` into at most `parts` consecutive ranges whose inner boundaries are multiples
 /// of `unit`, as even as whole units allow (at least one range; no empty one unless `n == 0`).
 pub fn cuts(n: usize, parts: usize, unit: usize) -> Cuts {

@@ -81,10 +81,10 @@ fn is_coupled(scene: &Scene) -> bool {
 /// How many threads a coupled run's linear solves take ([`flow_pool`]), with a note when
 /// `--threads` asked for more than it gets. Only when asked (`--threads`; the default is one
 /// thread), and only on grids of at least [`AUTO_MIN_CELLS`] cells: on these 2-core machines
-/// a fork of the pool costs more than it saves below that (column collapse on 160 x 32
-/// cells: 1.47x slower on 2 threads) and saves nothing measurable above it (640 x 128:
-/// 1.00x), because the line solves stay serial; docs/parallel.md "The coupled flow on
-/// threads".
+/// the velocity components solved side by side gain 1.2-1.4x above it (column collapse on
+/// 640 x 128, the tumbler on 256 x 256 and 512 x 512) and nothing measurable below it
+/// (320 x 64 and 160 x 32: 0.97-1.07x); docs/parallel.md "Velocity components side by
+/// side".
 pub fn coupled_threads(scene: &Scene) -> (usize, Option<String>) {
     let Some(n) = requested_threads().filter(|&n| n > 1) else {
         return (1, None);
@@ -94,11 +94,18 @@ pub fn coupled_threads(scene: &Scene) -> (usize, Option<String>) {
     }
     let note = format!(
         "note: --threads {n}: a coupled grid of {} cells runs its solves on one thread \
-         (below {AUTO_MIN_CELLS} cells a fork costs more than it saves; docs/parallel.md)",
+         (below {AUTO_MIN_CELLS} cells a second thread gains nothing; docs/parallel.md)",
         scene.len()
     );
     (1, Some(note))
 }
+
+/// Cells per part below which a coupled run's solve runs its own loops (products, sums,
+/// updates) on one thread. Measured on these 2-core machines with the velocity components
+/// side by side: cutting the other solves' loops at the pool's default 2,048 cells a part cost
+/// 6 % on 640 x 128 (27.4 s against 25.9 s) and 10-20 % on the 256 x 256 tumbler, and
+/// broke even on 512 x 512 (docs/parallel.md). The bits do not depend on it.
+pub const SOLVE_MIN_PER_PART: usize = 1 << 17;
 
 /// The pool whose workers run a coupled run's linear solves ([`sieve_core::fork`]; the same
 /// bits for any number), if [`coupled_threads`] gives it more than one thread. (mpirun
@@ -108,7 +115,7 @@ pub fn flow_pool(scene: &Scene) -> Option<crate::pool::Pool> {
         return None;
     }
     match coupled_threads(scene) {
-        (n, _) if n > 1 => crate::pool::Pool::new(n),
+        (n, _) if n > 1 => crate::pool::Pool::new(n).map(|p| p.cutting_down_to(SOLVE_MIN_PER_PART)),
         _ => None,
     }
 }

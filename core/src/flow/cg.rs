@@ -1043,6 +1043,23 @@ pub struct Scratch<'a, R> {
     pub part: &'a mut [R],
 }
 
+impl<R> Scratch<'_, R> {
+    /// The same arrays for one more solve (a caller that solves several systems in turn on
+    /// one set of scratch).
+    pub fn reborrow(&mut self) -> Scratch<'_, R> {
+        Scratch {
+            r: self.r,
+            p: self.p,
+            ap: self.ap,
+            pre: self.pre,
+            line: self.line,
+            tmp: self.tmp,
+            coarse: self.coarse,
+            part: self.part,
+        }
+    }
+}
+
 /// Stopping rule of one solve: `|r| <= relative max(|b|, floor)` or `max_iterations`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Stop<R> {

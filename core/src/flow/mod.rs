@@ -396,6 +396,8 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     line: [R; N],
     /// Scratch of the solves' threaded loops ([`cg::Scratch::part`]).
     part: [R; N],
+    /// The second velocity solve's scratch when two solve side by side (`viscous`).
+    spare: SpareSolve<R, D, N>,
     /// Iterations of the last implicit pressure solve (0 in explicit mode).
     last_pressure_cg: u32,
     /// Gravity of the current step as seen in the frame (the lab's in the lab frame).
@@ -408,6 +410,27 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     last_cg: [u32; 4],
     /// Embedded (cut-cell) walls, off unless [`Flow::set_geometry`] loaded them.
     walls: walls::Walls<R, D, N>,
+}
+
+/// A second set of the implicit solves' scratch: with it the velocity components solve on
+/// two workers at once, the vertical one on one, the horizontal ones on the other (docs/parallel.md, "Velocity components side
+/// by side"). Never state: nothing reads it outside that solve.
+#[derive(Clone, Debug)]
+struct SpareSolve<R, const D: usize, const N: usize> {
+    /// The first horizontal component's system.
+    diag: [R; N],
+    rhs: [R; N],
+    /// The second one's (3D).
+    diag2: [R; N],
+    rhs2: [R; N],
+    r: [R; N],
+    p: [R; N],
+    ap: [R; N],
+    pre: [R; N],
+    line: [R; N],
+    tmp: [R; N],
+    coarse: [[R; N]; D],
+    part: [R; N],
 }
 
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
@@ -471,6 +494,20 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             pre: z,
             line: z,
             part: z,
+            spare: SpareSolve {
+                diag: z,
+                rhs: z,
+                diag2: z,
+                rhs2: z,
+                r: z,
+                p: z,
+                ap: z,
+                pre: z,
+                line: z,
+                tmp: z,
+                coarse: zd,
+                part: z,
+            },
             last_pressure_cg: 0,
             g_now: [R::ZERO; D],
             prepared: false,

@@ -4,7 +4,7 @@ use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
 use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip, Stress};
 use crate::boundary::Boundary;
 use crate::closure;
-use crate::fork::{Call, Fork, Serial};
+use crate::fork::{Call, Fork, Serial, Share};
 use crate::frame::{turn_by, Frame};
 use crate::real::Real;
 use crate::segregation::flux::transport as upwind;
@@ -18,6 +18,16 @@ enum Face<R> {
     Stress(R),
     /// Zero flux (slip wall tangential, outflow).
     Free,
+}
+
+/// One worker's share of the velocity solves side by side ([`Flow::viscous`]): its
+/// components in order, their systems `(diag, rhs)`, its scratch and, after the fork, the
+/// iterations of each.
+struct SolveItem<'a, R, const N: usize> {
+    x: &'a mut [[R; N]],
+    systems: [(&'a [R], &'a [R]); 2],
+    scratch: Scratch<'a, R>,
+    iterations: [u32; 2],
 }
 
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
@@ -724,12 +734,18 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 
     /// Stage 3: one implicit solve per velocity component, then the viscous heating.
+    ///
+    /// The components' systems share the face coefficients and read the state at the start
+    /// of the step only (the lagged wall laws read `u_prev`), so they are independent. On a
+    /// fork with workers they solve on two at once, each with its own scratch (the second set
+    /// is [`SpareSolve`](super::SpareSolve)): the vertical component on one, the horizontal
+    /// ones on the other, one fork per step instead of several per CG iteration
+    /// (docs/parallel.md, "Velocity components side by side"). Each solve is the same
+    /// arithmetic either way, so the bits do not change. The objective stress doubles the
+    /// component's own face coefficients in place, so it solves one component at a time.
     fn viscous<F: Fork>(&mut self, dt: R, fork: &F) {
         let n = self.grid.len();
-        let h = self.grid.spacing();
-        let grid = self.grid;
         let vac = self.cfg.vacuum;
-        let periodic = self.periodic();
         self.face_coefficients(false, R::ONE);
         // Velocity scale of the solver tolerance: the largest speed in the field or on a wall.
         let mut u_ref = R::from_f64(1e-6);
@@ -745,122 +761,230 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 u_ref = u_ref.max(self.u[a][i].abs());
             }
         }
-        // With an embedded wall the rows are content balances: mass terms times the open
-        // volume (`walls`).
-        let emb = self.walls.on;
         let mut mass_norm = R::ZERO;
         for i in 0..n {
             let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
             mass_norm += cd * cd;
         }
         let mass_norm = mass_norm.sqrt();
+        // Scale of the mass term `c u / dt` alone: the wall terms (yield viscosity up to
+        // eta0 p_y / sqrt(T_min)) would make the floor meaninglessly large.
+        let stop = Stop {
+            relative: self.cfg.cg_tolerance,
+            floor: mass_norm * u_ref,
+            max_iterations: self.cfg.cg_max_iterations,
+            preconditioner: Preconditioner::Auto,
+        };
+        let objective = self.cfg.stress == Stress::Objective;
+        if !objective && D > 1 && fork.parts() > 1 {
+            // the horizontal components' systems into the spare set, the vertical one's
+            // into `diag`, `rhs`
+            for comp in 0..D - 1 {
+                self.viscous_rows(comp, dt, false);
+                let (diag, rhs) = if comp == 0 {
+                    (&mut self.spare.diag, &mut self.spare.rhs)
+                } else {
+                    (&mut self.spare.diag2, &mut self.spare.rhs2)
+                };
+                diag[..n].copy_from_slice(&self.diag[..n]);
+                rhs[..n].copy_from_slice(&self.rhs[..n]);
+            }
+            self.viscous_rows(D - 1, dt, false);
+            let iterations = self.solve_side_by_side(stop, fork);
+            for (comp, it) in iterations.into_iter().enumerate() {
+                self.viscous_done(comp, it);
+            }
+        } else {
+            for comp in 0..D {
+                self.viscous_rows(comp, dt, objective);
+                let iterations = self.solve_component(comp, stop, fork);
+                if objective {
+                    // back to eta_f ap / h^2 (a power of two: exact)
+                    for k in self.kf[comp][..n].iter_mut() {
+                        *k *= R::HALF;
+                    }
+                }
+                self.viscous_done(comp, iterations);
+            }
+        }
+        self.heating();
+    }
+
+    /// The system of velocity component `comp` into `diag` and `rhs` (model.md 2): the mass
+    /// term, the walls' terms and, with the objective stress, its lagged cross force and the
+    /// doubled normal coefficient (which the caller halves after the solve).
+    fn viscous_rows(&mut self, comp: usize, dt: R, objective: bool) {
+        let n = self.grid.len();
+        let h = self.grid.spacing();
+        let grid = self.grid;
+        let vac = self.cfg.vacuum;
+        let periodic = self.periodic();
+        // With an embedded wall the rows are content balances: mass terms times the open
+        // volume (`walls`).
+        for i in 0..n {
+            let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
+            self.diag[i] = cd;
+            self.rhs[i] = cd * self.u[comp][i];
+        }
         // Objective stress (model.md 2.6, module `objective`): the normal part of
         // `div(eta grad u^T)` doubles the component's own face coefficient (implicit), the
         // cross parts are a lagged face force.
-        let objective = self.cfg.stress == Stress::Objective;
-        for comp in 0..D {
-            for i in 0..n {
-                let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
-                self.diag[i] = cd;
-                self.rhs[i] = cd * self.u[comp][i];
+        if objective {
+            self.transposed_force(comp);
+            for k in self.kf[comp][..n].iter_mut() {
+                *k *= R::TWO;
             }
-            if objective {
-                self.transposed_force(comp);
-                for k in self.kf[comp][..n].iter_mut() {
-                    *k *= R::TWO;
-                }
+        }
+        for axis in 0..D {
+            if periodic[axis] {
+                continue;
             }
-            for axis in 0..D {
-                if periodic[axis] {
-                    continue;
-                }
-                let k2 = R::TWO / (h[axis] * h[axis]);
-                for (high, side) in [(false, self.bc[axis][0]), (true, self.bc[axis][1])] {
-                    grid.for_each_boundary_cell(axis, high, |i, _| {
-                        // the closed share of the face (the open share is free: zero
-                        // gradient), times the box face's aperture (cut-cell walls)
-                        let shut = R::ONE - self.open_fraction(axis, high, i);
-                        let wa = self.box_aperture(axis, high, i);
-                        match self.wall_face(comp, &side, i, axis) {
-                            Face::Value(v) => {
-                                let mut k = wa * (k2 * self.eta[i] * shut);
-                                if objective && comp == axis {
-                                    k *= R::TWO; // normal stress 2 eta d_n u_n
-                                }
-                                self.diag[i] += k;
-                                self.rhs[i] += k * v;
+            let k2 = R::TWO / (h[axis] * h[axis]);
+            for (high, side) in [(false, self.bc[axis][0]), (true, self.bc[axis][1])] {
+                grid.for_each_boundary_cell(axis, high, |i, _| {
+                    // the closed share of the face (the open share is free: zero
+                    // gradient), times the box face's aperture (cut-cell walls)
+                    let shut = R::ONE - self.open_fraction(axis, high, i);
+                    let wa = self.box_aperture(axis, high, i);
+                    match self.wall_face(comp, &side, i, axis) {
+                        Face::Value(v) => {
+                            let mut k = wa * (k2 * self.eta[i] * shut);
+                            if objective && comp == axis {
+                                k *= R::TWO; // normal stress 2 eta d_n u_n
                             }
-                            Face::Stress(tau) => self.rhs[i] += wa * (tau * shut / h[axis]),
-                            Face::Free => {}
+                            self.diag[i] += k;
+                            self.rhs[i] += k * v;
                         }
-                    });
-                }
-            }
-            if emb {
-                // the cut wall fragment: towards u_B with the drag of the lagged wall law
-                for i in 0..n {
-                    let kw = self.walls.wall_k[i];
-                    if kw > R::ZERO {
-                        let (ub, e) = self.wall_law(i);
-                        let k = kw * e;
-                        self.diag[i] += k;
-                        self.rhs[i] += k * ub[comp];
+                        Face::Stress(tau) => self.rhs[i] += wa * (tau * shut / h[axis]),
+                        Face::Free => {}
                     }
+                });
+            }
+        }
+        if self.walls.on {
+            // the cut wall fragment: towards u_B with the drag of the lagged wall law
+            for i in 0..n {
+                let kw = self.walls.wall_k[i];
+                if kw > R::ZERO {
+                    let (ub, e) = self.wall_law(i);
+                    let k = kw * e;
+                    self.diag[i] += k;
+                    self.rhs[i] += k * ub[comp];
                 }
             }
-            // Scale of the mass term `c u / dt` alone: the wall terms (yield viscosity up to
-            // eta0 p_y / sqrt(T_min)) would make the floor meaninglessly large.
-            let floor = mass_norm * u_ref;
-            let st = Stencil {
-                grid: &self.grid,
-                periodic,
-                kf: &self.kf,
-            };
-            let res = cg::solve_on(
-                fork,
-                &st,
-                &self.diag,
-                &self.rhs,
-                &mut self.u[comp],
-                Scratch {
+        }
+    }
+
+    /// Solves the system in `diag`, `rhs` for component `comp`, its loops on `fork`.
+    fn solve_component<F: Fork>(&mut self, comp: usize, stop: Stop<R>, fork: &F) -> u32 {
+        let st = Stencil {
+            grid: &self.grid,
+            periodic: self.periodic(),
+            kf: &self.kf,
+        };
+        cg::solve_on(
+            fork,
+            &st,
+            &self.diag,
+            &self.rhs,
+            &mut self.u[comp],
+            Scratch {
+                r: &mut self.r,
+                p: &mut self.pv,
+                ap: &mut self.ap,
+                pre: &mut self.pre,
+                line: &mut self.line,
+                // `inflow` is dead between the transport and the heating (written after
+                // the velocity solves, read into `rhs` before the temperature solve).
+                // `flux` is not: it holds the step's applied face mass fluxes, which the
+                // coupled driver carries phi with after the step.
+                tmp: &mut self.inflow,
+                coarse: self.coarse.as_flattened_mut(),
+                part: &mut self.part,
+            },
+            stop,
+        )
+        .iterations
+    }
+
+    /// Solves every velocity component at once on two of `fork`'s items, each with its own
+    /// scratch and half the fork's workers (on two threads: one each, its loops on its own
+    /// thread): the vertical component (system in `diag`, `rhs`), usually the slowest to
+    /// converge under gravity, on one, the horizontal ones (systems in the spare set) one
+    /// after the other on the other. Returns the iterations per component.
+    fn solve_side_by_side<F: Fork>(&mut self, stop: Stop<R>, fork: &F) -> [u32; D] {
+        let st = Stencil {
+            grid: &self.grid,
+            periodic: self.periodic(),
+            kf: &self.kf,
+        };
+        let (horizontal, vertical) = self.u.split_at_mut(D - 1);
+        let spare = &mut self.spare;
+        let mut items = [
+            SolveItem {
+                x: vertical,
+                systems: [(&self.diag[..], &self.rhs[..]); 2],
+                scratch: Scratch {
                     r: &mut self.r,
                     p: &mut self.pv,
                     ap: &mut self.ap,
                     pre: &mut self.pre,
                     line: &mut self.line,
-                    // `inflow` is dead between the transport and the heating (written after
-                    // the velocity solves, read into `rhs` before the temperature solve).
-                    // `flux` is not: it holds the step's applied face mass fluxes, which the
-                    // coupled driver carries phi with after the step.
                     tmp: &mut self.inflow,
                     coarse: self.coarse.as_flattened_mut(),
                     part: &mut self.part,
                 },
-                Stop {
-                    relative: self.cfg.cg_tolerance,
-                    floor,
-                    max_iterations: self.cfg.cg_max_iterations,
-                    preconditioner: Preconditioner::Auto,
+                iterations: [0; 2],
+            },
+            SolveItem {
+                x: horizontal,
+                systems: [
+                    (&spare.diag[..], &spare.rhs[..]),
+                    (&spare.diag2[..], &spare.rhs2[..]),
+                ],
+                scratch: Scratch {
+                    r: &mut spare.r,
+                    p: &mut spare.p,
+                    ap: &mut spare.ap,
+                    pre: &mut spare.pre,
+                    line: &mut spare.line,
+                    tmp: &mut spare.tmp,
+                    coarse: spare.coarse.as_flattened_mut(),
+                    part: &mut spare.part,
                 },
-            );
-            if objective {
-                // back to eta_f ap / h^2 (a power of two: exact)
-                for k in self.kf[comp][..n].iter_mut() {
-                    *k *= R::HALF;
-                }
+                iterations: [0; 2],
+            },
+        ];
+        let half = Share::new(fork, fork.parts() / 2);
+        fork.each(&mut items, |item| {
+            for (k, x) in item.x.iter_mut().enumerate() {
+                let (diag, rhs) = item.systems[k];
+                let scratch = item.scratch.reborrow();
+                item.iterations[k] =
+                    cg::solve_on(&half, &st, diag, rhs, x, scratch, stop).iterations;
             }
-            self.last_cg[comp.min(2)] = res.iterations;
-            self.cg_iterations += u64::from(res.iterations);
-            for i in 0..n {
-                if self.c[i] > vac {
-                    self.m[comp][i] = self.c[i] * self.u[comp][i];
-                } else {
-                    self.u[comp][i] = R::ZERO;
-                    self.m[comp][i] = R::ZERO;
-                }
+        });
+        let mut out = [0; D];
+        out[..D - 1].copy_from_slice(&items[1].iterations[..D - 1]);
+        out[D - 1] = items[0].iterations[0];
+        out
+    }
+
+    /// After the solve of component `comp`: its iterations, and the momentum `c u` (zero
+    /// velocity in empty cells).
+    fn viscous_done(&mut self, comp: usize, iterations: u32) {
+        let n = self.grid.len();
+        let vac = self.cfg.vacuum;
+        self.last_cg[comp.min(2)] = iterations;
+        self.cg_iterations += u64::from(iterations);
+        for i in 0..n {
+            if self.c[i] > vac {
+                self.m[comp][i] = self.c[i] * self.u[comp][i];
+            } else {
+                self.u[comp][i] = R::ZERO;
+                self.m[comp][i] = R::ZERO;
             }
         }
-        self.heating();
     }
 
     /// Discrete viscous heating `H = eta kappa:kappa` per cell into the `inflow` scratch: each
