@@ -15,6 +15,7 @@
 //! input of the result; `tests/tests/flow_threads.rs` asserts equal state bits for 1 to 4
 //! parts after every step, `tests/tests/flow_cg.rs` equal solves for 1 to 5 parts.
 
+use core::marker::PhantomData;
 use core::ops::Range;
 
 use crate::hot::{Baseline, HotLoop, Isa};
@@ -76,6 +77,37 @@ pub struct Serial;
 
 impl Fork for Serial {
     type Isa = Baseline;
+
+    fn parts(&self) -> usize {
+        1
+    }
+
+    fn each<T: Send, F: Fn(&mut T) + Sync>(&self, items: &mut [T], f: F) {
+        for item in items {
+            f(item);
+        }
+    }
+}
+
+/// The plain loop at the instruction set `I`: one part, the caller's thread (what
+/// `Segregation::prepare_on::<I>` runs its cut passes on).
+pub struct SerialAt<I>(PhantomData<fn() -> I>);
+
+impl<I> SerialAt<I> {
+    /// The fork (a zero-sized value).
+    pub const fn new() -> Self {
+        Self(PhantomData)
+    }
+}
+
+impl<I> Default for SerialAt<I> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<I: Isa> Fork for SerialAt<I> {
+    type Isa = I;
 
     fn parts(&self) -> usize {
         1

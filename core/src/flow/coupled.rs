@@ -32,7 +32,6 @@ use super::{Flow, FlowError};
 use crate::closure::Packing;
 use crate::fork::{Fork, Serial};
 use crate::geometry::CutCells;
-use crate::hot::{Baseline, Isa};
 use crate::real::Real;
 use crate::segregation::{Discharge, Segregation, SetupError};
 
@@ -192,13 +191,15 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     }
 
     fn prepare_segregation(&mut self) -> Result<(), SetupError> {
-        self.prepare_segregation_on::<Baseline>()
+        self.prepare_segregation_with(&Serial)
     }
 
-    fn prepare_segregation_on<I: Isa>(&mut self) -> Result<(), SetupError> {
+    /// The segregation's coefficients from the new flow, at `fork`'s instruction set and
+    /// with its per-cell velocity gradients cut among the fork's workers (box grids).
+    fn prepare_segregation_with<F: Fork>(&mut self, fork: &F) -> Result<(), SetupError> {
         match self.geo {
             Some(g) => self.seg.prepare_embedded(g)?,
-            None => self.seg.prepare_on::<I>()?,
+            None => self.seg.prepare_with(fork)?,
         }
         self.percolation_dt = match self.geo {
             Some(g) => self.seg.stable_dt_percolation_embedded(g),
@@ -434,7 +435,7 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
             self.seg
                 .set_flow_state(i, self.flow.temperature(i), self.flow.velocity(i));
         }
-        self.prepare_segregation_on::<F::Isa>()
+        self.prepare_segregation_with(fork)
             .map_err(CouplingError::Segregation)
     }
 

@@ -20,7 +20,7 @@ pub use flux::Scheme;
 pub use limited::Transport;
 
 use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};
-use crate::fork::Call;
+use crate::fork::{self, Call, Fork, SerialAt};
 use crate::grid::Grid;
 use crate::real::Real;
 use serde::{Deserialize, Serialize};
@@ -501,16 +501,23 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// instruction set; the same bits for every `I`): a coupled step prepares after every
     /// step, at its fork's width ([`crate::flow::coupled::Coupled::step_with_on`]).
     pub fn prepare_on<I: Isa>(&mut self) -> Result<(), SetupError> {
+        self.prepare_with(&SerialAt::<I>::new())
+    }
+
+    /// [`Self::prepare_on`] at `fork`'s instruction set, with the per-cell velocity
+    /// gradients (pass 1 of the coefficients) cut among its workers: the coupled step's
+    /// prepare on a pool. The same bits for any fork.
+    pub fn prepare_with<F: Fork>(&mut self, fork: &F) -> Result<(), SetupError> {
         let n = self.grid.len();
         // The checks of every cell as one branch-free pass (vectorises; a coupled run
         // prepares after every step); the loop below names the first failing cell.
-        if !I::run(Call(
+        if !F::Isa::run(Call(
             #[inline(always)]
             || self.fields_valid(),
         )) {
             self.first_invalid_cell()?;
         }
-        self.derive_coefficients::<I>(0..n);
+        self.derive_coefficients_cut(fork, 0..n);
         self.detect_uniform();
         self.prepared = true;
         Ok(())
@@ -631,26 +638,79 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // One hot loop: its passes (and the 2D normals') are `#[inline(always)]`.
         I::run(Call(
             #[inline(always)]
-            || self.derive_coefficients_inline(owned.clone()),
+            || self.derive_coefficients_inline(owned.clone(), true),
         ))
     }
 
+    /// [`Self::derive_coefficients`] with pass 1 (the velocity gradient of every cell, T from
+    /// the shear, the direction from the flow: a 3x3 eigenproblem per cell in 3D, most of a
+    /// 3D coupled prepare) cut among `fork`'s workers, cell by cell: each cell's values are
+    /// the same arithmetic in any part, so the bits do not change.
+    fn derive_coefficients_cut<F: Fork>(&mut self, fork: &F, owned: core::ops::Range<usize>) {
+        let n = self.grid.len();
+        let cfg = self.cfg;
+        let flow_dir = matches!(cfg.direction, DirectionMode::Flow);
+        let from_shear = matches!(cfg.temperature, TemperatureMode::FromShear { .. });
+        // The 2D direction from the flow alone has its own pass (`flow_normals_2d`).
+        let general = from_shear || (flow_dir && D != 2);
+        // A cell of pass 1 costs far more than one of a vector update (a 3x3 eigenproblem
+        // in 3D), so it is worth cutting on far fewer cells than the fork's loops: at most
+        // SHEAR_MIN_PER_PART a part (fewer if the fork says so: tests).
+        let min = fork.min_per_part().clamp(1, SHEAR_MIN_PER_PART);
+        if !general || fork.parts() < 2 || n < min * fork.parts() {
+            return self.derive_coefficients::<F::Isa>(owned);
+        }
+        {
+            let shear = Shear {
+                grid: &self.grid,
+                bc: &self.bc,
+                u: &self.u,
+                cfg: &cfg,
+                gravity_dir: gravity_direction(&cfg),
+                shear_noise: self.shear_noise,
+            };
+            let cuts = fork::cuts(n, fork.parts(), 1);
+            let mut temp = fork::split(&mut self.temp[..n], &cuts);
+            let mut flux = fork::split(&mut self.flux[..n], &cuts);
+            let mut k = self.k.each_mut().map(|k| fork::split(&mut k[..n], &cuts));
+            let mut items: heapless::Vec<ShearItem<'_, R>, { fork::MAX_PARTS }> =
+                heapless::Vec::new();
+            while let (Some(t), Some(f)) = (temp.pop(), flux.pop()) {
+                let start = cuts[cuts.len() - 1 - items.len()].start;
+                let mut ks = heapless::Vec::new();
+                for k in k.iter_mut() {
+                    if let Some(c) = k.pop() {
+                        let _ = ks.push(c); // D <= 3
+                    }
+                }
+                let _ = items.push(ShearItem {
+                    start,
+                    temp: t,
+                    k: ks,
+                    flux: f,
+                }); // as many as cuts
+            }
+            fork.each(&mut items, |it| {
+                fork.hot(Call(
+                    #[inline(always)]
+                    || shear.pass(it.start, it.temp, &mut it.k, it.flux),
+                ))
+            });
+        }
+        F::Isa::run(Call(
+            #[inline(always)]
+            || self.derive_coefficients_inline(owned.clone(), false),
+        ))
+    }
+
+    /// The passes of `derive_coefficients`; `pass1` false when the caller has run pass 1.
     #[inline(always)]
-    fn derive_coefficients_inline(&mut self, owned: core::ops::Range<usize>) {
+    fn derive_coefficients_inline(&mut self, owned: core::ops::Range<usize>, pass1: bool) {
         let n = self.grid.len();
         let cfg = self.cfg;
         let h = self.grid.spacing();
         let g = cfg.gravity;
-        let gnorm = norm(&g);
-        let gravity_dir = if gnorm > R::ZERO {
-            let mut d = g;
-            d.iter_mut().for_each(|x| *x = *x / gnorm);
-            d
-        } else {
-            let mut d = [R::ZERO; D];
-            d[D - 1] = R::ONE;
-            d
-        };
+        let gravity_dir = gravity_direction(&cfg);
         let sign = match cfg.phase {
             Phase::Small => R::ONE,
             Phase::Large => -R::ONE,
@@ -679,49 +739,17 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // cell and overwrites them.
         if flow_dir && !from_shear && D == 2 {
             self.flow_normals_2d(gravity_dir);
-        } else if flow_dir || from_shear {
-            let cells = self.grid.cells();
-            // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
-            let mut coords = [0usize; D];
-            for i in 0..n {
-                let grad =
-                    direction::velocity_gradient_at(&self.grid, &self.bc, &self.u, i, coords);
-                for a in 0..D {
-                    coords[a] += 1;
-                    if coords[a] < cells[a] {
-                        break;
-                    }
-                    coords[a] = 0;
-                }
-                if let TemperatureMode::FromShear {
-                    heating,
-                    eta0,
-                    eps0,
-                } = cfg.temperature
-                {
-                    let kk = direction::shear_rate_squared(&grad);
-                    // A noisy measured velocity adds its noise's kappa:kappa on average; with
-                    // none (every solved flow) the branch keeps the bits of `kk` itself.
-                    let kk = if shear_noise > R::ZERO {
-                        (kk - shear_noise).max(R::ZERO)
-                    } else {
-                        kk
-                    };
-                    self.temp[i] = heating * eta0 / eps0 * kk;
-                }
-                if flow_dir {
-                    let ui: [R; D] = core::array::from_fn(|a| self.u[a][i]);
-                    // d is the segregation direction up to length and sign, dd = d . d:
-                    // exactly 1 except for the unnormalised 2D normal from the flow (see
-                    // `direction::segregation_normal`), so the division changes no bit
-                    // elsewhere.
-                    let (d, dd) = direction::segregation_normal(&grad, &ui, gravity_dir);
-                    for a in 0..D {
-                        self.k[a][i] = d[a];
-                    }
-                    self.flux[i] = dd;
-                }
-            }
+        } else if (flow_dir || from_shear) && pass1 {
+            let shear = Shear {
+                grid: &self.grid,
+                bc: &self.bc,
+                u: &self.u,
+                cfg: &cfg,
+                gravity_dir,
+                shear_noise,
+            };
+            let mut k = self.k.each_mut().map(|k| &mut k[..n]);
+            shear.pass(0, &mut self.temp[..n], &mut k, &mut self.flux[..n]);
         }
         for (r, t) in self.rhs[..n].iter_mut().zip(&self.temp[..n]) {
             *r = t.sqrt();
@@ -1119,6 +1147,99 @@ fn dot<R: Real, const D: usize>(a: &[R; D], b: &[R; D]) -> R {
 
 fn norm<R: Real, const D: usize>(a: &[R; D]) -> R {
     dot(a, a).sqrt()
+}
+
+/// Cells per part below which pass 1 of the coefficients runs on the caller's thread
+/// ([`Segregation::prepare_with`]): 512 cells of it take about 0.2 ms in 3D (0.35 us a
+/// cell in the 3D silo), several times a sleeping worker's wake-up.
+const SHEAR_MIN_PER_PART: usize = 512;
+
+/// The unit vector along gravity, or the last axis without gravity.
+fn gravity_direction<R: Real, const D: usize>(cfg: &SegregationConfig<R, D>) -> [R; D] {
+    let g = cfg.gravity;
+    let gnorm = norm(&g);
+    if gnorm > R::ZERO {
+        let mut d = g;
+        d.iter_mut().for_each(|x| *x = *x / gnorm);
+        d
+    } else {
+        let mut d = [R::ZERO; D];
+        d[D - 1] = R::ONE;
+        d
+    }
+}
+
+/// What pass 1 of `derive_coefficients` reads: the grid, the velocity and the settings.
+struct Shear<'a, R: Real, const D: usize, const N: usize> {
+    grid: &'a Grid<R, D>,
+    bc: &'a Boundaries<D>,
+    u: &'a [[R; N]; D],
+    cfg: &'a SegregationConfig<R, D>,
+    gravity_dir: [R; D],
+    shear_noise: R,
+}
+
+/// One part of pass 1: the cells from `start` on, its chunks of `temp`, `k` (one per axis)
+/// and `flux`.
+struct ShearItem<'a, R> {
+    start: usize,
+    temp: &'a mut [R],
+    k: heapless::Vec<&'a mut [R], 3>,
+    flux: &'a mut [R],
+}
+
+impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
+    /// Pass 1 on the cells `start..start + temp.len()` (branches; `libm::sqrt` is an inline
+    /// `sqrtsd`, which no loop vectorises): where the velocity gradient is needed, T from the
+    /// shear into `temp` and the direction from the flow, `d` into `k` and `d . d` into
+    /// `flux` (pass 2 reads them back in the same cell and overwrites them).
+    #[inline(always)]
+    fn pass(&self, start: usize, temp: &mut [R], k: &mut [&mut [R]], flux: &mut [R]) {
+        let cfg = self.cfg;
+        let flow_dir = matches!(cfg.direction, DirectionMode::Flow);
+        let cells = self.grid.cells();
+        // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
+        let mut coords = self.grid.coords(start);
+        for j in 0..temp.len() {
+            let i = start + j;
+            let grad = direction::velocity_gradient_at(self.grid, self.bc, self.u, i, coords);
+            for a in 0..D {
+                coords[a] += 1;
+                if coords[a] < cells[a] {
+                    break;
+                }
+                coords[a] = 0;
+            }
+            if let TemperatureMode::FromShear {
+                heating,
+                eta0,
+                eps0,
+            } = cfg.temperature
+            {
+                let kk = direction::shear_rate_squared(&grad);
+                // A noisy measured velocity adds its noise's kappa:kappa on average; with
+                // none (every solved flow) the branch keeps the bits of `kk` itself.
+                let kk = if self.shear_noise > R::ZERO {
+                    (kk - self.shear_noise).max(R::ZERO)
+                } else {
+                    kk
+                };
+                temp[j] = heating * eta0 / eps0 * kk;
+            }
+            if flow_dir {
+                let ui: [R; D] = core::array::from_fn(|a| self.u[a][i]);
+                // d is the segregation direction up to length and sign, dd = d . d:
+                // exactly 1 except for the unnormalised 2D normal from the flow (see
+                // `direction::segregation_normal`), so the division changes no bit
+                // elsewhere.
+                let (d, dd) = direction::segregation_normal(&grad, &ui, self.gravity_dir);
+                for (a, ka) in k.iter_mut().enumerate().take(D) {
+                    ka[j] = d[a];
+                }
+                flux[j] = dd;
+            }
+        }
+    }
 }
 
 /// The per-cell constants of [`cell_coefficients`] (pass 2 of `derive_coefficients`).
