@@ -4,7 +4,6 @@
 use crate::boundary::{Boundaries, Boundary};
 use crate::grid::Grid;
 use crate::real::Real;
-use nalgebra::{Matrix3, SymmetricEigen};
 
 /// Velocity gradient `G[i][j] = d_j u_i` at cell `i`: central differences inside, one-sided
 /// next to non-periodic boundaries, wrapped across periodic ones.
@@ -125,7 +124,8 @@ pub fn segregation_normal<R: Real, const D: usize>(
             }
         }
         _ => {
-            let m = Matrix3::from_fn(|r, c| (g[r][c] + g[c][r]).to_f64());
+            let m: [[f64; 3]; 3] =
+                core::array::from_fn(|r| core::array::from_fn(|c| (g[r][c] + g[c][r]).to_f64()));
             let u3 = [u[0].to_f64(), u[1].to_f64(), u[2].to_f64()];
             let f3 = [
                 fallback[0].to_f64(),
@@ -269,35 +269,103 @@ pub(crate) fn normal_2d_finish<R: Real>(
     }
 }
 
-/// 3D: a bounded symmetric eigen-solve (nalgebra, at most 64 sweeps).
-fn direction_3d(k: Matrix3<f64>, u: [f64; 3], fallback: [f64; 3]) -> Option<[f64; 3]> {
-    let scale = k.amax();
+/// Sweeps of [`symmetric_eigen_3`] before it gives up (it converges in 3 to 6).
+const JACOBI_SWEEPS: usize = 24;
+
+/// Eigenvalues and orthonormal eigenvectors (the columns of the matrix returned) of a
+/// symmetric 3 x 3 matrix `k` by cyclic Jacobi rotations (model.md 3: the principal axes of
+/// the strain rate), or `None` if `k` is not finite or the off-diagonal part does not fall
+/// below 1e-15 of the matrix in [`JACOBI_SWEEPS`] sweeps.
+///
+/// Why Jacobi: a fixed, branch-light sequence of plane rotations, each a few multiplications
+/// and one square root, and the eigenvectors stay orthonormal to round-off by construction
+/// even where two eigenvalues coincide. The general tridiagonal QR of nalgebra it replaced
+/// took 35-40 % of a 3D silo step (docs/parallel.md); this takes a fraction of that. The
+/// order of operations is fixed, so the bits are the same on every platform.
+pub fn symmetric_eigen_3(k: [[f64; 3]; 3]) -> Option<([f64; 3], [[f64; 3]; 3])> {
+    let mut a = k;
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let total: f64 = a.iter().flatten().map(|x| x * x).sum();
+    if !total.is_finite() {
+        return None;
+    }
+    for _ in 0..JACOBI_SWEEPS {
+        let off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+        if off <= 1e-30 * total {
+            return Some(([a[0][0], a[1][1], a[2][2]], v));
+        }
+        for (p, q, r) in [(0, 1, 2), (0, 2, 1), (1, 2, 0)] {
+            let apq = a[p][q];
+            if apq == 0.0 {
+                continue;
+            }
+            // The rotation that zeroes a[p][q]: t = tan of its angle, the smaller root of
+            // t^2 + 2 theta t - 1 = 0 (stable for any theta).
+            let theta = (a[q][q] - a[p][p]) / (apq + apq);
+            let t = if theta.abs() > 1e150 {
+                0.5 / theta
+            } else {
+                let t = 1.0 / (theta.abs() + libm::sqrt(theta * theta + 1.0));
+                if theta < 0.0 {
+                    -t
+                } else {
+                    t
+                }
+            };
+            let c = 1.0 / libm::sqrt(t * t + 1.0);
+            let s = t * c;
+            a[p][p] -= t * apq;
+            a[q][q] += t * apq;
+            a[p][q] = 0.0;
+            a[q][p] = 0.0;
+            let (arp, arq) = (a[r][p], a[r][q]);
+            a[r][p] = c * arp - s * arq;
+            a[p][r] = a[r][p];
+            a[r][q] = s * arp + c * arq;
+            a[q][r] = a[r][q];
+            for row in v.iter_mut() {
+                let (vp, vq) = (row[p], row[q]);
+                row[p] = c * vp - s * vq;
+                row[q] = s * vp + c * vq;
+            }
+        }
+    }
+    None
+}
+
+/// 3D: the normals of the planes of largest shear from the principal axes of `k`
+/// ([`symmetric_eigen_3`]): `(e_max +- e_min) / sqrt 2`, the one more orthogonal to the flow.
+fn direction_3d(k: [[f64; 3]; 3], u: [f64; 3], fallback: [f64; 3]) -> Option<[f64; 3]> {
+    let scale = k.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
     if !(scale > 0.0) {
         return None;
     }
-    let eig = SymmetricEigen::try_new(k / scale, 1e-14, 64)?;
+    let (values, vectors) = symmetric_eigen_3(k.map(|row| row.map(|x| x / scale)))?;
     let (mut imax, mut imin) = (0, 0);
     for i in 1..3 {
-        if eig.eigenvalues[i] > eig.eigenvalues[imax] {
+        if values[i] > values[imax] {
             imax = i;
         }
-        if eig.eigenvalues[i] < eig.eigenvalues[imin] {
+        if values[i] < values[imin] {
             imin = i;
         }
     }
-    if !(eig.eigenvalues[imax] - eig.eigenvalues[imin] > 1e-12) {
+    if !(values[imax] - values[imin] > 1e-12) {
         return None;
     }
-    let emax = eig.eigenvectors.column(imax);
-    let emin = eig.eigenvectors.column(imin);
-    let plus = (emax + emin).normalize();
-    let minus = (emax - emin).normalize();
-    let dot =
-        |v: &nalgebra::Vector3<f64>, w: [f64; 3]| (v[0] * w[0] + v[1] * w[1] + v[2] * w[2]).abs();
-    let speed = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
-    let (dp, dm) = (dot(&plus, u), dot(&minus, u));
+    let column = |j: usize| [vectors[0][j], vectors[1][j], vectors[2][j]];
+    let (emax, emin) = (column(imax), column(imin));
+    let unit = |w: [f64; 3]| {
+        let n = libm::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+        w.map(|x| x / n)
+    };
+    let plus = unit(core::array::from_fn(|a| emax[a] + emin[a]));
+    let minus = unit(core::array::from_fn(|a| emax[a] - emin[a]));
+    let dot = |v: [f64; 3], w: [f64; 3]| (v[0] * w[0] + v[1] * w[1] + v[2] * w[2]).abs();
+    let speed = libm::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    let (dp, dm) = (dot(plus, u), dot(minus, u));
     let best = if (dp - dm).abs() <= f64::EPSILON * speed {
-        if dot(&minus, fallback) > dot(&plus, fallback) {
+        if dot(minus, fallback) > dot(plus, fallback) {
             minus
         } else {
             plus
@@ -307,5 +375,5 @@ fn direction_3d(k: Matrix3<f64>, u: [f64; 3], fallback: [f64; 3]) -> Option<[f64
     } else {
         plus
     };
-    Some([best[0], best[1], best[2]])
+    Some(best)
 }
