@@ -275,7 +275,7 @@ const JACOBI_SWEEPS: usize = 24;
 /// Eigenvalues and orthonormal eigenvectors (the columns of the matrix returned) of a
 /// symmetric 3 x 3 matrix `k` by cyclic Jacobi rotations (model.md 3: the principal axes of
 /// the strain rate), or `None` if `k` is not finite or the off-diagonal part does not fall
-/// below 1e-15 of the matrix in [`JACOBI_SWEEPS`] sweeps.
+/// below 1e-15 of the matrix in `JACOBI_SWEEPS` (24) sweeps.
 ///
 /// Why Jacobi: a fixed, branch-light sequence of plane rotations, each a few multiplications
 /// and one square root, and the eigenvectors stay orthonormal to round-off by construction
