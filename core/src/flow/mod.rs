@@ -376,8 +376,6 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     /// The applied amount of each low boundary face (at the first cell of a line; positive
     /// = into the box; 0 on closed walls and periodic axes).
     flux_low: [[R; N]; D],
-    /// Coarse levels of the multigrid preconditioner ([`cg`]); scratch of the implicit solves.
-    coarse: [[R; N]; D],
     /// Grain volume that left through each side `[axis][low, high]`, since setup.
     discharged: [[R; 2]; D],
     /// Grain volume that left through each side in the last step.
@@ -385,18 +383,15 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     kf: [[R; N]; D],
     /// Velocity at the start of the step (residual, lagged wall friction).
     u_prev: [[R; N]; D],
-    /// Scratch of the limiter and the linear solves.
+    /// Scratch of the limiter and the linear solves' systems (`diag`, `rhs`); `inflow` is
+    /// also the solves' `tmp` ([`SolveSet::scratch`]).
     inflow: [R; N],
     diag: [R; N],
     rhs: [R; N],
-    r: [R; N],
-    pv: [R; N],
-    ap: [R; N],
-    pre: [R; N],
-    line: [R; N],
-    /// Scratch of the solves' threaded loops ([`cg::Scratch::part`]).
-    part: [R; N],
-    /// The second velocity solve's scratch when two solve side by side (`viscous`).
+    /// The linear solves' scratch (also the wall and objective updates' between solves).
+    solve: SolveSet<R, D, N>,
+    /// The second velocity solve's systems and scratch when two solve side by side
+    /// (`viscous`).
     spare: SpareSolve<R, D, N>,
     /// Iterations of the last implicit pressure solve (0 in explicit mode).
     last_pressure_cg: u32,
@@ -412,9 +407,54 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     walls: walls::Walls<R, D, N>,
 }
 
-/// A second set of the implicit solves' scratch: with it the velocity components solve on
-/// two workers at once, the vertical one on one, the horizontal ones on the other (docs/parallel.md, "Velocity components side
-/// by side"). Never state: nothing reads it outside that solve.
+/// The arrays one conjugate-gradient solve works in ([`cg::Scratch`] without `tmp`, which
+/// the caller lends). Held twice: once as the flow's own solve scratch, once in
+/// [`SpareSolve`]. Never state between steps.
+#[derive(Clone, Debug)]
+struct SolveSet<R, const D: usize, const N: usize> {
+    r: [R; N],
+    p: [R; N],
+    ap: [R; N],
+    pre: [R; N],
+    line: [R; N],
+    /// Coarse levels of the multigrid preconditioner ([`cg`]).
+    coarse: [[R; N]; D],
+    /// Block partials of the solves' threaded sums ([`cg::Scratch::part`]).
+    part: [R; N],
+}
+
+impl<R: Real, const D: usize, const N: usize> SolveSet<R, D, N> {
+    const fn zeroed() -> Self {
+        Self {
+            r: [R::ZERO; N],
+            p: [R::ZERO; N],
+            ap: [R::ZERO; N],
+            pre: [R::ZERO; N],
+            line: [R::ZERO; N],
+            coarse: [[R::ZERO; N]; D],
+            part: [R::ZERO; N],
+        }
+    }
+
+    /// The set as one solve's scratch, with `tmp` lent by the caller.
+    fn scratch<'a>(&'a mut self, tmp: &'a mut [R]) -> cg::Scratch<'a, R> {
+        cg::Scratch {
+            r: &mut self.r,
+            p: &mut self.p,
+            ap: &mut self.ap,
+            pre: &mut self.pre,
+            line: &mut self.line,
+            tmp,
+            coarse: self.coarse.as_flattened_mut(),
+            part: &mut self.part,
+        }
+    }
+}
+
+/// A second set of the implicit solves' systems and scratch: with it the velocity components
+/// solve on two workers at once, the vertical one on one, the horizontal ones on the other
+/// (docs/parallel.md, "Velocity components side by side"). Never state: nothing reads it
+/// outside that solve.
 #[derive(Clone, Debug)]
 struct SpareSolve<R, const D: usize, const N: usize> {
     /// The first horizontal component's system.
@@ -423,14 +463,9 @@ struct SpareSolve<R, const D: usize, const N: usize> {
     /// The second one's (3D).
     diag2: [R; N],
     rhs2: [R; N],
-    r: [R; N],
-    p: [R; N],
-    ap: [R; N],
-    pre: [R; N],
-    line: [R; N],
+    /// The solves' `tmp`.
     tmp: [R; N],
-    coarse: [[R; N]; D],
-    part: [R; N],
+    set: SolveSet<R, D, N>,
 }
 
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
@@ -480,7 +515,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             c_rlp: z,
             flux: zd,
             flux_low: zd,
-            coarse: zd,
             discharged: [[R::ZERO; 2]; D],
             discharge_step: [[R::ZERO; 2]; D],
             kf: zd,
@@ -488,25 +522,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             inflow: z,
             diag: z,
             rhs: z,
-            r: z,
-            pv: z,
-            ap: z,
-            pre: z,
-            line: z,
-            part: z,
+            solve: SolveSet::zeroed(),
             spare: SpareSolve {
                 diag: z,
                 rhs: z,
                 diag2: z,
                 rhs2: z,
-                r: z,
-                p: z,
-                ap: z,
-                pre: z,
-                line: z,
                 tmp: z,
-                coarse: zd,
-                part: z,
+                set: SolveSet::zeroed(),
             },
             last_pressure_cg: 0,
             g_now: [R::ZERO; D],

@@ -173,7 +173,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             self.cfg.vacuum,
             f,
             axis,
-            &mut self.ap,
+            &mut self.solve.ap,
         );
     }
 
@@ -221,7 +221,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let h = self.grid.spacing();
         let emb = self.walls.on;
         if emb {
-            self.r[..n].fill(R::ZERO);
+            self.solve.r[..n].fill(R::ZERO);
         }
         for b in 0..D {
             // ap = d_comp u_b at the cells
@@ -229,12 +229,16 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             if b != comp {
                 // the normal part (b == comp) is implicit: doubled face coefficient
                 let hb = h[b] * R::HALF;
-                self.each_face(b, |f, l, r| f.kf[b][l] * hb * (f.ap[l] + f.ap[r]), false);
+                self.each_face(
+                    b,
+                    |f, l, r| f.kf[b][l] * hb * (f.solve.ap[l] + f.solve.ap[r]),
+                    false,
+                );
             }
             if emb {
                 for i in 0..n {
                     if self.walls.wall_k[i] > R::ZERO {
-                        self.r[i] += self.ap[i] * self.walls.normal[b][i];
+                        self.solve.r[i] += self.solve.ap[i] * self.walls.normal[b][i];
                     }
                 }
             }
@@ -244,7 +248,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
                     let e = self.wall_law(i).1;
-                    self.rhs[i] += kw * e * self.walls.wall_d[i] * self.r[i];
+                    self.rhs[i] += kw * e * self.walls.wall_d[i] * self.solve.r[i];
                 }
             }
         }
@@ -278,7 +282,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     b,
                     |f, l, r| {
                         let du = f.u[a][r] - f.u[a][l];
-                        R::HALF * f.kf[b][l] * (du * (hb * (f.ap[l] + f.ap[r])))
+                        R::HALF * f.kf[b][l] * (du * (hb * (f.solve.ap[l] + f.solve.ap[r])))
                     },
                     true,
                 );
@@ -286,7 +290,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         if emb {
             // r[i] = sum_a (u_B - u)_a sum_b (d_a u_b) n_b at the wall cells
-            self.r[..n].fill(R::ZERO);
+            self.solve.r[..n].fill(R::ZERO);
             for a in 0..D {
                 for b in 0..D {
                     self.fill_derivative(false, b, a);
@@ -294,8 +298,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         let kw = self.walls.wall_k[i];
                         if kw > R::ZERO {
                             let ub = self.wall_law(i).0;
-                            self.r[i] +=
-                                (ub[a] - self.u[a][i]) * (self.ap[i] * self.walls.normal[b][i]);
+                            self.solve.r[i] += (ub[a] - self.u[a][i])
+                                * (self.solve.ap[i] * self.walls.normal[b][i]);
                         }
                     }
                 }
@@ -304,7 +308,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
                     let e = self.wall_law(i).1;
-                    self.inflow[i] += kw * e * (self.walls.wall_d[i] * self.r[i]);
+                    self.inflow[i] += kw * e * (self.walls.wall_d[i] * self.solve.r[i]);
                 }
             }
         }

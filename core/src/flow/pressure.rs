@@ -31,7 +31,7 @@
 //! The solve starts from `dp = 0` every step, so a restored checkpoint keeps its bits; `dp`
 //! lives in the face-flux array of axis 0, which the transport rewrites before reading.
 
-use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
+use super::cg::{self, Preconditioner, Stencil, Stop};
 use super::step::open_low;
 use super::{Flow, FlowSide, OutletPressure};
 use crate::boundary::Boundary;
@@ -152,23 +152,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // of it before reading any, so it is free here (and the flow keeps its size per cell).
         let dp = &mut self.flux[0];
         dp[..n].fill(R::ZERO);
+        // `inflow` is free until the transport's first pass.
         let res = cg::solve_on(
             fork,
             &st,
             &self.diag,
             &self.rhs,
             dp,
-            Scratch {
-                r: &mut self.r,
-                p: &mut self.pv,
-                ap: &mut self.ap,
-                pre: &mut self.pre,
-                line: &mut self.line,
-                // `inflow` is free until the transport's first pass.
-                tmp: &mut self.inflow,
-                coarse: self.coarse.as_flattened_mut(),
-                part: &mut self.part,
-            },
+            self.solve.scratch(&mut self.inflow),
             Stop {
                 relative: self.cfg.cg_tolerance_pressure,
                 floor,
@@ -181,8 +172,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         for i in 0..n {
             // kept for `consistent_pressure` (the transport and the wall updates do not touch
             // these three scratch arrays; the viscous stage refills them later)
-            self.ap[i] = self.p[i];
-            self.pv[i] = self.c[i];
+            self.solve.ap[i] = self.p[i];
+            self.solve.p[i] = self.c[i];
             self.rhs[i] = self.diag_a2(i, a2_floor);
             self.p[i] = (self.p[i] + self.flux[0][i]).max(R::ZERO);
         }
@@ -232,7 +223,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         for i in 0..n {
             let fade = R::ONE - (self.c[i] / surface).min(R::ONE);
             if fade > R::ZERO {
-                let pc = (self.ap[i] + self.rhs[i] * (self.c[i] - self.pv[i])).max(R::ZERO);
+                let pc =
+                    (self.solve.ap[i] + self.rhs[i] * (self.c[i] - self.solve.p[i])).max(R::ZERO);
                 let excess = (self.p[i] - pc).max(R::ZERO);
                 self.p[i] -= fade * excess;
             }

@@ -882,26 +882,17 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             periodic: self.periodic(),
             kf: &self.kf,
         };
+        // `inflow` is dead between the transport and the heating (written after
+        // the velocity solves, read into `rhs` before the temperature solve).
+        // `flux` is not: it holds the step's applied face mass fluxes, which the
+        // coupled driver carries phi with after the step.
         cg::solve_on(
             fork,
             &st,
             &self.diag,
             &self.rhs,
             &mut self.u[comp],
-            Scratch {
-                r: &mut self.r,
-                p: &mut self.pv,
-                ap: &mut self.ap,
-                pre: &mut self.pre,
-                line: &mut self.line,
-                // `inflow` is dead between the transport and the heating (written after
-                // the velocity solves, read into `rhs` before the temperature solve).
-                // `flux` is not: it holds the step's applied face mass fluxes, which the
-                // coupled driver carries phi with after the step.
-                tmp: &mut self.inflow,
-                coarse: self.coarse.as_flattened_mut(),
-                part: &mut self.part,
-            },
+            self.solve.scratch(&mut self.inflow),
             stop,
         )
         .iterations
@@ -924,16 +915,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             SolveItem {
                 x: vertical,
                 systems: [(&self.diag[..], &self.rhs[..]); 2],
-                scratch: Scratch {
-                    r: &mut self.r,
-                    p: &mut self.pv,
-                    ap: &mut self.ap,
-                    pre: &mut self.pre,
-                    line: &mut self.line,
-                    tmp: &mut self.inflow,
-                    coarse: self.coarse.as_flattened_mut(),
-                    part: &mut self.part,
-                },
+                scratch: self.solve.scratch(&mut self.inflow),
                 iterations: [0; 2],
             },
             SolveItem {
@@ -942,16 +924,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     (&spare.diag[..], &spare.rhs[..]),
                     (&spare.diag2[..], &spare.rhs2[..]),
                 ],
-                scratch: Scratch {
-                    r: &mut spare.r,
-                    p: &mut spare.p,
-                    ap: &mut spare.ap,
-                    pre: &mut spare.pre,
-                    line: &mut spare.line,
-                    tmp: &mut spare.tmp,
-                    coarse: spare.coarse.as_flattened_mut(),
-                    part: &mut spare.part,
-                },
+                scratch: spare.set.scratch(&mut spare.tmp),
                 iterations: [0; 2],
             },
         ];
@@ -1138,16 +1111,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             &self.diag,
             &self.rhs,
             &mut self.t,
-            Scratch {
-                r: &mut self.r,
-                p: &mut self.pv,
-                ap: &mut self.ap,
-                pre: &mut self.pre,
-                line: &mut self.line,
-                tmp: &mut self.inflow,
-                coarse: self.coarse.as_flattened_mut(),
-                part: &mut self.part,
-            },
+            self.solve.scratch(&mut self.inflow),
             Stop {
                 relative: self.cfg.cg_tolerance,
                 floor,

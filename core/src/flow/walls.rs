@@ -616,8 +616,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     pub(super) fn embedded_begin_update(&mut self) {
         let n = self.grid.len();
         self.rhs[..n].fill(R::ZERO);
-        self.r[..n].fill(R::ZERO);
-        let dm: [&mut [R; N]; 3] = [&mut self.pv, &mut self.ap, &mut self.pre];
+        self.solve.r[..n].fill(R::ZERO);
+        let dm: [&mut [R; N]; 3] = [&mut self.solve.p, &mut self.solve.ap, &mut self.solve.pre];
         for d in dm.into_iter().take(D) {
             d[..n].fill(R::ZERO);
         }
@@ -627,8 +627,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     #[inline(always)]
     pub(super) fn embedded_add_flux(&mut self, i: usize, dc: R, u: [R; D], t: R) {
         self.rhs[i] += dc;
-        self.r[i] += dc * t;
-        let dm: [&mut [R; N]; 3] = [&mut self.pv, &mut self.ap, &mut self.pre];
+        self.solve.r[i] += dc * t;
+        let dm: [&mut [R; N]; 3] = [&mut self.solve.p, &mut self.solve.ap, &mut self.solve.pre];
         for (a, d) in dm.into_iter().enumerate().take(D) {
             d[i] += dc * u[a];
         }
@@ -640,8 +640,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let n = self.grid.len();
         let w = &self.walls;
         w.apply_increment(n, &mut self.c, &mut self.rhs);
-        w.apply_increment(n, &mut self.e, &mut self.r);
-        let dm: [&mut [R; N]; 3] = [&mut self.pv, &mut self.ap, &mut self.pre];
+        w.apply_increment(n, &mut self.e, &mut self.solve.r);
+        let dm: [&mut [R; N]; 3] = [&mut self.solve.p, &mut self.solve.ap, &mut self.solve.pre];
         for (a, d) in dm.into_iter().enumerate().take(D) {
             w.apply_increment(n, &mut self.m[a], d);
         }
