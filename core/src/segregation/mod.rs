@@ -670,24 +670,25 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 shear_noise: self.shear_noise,
             };
             let cuts = fork::cuts(n, fork.parts(), 1);
-            let mut temp = fork::split(&mut self.temp[..n], &cuts);
-            let mut flux = fork::split(&mut self.flux[..n], &cuts);
-            let mut k = self.k.each_mut().map(|k| fork::split(&mut k[..n], &cuts));
+            // One item per cut, in order: its start and its chunk of every output array.
+            let temp = fork::split(&mut self.temp[..n], &cuts).into_iter();
+            let flux = fork::split(&mut self.flux[..n], &cuts).into_iter();
+            let mut k = self
+                .k
+                .each_mut()
+                .map(|k| fork::split(&mut k[..n], &cuts).into_iter());
             let mut items: heapless::Vec<ShearItem<'_, R>, { fork::MAX_PARTS }> =
                 heapless::Vec::new();
-            while let (Some(t), Some(f)) = (temp.pop(), flux.pop()) {
-                let start = cuts[cuts.len() - 1 - items.len()].start;
+            for (cut, (temp, flux)) in cuts.iter().zip(temp.zip(flux)) {
                 let mut ks = heapless::Vec::new();
-                for k in k.iter_mut() {
-                    if let Some(c) = k.pop() {
-                        let _ = ks.push(c); // D <= 3
-                    }
+                for chunk in k.iter_mut().filter_map(Iterator::next) {
+                    let _ = ks.push(chunk); // D <= 3
                 }
                 let _ = items.push(ShearItem {
-                    start,
-                    temp: t,
+                    start: cut.start,
+                    temp,
                     k: ks,
-                    flux: f,
+                    flux,
                 }); // as many as cuts
             }
             fork.each(&mut items, |it| {
