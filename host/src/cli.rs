@@ -58,7 +58,7 @@ pub struct SweepArgs {
     /// fixed override for every run; commas inside [ ], ( ) or quotes do not split).
     #[arg(long = "set", value_name = "KEY=V1,V2,...")]
     pub set: Vec<String>,
-    /// Sweep directory [default: runs/<scene>-sweep].
+    /// Sweep directory [default: runs/{scene}-sweep].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Runs at once [default: the number of cores].
@@ -124,7 +124,7 @@ pub struct RecordArgs {
         allow_negative_numbers = true
     )]
     pub noise: f64,
-    /// Frame rate [Hz] [default: 2 stable estimator substeps per frame; 100 for the legacy
+    /// Frame rate in Hz [default: 2 stable estimator substeps per frame; 100 for the legacy
     /// scenes].
     #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
     pub rate: Option<f64>,
@@ -138,7 +138,7 @@ pub struct RecordArgs {
     /// catalogue scenes only).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-    /// Clock of the sensor's CPU [MHz]: with the frame period and --cpu-share it sets the
+    /// Clock of the sensor's CPU in MHz: with the frame period and --cpu-share it sets the
     /// cycle budget of a tick, which caps its substeps (docs/soft-sensor.md "Cycle budget").
     #[arg(
         long = "cpu-mhz",
@@ -216,7 +216,7 @@ pub struct ReplayArgs {
     )]
     pub spatial_passes: Option<i64>,
     /// Replace the recorded velocity frames by the Nedderman-Tuzun kinematic velocity of a
-    /// flat-bottomed silo with kinematic constant B [m], scaled by the discharge rate alone
+    /// flat-bottomed silo with kinematic constant B in m, scaled by the discharge rate alone
     /// (a load cell; docs/soft-sensor.md). Silo recordings only.
     #[arg(long, value_name = "B", allow_negative_numbers = true)]
     pub kinematic: Option<f64>,
@@ -248,7 +248,7 @@ impl SchemeArg {
 pub struct RunArgs {
     /// Built-in scene name or path to a scene TOML file [default: shear-cell-inverse].
     pub scene: Option<String>,
-    /// Output directory [default: runs/<scene name>].
+    /// Output directory [default: runs/{scene name}].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Face flux (overrides numerics.scheme).
@@ -257,7 +257,7 @@ pub struct RunArgs {
     /// N cells on every axis (overrides grid.cells).
     #[arg(long, value_name = "N", conflicts_with = "grid")]
     pub cells: Option<u64>,
-    /// Cells per axis as NXxNY[xNZ], e.g. 128x64 (overrides grid.cells).
+    /// Cells per axis as NXxNY or NXxNYxNZ, e.g. 128x64 (overrides grid.cells).
     #[arg(long, value_name = "NXxNY[xNZ]")]
     pub grid: Option<String>,
     /// End time (overrides run.t_end).
@@ -328,7 +328,7 @@ pub struct ConvergeArgs {
     /// shocks meet.
     #[arg(long = "t-end", value_name = "T", allow_negative_numbers = true)]
     pub t_end: Option<String>,
-    /// Output directory for converge.csv and converge.json [default: runs/<scene>-converge].
+    /// Output directory for converge.csv and converge.json [default: runs/{scene}-converge].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Override any scene key in dotted form (repeatable).
@@ -344,7 +344,7 @@ pub struct ConvergeArgs {
 pub struct FitArgs {
     /// Built-in scene name or path to a scene TOML file (model.equations = "frozen-flow").
     pub scene: String,
-    /// Target segregation time [s].
+    /// Target segregation time in s.
     #[arg(
         long = "target-time",
         value_name = "T",
@@ -366,7 +366,7 @@ pub struct FitArgs {
         allow_negative_numbers = true
     )]
     pub tolerance: f64,
-    /// Output directory [default: runs/<scene>-fit].
+    /// Output directory [default: runs/{scene}-fit].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Override any scene key in dotted form (repeatable).

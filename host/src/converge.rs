@@ -50,7 +50,7 @@ pub struct LevelRow {
     pub order_linf: Option<f64>,
     /// Steps taken.
     pub steps: u64,
-    /// Wall time of the level (set-up and time stepping, no output) [s].
+    /// Wall time of the level (set-up and time stepping, no output) \[s\].
     pub wall_seconds: f64,
 }
 

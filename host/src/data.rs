@@ -259,7 +259,7 @@ pub struct FrameSummary {
     pub omega: f64,
     /// Seconds per revolution (null at rest).
     pub period: Option<f64>,
-    /// A point on the rotation axis (solver axis order) [m].
+    /// A point on the rotation axis (solver axis order) \[m\].
     pub center: Vec<f64>,
     /// Psi at every whole revolution `t = k period` reached by the run (k = 0, 1, ...),
     /// interpolated linearly between output samples: exact where the output interval divides
@@ -329,9 +329,9 @@ pub struct FlowSummary {
     pub flow_steps: u64,
     /// Conjugate-gradient iterations of all implicit solves (velocity components and T).
     pub cg_iterations: u64,
-    /// Physical time of the flow solve [s] (spin-up time when frozen).
+    /// Physical time of the flow solve \[s\] (spin-up time when frozen).
     pub flow_time: f64,
-    /// Wall time of the flow solve [s].
+    /// Wall time of the flow solve \[s\].
     pub flow_seconds: f64,
     /// Cells of the grid the flow was solved on (the spin-up grid when reduced).
     pub flow_cells: Vec<usize>,
@@ -377,9 +377,9 @@ pub struct Profiles {
 /// One ring of a radial profile (`drum.rs`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct RadialBin {
-    /// Inner radius [m].
+    /// Inner radius \[m\].
     pub r_lo: f64,
-    /// Outer radius [m].
+    /// Outer radius \[m\].
     pub r_hi: f64,
     /// Dense cells (c >= 0.3) whose centre lies in the ring.
     pub cells: usize,
@@ -392,20 +392,20 @@ pub struct RadialBin {
 /// The `drum` block of summary.json.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DrumSummary {
-    /// Time window of the averages [s] (the last revolution, or the second half of the run
+    /// Time window of the averages \[s\] (the last revolution, or the second half of the run
     /// if it is shorter than one revolution).
     pub window: [f64; 2],
     /// Snapshots in the window.
     pub samples: usize,
-    /// Circulation centre in the lab, relative to the drum axis [m] (x, z).
+    /// Circulation centre in the lab, relative to the drum axis \[m\] (x, z).
     pub circulation_centre: [f64; 2],
     /// Its time-averaged lab speed [m/s].
     pub centre_speed: f64,
     /// Its phihat at the last output.
     pub centre_phihat: f64,
-    /// Dynamic angle of repose of the free surface [deg], mean over the window.
+    /// Dynamic angle of repose of the free surface \[deg\], mean over the window.
     pub angle_of_repose_deg: f64,
-    /// Flowing-layer thickness [m] (NaN if the velocity along the slope never turns).
+    /// Flowing-layer thickness \[m\] (NaN if the velocity along the slope never turns).
     pub flowing_layer_thickness: f64,
     /// phihat about the circulation centre, at the last output.
     pub radial_about_centre: Vec<RadialBin>,

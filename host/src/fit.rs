@@ -39,7 +39,7 @@ use std::time::Instant;
 /// Options of `sieve fit`.
 #[derive(Debug, Clone)]
 pub struct FitOptions {
-    /// Target segregation time [s].
+    /// Target segregation time \[s\].
     pub target: f64,
     /// Cells along the vertical axis per grid.
     pub levels: Vec<usize>,
@@ -85,7 +85,7 @@ pub struct LevelFit {
     pub flow_cells: Vec<usize>,
     /// All evaluations, in order.
     pub evaluations: Vec<Evaluation>,
-    /// Wall time of the level [s].
+    /// Wall time of the level \[s\].
     pub wall_seconds: f64,
     /// Why there is no S0, if there is none.
     pub note: Option<String>,
@@ -96,7 +96,7 @@ pub struct LevelFit {
 pub struct Fit {
     /// Scene name.
     pub scene: String,
-    /// Target time [s].
+    /// Target time \[s\].
     pub target_time: f64,
     /// Psi threshold.
     pub psi_threshold: f64,

@@ -129,7 +129,7 @@ pub enum Reason {
 pub struct Stop {
     /// Why.
     pub reason: Reason,
-    /// Simulated time reached [s].
+    /// Simulated time reached \[s\].
     pub t: f64,
     /// Steps taken.
     pub step: u64,

@@ -203,7 +203,7 @@ pub fn load<R: Real, const D: usize, const N: usize>(
 ///
 /// Run guards (issue 10): the first step is taken alone and timed, and the run is refused
 /// ([`crate::estimate::check_steps`]) if `t_end / dt` is absurd. The segregation time is
-/// resolved to the step ([`resolve_crossing`]), not to the output samples.
+/// resolved to the step (`resolve_crossing`), not to the output samples.
 pub fn time_loop<R: Real, const D: usize, const N: usize>(
     s: &mut Segregation<R, D, N>,
     scene: &Scene,

@@ -56,7 +56,7 @@ pub fn implicit_outlet_warning(scene: &Scene) -> Option<String> {
 /// One row of `discharge.csv`, at an output time.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct DischargeRow {
-    /// Time [s].
+    /// Time \[s\].
     pub t: f64,
     /// Discharge rate over the last output interval, all grains [m^2/s in 2D].
     pub rate: f64,
@@ -72,7 +72,7 @@ pub struct DischargeRow {
     pub out: f64,
     /// Small grains out so far.
     pub out_small: f64,
-    /// Mean free-surface height over the columns [m] (where c first reaches
+    /// Mean free-surface height over the columns \[m\] (where c first reaches
     /// [`SURFACE_LEVEL`] from above; 2D/3D; the lower box edge for an empty column).
     pub surface: f64,
     /// Share of the bed (cells with c >= [`DENSE`]) moving slower than [`STAGNANT`] of the
@@ -111,7 +111,7 @@ pub struct DischargeSummary {
     /// The same for the small grains (carried transport).
     pub mass_small_error: f64,
     /// The steady window: from when 10 % of the grains have left to when 50 % have (or to
-    /// the end of the run if fewer left) [s].
+    /// the end of the run if fewer left) \[s\].
     pub steady_window: [f64; 2],
     /// Mean discharge rate over the steady window.
     pub steady_rate: f64,

@@ -35,7 +35,7 @@ pub fn checked(r: io::Result<()>) -> Result<()> {
     }
 }
 
-/// `println!` through [`write`]: evaluates to the crate's `Result<()>`.
+/// `println!` through [`fn@write`]: evaluates to the crate's `Result<()>`.
 #[macro_export]
 macro_rules! outln {
     ($($arg:tt)*) => {
@@ -43,7 +43,7 @@ macro_rules! outln {
     };
 }
 
-/// `print!` through [`write`]: evaluates to the crate's `Result<()>`.
+/// `print!` through [`fn@write`]: evaluates to the crate's `Result<()>`.
 #[macro_export]
 macro_rules! out {
     ($($arg:tt)*) => {

@@ -563,7 +563,7 @@ pub fn colour_map(path: &Path, title: &str, g: &MapGrid, values: &[f64]) -> Resu
 }
 
 /// An animated GIF of colour maps, one frame per [`Animation::frame`]. Each frame is drawn
-/// into an RGB buffer and mapped onto one fixed palette ([`MapPalette`]): the colour map's
+/// into an RGB buffer and mapped onto one fixed palette (`MapPalette`): the colour map's
 /// own colours, greys for text and empty cells, the curve colours. Quantising every frame
 /// anew (NeuQuant, plotters' GIF backend) took three quarters of a small run's time.
 pub struct Animation {

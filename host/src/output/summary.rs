@@ -23,7 +23,7 @@ pub struct ExactComparison {
 pub struct Stopped {
     /// One line, as printed on stderr.
     pub reason: String,
-    /// Simulated time reached [s].
+    /// Simulated time reached \[s\].
     pub t: f64,
     /// Steps taken (a non-finite value is detected after this step).
     pub step: u64,
@@ -102,7 +102,7 @@ pub struct Summary {
     pub steps: u64,
     /// Stable time step (all steps but the ones landing on output times).
     pub dt: f64,
-    /// Smallest / largest / last stable time step stepped with [s] (coupled scenes: the flow's
+    /// Smallest / largest / last stable time step stepped with \[s\] (coupled scenes: the flow's
     /// and the segregation's common step varies; null when nothing moves).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dt_min: Option<f64>,
@@ -118,9 +118,9 @@ pub struct Summary {
     pub t_end: f64,
     /// Output interval.
     pub output_interval: f64,
-    /// Wall time of the whole run, set-up and outputs included [s].
+    /// Wall time of the whole run, set-up and outputs included \[s\].
     pub wall_seconds: f64,
-    /// Wall time of the time stepping alone [s].
+    /// Wall time of the time stepping alone \[s\].
     pub stepping_seconds: f64,
     /// `steps * cells / stepping_seconds`.
     pub cell_updates_per_second: f64,

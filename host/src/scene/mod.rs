@@ -163,9 +163,9 @@ impl Precision {
 pub struct GridSpec {
     /// Cells per axis.
     pub cells: Vec<i64>,
-    /// Lower corner of the box [m].
+    /// Lower corner of the box \[m\].
     pub lower: Vec<f64>,
-    /// Upper corner of the box [m].
+    /// Upper corner of the box \[m\].
     pub upper: Vec<f64>,
 }
 
@@ -239,11 +239,11 @@ pub struct MaterialSpec {
     /// Heating prefactor a (for `temperature = "shear"`).
     #[serde(default = "default_heating")]
     pub heating: f64,
-    /// eta0 [m] (for `temperature = "shear"`).
+    /// eta0 \[m\] (for `temperature = "shear"`).
     pub eta0: Option<f64>,
     /// eps0 [1/m] (for `temperature = "shear"` and the flow).
     pub eps0: Option<f64>,
-    /// lambda0 [m] (flow: conductivity prefactor).
+    /// lambda0 \[m\] (flow: conductivity prefactor).
     pub lambda0: Option<f64>,
     /// T0 [m^2/s^2] (flow: yield-pressure scale).
     #[serde(rename = "T0")]
@@ -446,7 +446,7 @@ pub enum SpinUp {
 pub struct FlowWallSpec {
     /// "no-slip" (default), "slip" or "friction".
     pub wall: Option<WallKind>,
-    /// Wall friction angle [deg] in [0, 90] (with `wall = "friction"`; 0 = slip, 90 = no-slip).
+    /// Wall friction angle \[deg\] in [0, 90] (with `wall = "friction"`; 0 = slip, 90 = no-slip).
     pub friction_angle: Option<f64>,
     /// Tangential wall velocity [m/s], one entry per axis (normal entry 0).
     pub velocity: Option<Vec<f64>>,
@@ -513,9 +513,9 @@ pub struct InflowSpec {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RunSpec {
-    /// End time [s].
+    /// End time \[s\].
     pub t_end: f64,
-    /// Time between outputs [s].
+    /// Time between outputs \[s\].
     pub output_interval: f64,
     /// Segregation time = first time Psi < threshold (after Psi was >= threshold).
     #[serde(default = "default_psi_threshold")]

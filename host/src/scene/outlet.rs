@@ -47,9 +47,9 @@ pub enum PressureSpec {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OutletSpec {
-    /// Centre of the opening along the tangential axes [m].
+    /// Centre of the opening along the tangential axes \[m\].
     pub center: Coords,
-    /// Width of the opening along the tangential axes [m].
+    /// Width of the opening along the tangential axes \[m\].
     pub width: Coords,
     /// Ghost pressure.
     #[serde(default)]
@@ -59,9 +59,9 @@ pub struct OutletSpec {
 /// A validated outlet: the box `lower..upper` in solver axis order (the side's own axis 0).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Outlet {
-    /// Lower corner [m].
+    /// Lower corner \[m\].
     pub lower: Vec<f64>,
-    /// Upper corner [m].
+    /// Upper corner \[m\].
     pub upper: Vec<f64>,
     /// Ghost pressure.
     pub pressure: OutletPressure,

@@ -27,7 +27,7 @@
 //!   clean velocity, rounded down to two significant digits) and the frames cover `run.t_end`
 //!   (at most [`MAX_DEFAULT_FRAMES`]).
 //!
-//! A "coupled" scene (issue 9, e.g. `silo`) is recorded by [`record_coupled`]: the truth is
+//! A "coupled" scene (issue 9, e.g. `silo`) is recorded by `record_coupled`: the truth is
 //! the coupled run itself, sampled at every frame time; see there.
 
 use super::record::{RecordReport, Writer};
@@ -67,11 +67,11 @@ pub struct SceneRecordOptions {
     pub noise: f64,
     /// Noise seed.
     pub seed: u64,
-    /// Frame period [s]; `None`: [`SUBSTEPS_PER_FRAME`] stable estimator substeps.
+    /// Frame period \[s\]; `None`: [`SUBSTEPS_PER_FRAME`] stable estimator substeps.
     pub period: Option<f64>,
     /// Frames; `None`: enough to cover `run.t_end` (at most [`MAX_DEFAULT_FRAMES`]).
     pub frames: Option<u32>,
-    /// Clock of the CPU the tick budget is for [Hz] ([`super::DEFAULT_CPU_HZ`]).
+    /// Clock of the CPU the tick budget is for \[Hz\] ([`super::DEFAULT_CPU_HZ`]).
     pub cpu_hz: f64,
     /// Share of every tick period the CPU grants the sensor, in (0, 1].
     pub cpu_share: f64,
@@ -97,11 +97,11 @@ impl Default for SceneRecordOptions {
 pub struct SceneRecordReport {
     /// Frames, bytes, final truth psi.
     pub record: RecordReport,
-    /// Frame period [s].
+    /// Frame period \[s\].
     pub period: f64,
     /// Truth grid.
     pub truth_cells: [usize; 2],
-    /// Stable substep of the estimator with the clean velocity [s].
+    /// Stable substep of the estimator with the clean velocity \[s\].
     pub estimator_dt: f64,
     /// S0 written into the sensor configuration.
     pub sensor_s0: f64,

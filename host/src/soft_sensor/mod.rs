@@ -47,7 +47,7 @@ pub const ESTIMATOR_CAPACITY: usize = 1024;
 /// Clock the recorder budgets a tick for by default: a 168 MHz Cortex-M4F (STM32F4 class).
 pub const DEFAULT_CPU_HZ: f64 = 168e6;
 
-/// The cycle budget of a tick of `period` [s] on a Cortex-M4F at `cpu_hz` granting the sensor
+/// The cycle budget of a tick of `period` \[s\] on a Cortex-M4F at `cpu_hz` granting the sensor
 /// the share `cpu_share` of its time, with the cost model firmware-sim measured
 /// ([`CycleBudget::CORTEX_M4F`]).
 pub fn cpu_budget(cpu_hz: f64, cpu_share: f64, period: f64) -> CycleBudget {

@@ -24,11 +24,11 @@ pub struct RecordOptions {
     pub noise: f64,
     /// Noise seed.
     pub seed: u64,
-    /// Frame period [s] (1 / rate).
+    /// Frame period \[s\] (1 / rate).
     pub period: f64,
     /// Number of frames.
     pub frames: u32,
-    /// Clock of the CPU the tick budget is for [Hz] ([`super::DEFAULT_CPU_HZ`]).
+    /// Clock of the CPU the tick budget is for \[Hz\] ([`super::DEFAULT_CPU_HZ`]).
     pub cpu_hz: f64,
     /// Share of every tick period the CPU grants the sensor, in (0, 1].
     pub cpu_share: f64,

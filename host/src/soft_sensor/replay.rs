@@ -26,7 +26,7 @@ pub struct ReplayRow {
     pub tick: u32,
     /// Last accepted sequence number.
     pub seq: u32,
-    /// Estimator time [s].
+    /// Estimator time \[s\].
     pub time: f32,
     /// Estimated psi.
     pub psi: f32,
@@ -58,7 +58,7 @@ pub struct ReplayRow {
     pub outflow_fines: f32,
     /// Fines fraction of the estimator's outflow over its window (0 if none).
     pub outflow_fines_window: f32,
-    /// Predicted time until the outlet fines fraction leaves the band [s] (0: out of it now,
+    /// Predicted time until the outlet fines fraction leaves the band \[s\] (0: out of it now,
     /// infinity: no exit predicted).
     pub off_spec_in: f32,
 }
@@ -87,7 +87,7 @@ pub struct ReplayReport {
     pub wire: WireCounters,
     /// Injected faults.
     pub injected: InjectedFaults,
-    /// Final lag [s].
+    /// Final lag \[s\].
     pub lag: f32,
     /// Relative change of the small-phase mass over the run (f64 sum). The estimator never
     /// clamps phi, so in a closed box this is f32 round-off only (about 1e-7 per step at
@@ -181,7 +181,7 @@ fn off_spec(rows: &[ReplayRow], w: usize, band: [f32; 2]) -> Option<OffSpec> {
 /// The outlet fines fraction of the estimator against the truth's discharge (issue 9).
 #[derive(Clone, Debug, PartialEq)]
 pub struct OutflowAccuracy {
-    /// Window [ticks] of the compared fines fractions (the configuration's `outflow_window`).
+    /// Window \[ticks\] of the compared fines fractions (the configuration's `outflow_window`).
     pub window: usize,
     /// Largest |fines fraction of what left in a window, estimator - truth| over the windows
     /// ending at each tick in which the truth discharged at least 1 % of its largest window.
@@ -289,7 +289,7 @@ pub fn replay_bytes_with(
 }
 
 /// Replays a recording of a discharging silo without its velocity frames: every tick's frame
-/// is the Nedderman-Tuzun kinematic velocity ([`Kinematic`], constant `b` [m]) scaled by the
+/// is the Nedderman-Tuzun kinematic velocity ([`Kinematic`], constant `b` \[m\]) scaled by the
 /// discharge rate a load cell under the orifice reads, i.e. the truth's discharge over the
 /// previous frame period (causal: the rate of the period that just ended). The truth's
 /// discharge is solid volume per unit depth, so the load cell's mass rate is it times

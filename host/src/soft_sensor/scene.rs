@@ -63,7 +63,7 @@ impl Scene {
         Self::ALL.into_iter().find(|sc| sc.cli_name() == s)
     }
 
-    /// Box size (x, z) [m].
+    /// Box size (x, z) \[m\].
     pub fn extent(self) -> [f64; 2] {
         match self {
             Scene::ShearCell => [0.025, 0.025],
@@ -131,7 +131,7 @@ impl Scene {
         }
     }
 
-    /// Default frame period [s] (one stable substep of a 32 x 32 estimator in the clean case).
+    /// Default frame period \[s\] (one stable substep of a 32 x 32 estimator in the clean case).
     pub fn default_period(self) -> f64 {
         0.01
     }

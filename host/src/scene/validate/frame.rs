@@ -6,7 +6,7 @@
 //!
 //! What runs today: the rotating frame with a solved, coupled flow (turning gravity,
 //! centrifugal and Coriolis forces in the flow, the turning gravity in the segregation) in a
-//! box; the lab frame with a turning cut-cell wall (a [geometry], coupled flow; the wall moves
+//! box; the lab frame with a turning cut-cell wall (a `[geometry]`, coupled flow; the wall moves
 //! at `omega x (x - centre)`). A turning lab frame without a geometry is refused (a box's
 //! walls cannot turn on the grid), as is a rotating frame without a flow
 //! (nothing would turn but gravity) or with a frozen flow (a turning frame has no steady state).
@@ -25,7 +25,7 @@ pub struct FrameSpec {
     pub kind: Option<FrameKind>,
     /// Drum speed [rev/s]; positive counter-clockwise (module docs). Default 0.
     pub rev_per_s: Option<f64>,
-    /// A point on the rotation axis [m], one entry per axis (default: the geometry's centre,
+    /// A point on the rotation axis \[m\], one entry per axis (default: the geometry's centre,
     /// else the box centre).
     pub center: Option<Vec<f64>>,
     /// 3D only: the grid axis of the rotation, "x", "y" or "z" (default "y"; "y" with a

@@ -26,25 +26,25 @@ use sieve_core::Real;
 pub struct GeometrySpec {
     /// "drum", "square-drum", "drum-baffle" or "hopper".
     pub shape: ShapeKind,
-    /// Centre of the drum [m], one entry per axis (default: the centre of the box); the y
+    /// Centre of the drum \[m\], one entry per axis (default: the centre of the box); the y
     /// entry of a 3D scene is ignored (the drum is a prism along y). Hopper: the x entry is
     /// the outlet's centre.
     pub center: Option<Vec<f64>>,
-    /// Drum radius [m] ("drum", "drum-baffle").
+    /// Drum radius \[m\] ("drum", "drum-baffle").
     pub radius: Option<f64>,
-    /// Half the side of the square drum [m] ("square-drum").
+    /// Half the side of the square drum \[m\] ("square-drum").
     pub half_width: Option<f64>,
-    /// Square drum: its turn [deg]; drum-baffle: the polar angle of the baffle's foot [deg].
+    /// Square drum: its turn \[deg\]; drum-baffle: the polar angle of the baffle's foot \[deg\].
     pub angle: Option<f64>,
-    /// How far the baffle reaches into the drum from its wall [m].
+    /// How far the baffle reaches into the drum from its wall \[m\].
     pub baffle_length: Option<f64>,
-    /// Thickness of the baffle plate [m] (at least one cell: thinner features are not seen).
+    /// Thickness of the baffle plate \[m\] (at least one cell: thinner features are not seen).
     pub baffle_thickness: Option<f64>,
-    /// Height of the hopper's outlet [m].
+    /// Height of the hopper's outlet \[m\].
     pub outlet_z: Option<f64>,
-    /// Width of the hopper's outlet [m].
+    /// Width of the hopper's outlet \[m\].
     pub outlet_width: Option<f64>,
-    /// Angle of the hopper walls from the vertical [deg].
+    /// Angle of the hopper walls from the vertical \[deg\].
     pub hopper_angle: Option<f64>,
     /// Merging threshold: cut cells with an open fraction below it join a neighbour
     /// (docs/geometry.md); default 0.5, allowed [0, 1).
@@ -87,11 +87,11 @@ pub struct Geometry {
     /// Radius (drum, drum-baffle) or half-width (square drum); 0 for the hopper.
     pub size: f64,
     /// Square drum: turn; drum-baffle: polar angle of the baffle; hopper: wall angle from
-    /// the vertical [rad].
+    /// the vertical \[rad\].
     pub angle: f64,
-    /// Baffle length and thickness [m] (drum-baffle).
+    /// Baffle length and thickness \[m\] (drum-baffle).
     pub baffle: (f64, f64),
-    /// Hopper outlet height and half-width [m].
+    /// Hopper outlet height and half-width \[m\].
     pub outlet: (f64, f64),
     /// The box's x range (the hopper's vertical walls).
     pub x_range: (f64, f64),

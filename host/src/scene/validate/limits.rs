@@ -11,7 +11,7 @@ pub struct Limits {
     pub max_steps: f64,
     /// Largest estimated number of cell updates (steps x cells).
     pub max_cell_steps: f64,
-    /// Largest estimated output size [bytes].
+    /// Largest estimated output size \[bytes\].
     pub max_output: f64,
 }
 

@@ -3,9 +3,9 @@
 //! naming the file, the key and the allowed range, and validation reports **every** problem of
 //! a file in one go, one line each ([`Problems`]), not only the first.
 //!
-//! One file per section of the scene file: [`grid`] (`[grid]`), [`material`] (`[numerics]`,
-//! `[material]`), [`physics`] (`[physics]`), [`boundary`] (`[boundary]`), [`initial`]
-//! (`[initial]` and the evaluated fields), [`run`] (`[run]`, `exact`), [`flow`] (the solved
+//! One file per section of the scene file: `grid` (`[grid]`), `material` (`[numerics]`,
+//! `[material]`), `physics` (`[physics]`), `boundary` (`[boundary]`), `initial`
+//! (`[initial]` and the evaluated fields), `run` (`[run]`, `exact`), `flow` (the solved
 //! flow: its material, `[boundary.flow]`, `[flow]`). This file holds the validated types and
 //! puts the sections together.
 
@@ -74,7 +74,7 @@ pub enum Temperature {
     Shear {
         /// heating prefactor a
         heating: f64,
-        /// eta0 [m]
+        /// eta0 \[m\]
         eta0: f64,
         /// eps0 [1/m]
         eps0: f64,
@@ -95,7 +95,7 @@ pub enum WallSlip {
     Friction {
         /// tan(phi_w)
         tan: f64,
-        /// phi_w [deg]
+        /// phi_w \[deg\]
         degrees: f64,
     },
 }
@@ -118,9 +118,9 @@ pub struct FlowModel {
     pub equations: Equations,
     /// Back-coupling of the packing limits.
     pub back_coupling: BackCoupling,
-    /// eta0 [m].
+    /// eta0 \[m\].
     pub eta0: f64,
-    /// lambda0 [m].
+    /// lambda0 \[m\].
     pub lambda0: f64,
     /// eps0 [1/m].
     pub eps0: f64,

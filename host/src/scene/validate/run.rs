@@ -117,7 +117,7 @@ impl Scene {
         Ok(())
     }
 
-    /// The exact column-a solution of this scene (see [`Scene::check_column_a`]).
+    /// The exact column-a solution of this scene (see `Scene::check_column_a`).
     pub fn column_a(&self, fields: &Fields) -> Option<sieve_core::exact::ColumnA<f64>> {
         if self.exact != Some(crate::scene::ExactKind::ColumnA) {
             return None;
