@@ -47,6 +47,32 @@ fn main() {
         })
     });
     println!("fork and join of an empty 2-part loop on the pool: {empty:.2} us");
+    // The same fork after the caller worked alone for a while (a flow stage between two
+    // solves): the idle worker may have gone to sleep, and the fork then waits for its wake-up.
+    for gap_us in [10u64, 50, 200, 1000] {
+        let gap = std::time::Duration::from_micros(gap_us);
+        let mut worst = 0.0f64;
+        let mut total = 0.0;
+        let reps = 2_000_000 / (gap_us as usize + 20);
+        pool.install(|| {
+            let mut items = [0u64; 2];
+            for _ in 0..reps.min(5000) {
+                let t = Instant::now();
+                while t.elapsed() < gap {
+                    std::hint::spin_loop();
+                }
+                let t = Instant::now();
+                fork::chunks(&pool, &mut items, 1, |_, c| c[0] += 1);
+                let dt = t.elapsed().as_secs_f64() * 1e6;
+                worst = worst.max(dt);
+                total += dt;
+            }
+        });
+        println!(
+            "  after {gap_us} us of serial work: {:.2} us mean, {worst:.0} us worst",
+            total / reps.min(5000) as f64
+        );
+    }
     let mut kf = vec![[0.0f64; N]; 2];
     let mut s = 7;
     for k in kf.iter_mut() {
