@@ -53,10 +53,10 @@ fn main() {
         let gap = std::time::Duration::from_micros(gap_us);
         let mut worst = 0.0f64;
         let mut total = 0.0;
-        let reps = 2_000_000 / (gap_us as usize + 20);
+        let reps = (2_000_000 / (gap_us as usize + 20)).min(5000);
         pool.install(|| {
             let mut items = [0u64; 2];
-            for _ in 0..reps.min(5000) {
+            for _ in 0..reps {
                 let t = Instant::now();
                 while t.elapsed() < gap {
                     std::hint::spin_loop();
@@ -70,7 +70,7 @@ fn main() {
         });
         println!(
             "  after {gap_us} us of serial work: {:.2} us mean, {worst:.0} us worst",
-            total / reps.min(5000) as f64
+            total / reps as f64
         );
     }
     let mut kf = vec![[0.0f64; N]; 2];
