@@ -356,13 +356,13 @@ fn direction_3d(k: [[f64; 3]; 3], u: [f64; 3], fallback: [f64; 3]) -> Option<[f6
     let column = |j: usize| [vectors[0][j], vectors[1][j], vectors[2][j]];
     let (emax, emin) = (column(imax), column(imin));
     let unit = |w: [f64; 3]| {
-        let n = libm::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+        let n = super::norm(&w);
         w.map(|x| x / n)
     };
     let plus = unit(core::array::from_fn(|a| emax[a] + emin[a]));
     let minus = unit(core::array::from_fn(|a| emax[a] - emin[a]));
-    let dot = |v: [f64; 3], w: [f64; 3]| (v[0] * w[0] + v[1] * w[1] + v[2] * w[2]).abs();
-    let speed = libm::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    let dot = |v: [f64; 3], w: [f64; 3]| super::dot(&v, &w).abs();
+    let speed = super::norm(&u);
     let (dp, dm) = (dot(plus, u), dot(minus, u));
     let best = if (dp - dm).abs() <= f64::EPSILON * speed {
         if dot(minus, fallback) > dot(plus, fallback) {
