@@ -136,9 +136,13 @@ fn chute_direction_is_the_slope_normal() {
             );
             for j in 1..4 {
                 let v = flow.velocity(i + j)[0];
+                // to the viscous solve's tolerance (1e-10 of the right-hand side): its last
+                // iterates are not exactly uniform (7.7e-12 measured since the solves start
+                // from the extrapolated velocity, model.md 5.3)
                 assert!(
-                    (v - u[k]).abs() <= 1e-12 * u[k].abs(),
-                    "not uniform along the slope"
+                    (v - u[k]).abs() <= 1e-10 * u[k].abs(),
+                    "not uniform along the slope: {:e} relative",
+                    (v - u[k]).abs() / u[k].abs()
                 );
             }
             // where the bed shears (at least 5 % of the largest shear rate; above, in the

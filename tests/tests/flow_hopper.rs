@@ -9,22 +9,12 @@
 //! outlet speed) where the flat silo of the same orifice on the same cells has its dead
 //! corners, and what leaves keeps the bed's composition longer.
 
-use crate::silo_common::{discharge, Spec};
+use crate::silo_common::{coarse_2d, discharge, Spec};
 use sieve_tests::run_big;
 
-/// Coarse grid (15 x 50, ~10 mm cells), 0.145 m x 0.5 m filled to 0.4 m, W = 0.04 m.
+/// The coarse silo of `silo_common`, sampled every 0.1 s.
 fn spec(hopper: Option<f64>, t_end: f64) -> Spec<2> {
-    Spec {
-        cells: [15, 50],
-        height: 0.5,
-        depth: 0.0,
-        fill: 0.4,
-        orifice: 0.04,
-        hopper,
-        hopper_z: 0.01,
-        t_end,
-        every: 0.1,
-    }
+    coarse_2d(hopper, t_end, 0.1)
 }
 
 #[test]

@@ -23,6 +23,7 @@ mod flow_cut_friction;
 mod flow_drum;
 mod flow_drum_coupled;
 mod flow_frame;
+mod flow_guess;
 mod flow_hopper;
 mod flow_implicit;
 mod flow_implicit_dilute;

@@ -1,7 +1,7 @@
 //! One time step of the flow (the scheme of the module docs of [`super`]).
 
 use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
-use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip, Stress};
+use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip, Stress, VelocityGuess};
 use crate::boundary::Boundary;
 use crate::closure;
 use crate::fork::{Call, Fork, Serial, Share};
@@ -42,6 +42,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         debug_assert!(self.prepared, "prepare() must follow set_cell()");
         let n = self.grid.len();
         for a in 0..D {
+            self.u_before[a][..n].copy_from_slice(&self.u_prev[a][..n]);
             self.u_prev[a][..n].copy_from_slice(&self.u[a][..n]);
         }
         self.g_now = self.cfg.frame.gravity(self.cfg.gravity, self.time);
@@ -790,6 +791,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 rhs[..n].copy_from_slice(&self.rhs[..n]);
             }
             self.viscous_rows(D - 1, dt, false);
+            for comp in 0..D {
+                self.initial_guess(comp);
+            }
             let iterations = self.solve_side_by_side(stop, fork);
             for (comp, it) in iterations.into_iter().enumerate() {
                 self.viscous_done(comp, it);
@@ -797,6 +801,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         } else {
             for comp in 0..D {
                 self.viscous_rows(comp, dt, objective);
+                self.initial_guess(comp);
                 let iterations = self.solve_component(comp, stop, fork);
                 if objective {
                     // back to eta_f ap / h^2 (a power of two: exact)
@@ -872,6 +877,25 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     self.rhs[i] += k * ub[comp];
                 }
             }
+        }
+    }
+
+    /// The solve's start for component `comp` in `u` (model.md 5.3, "Initial guess"), once its
+    /// right-hand side has read the explicit velocity there: `2 u^n - u^{n-1}`, or that
+    /// velocity itself ([`VelocityGuess`]); 0 in empty cells either way.
+    fn initial_guess(&mut self, comp: usize) {
+        if self.cfg.guess != VelocityGuess::Extrapolated {
+            return;
+        }
+        let n = self.grid.len();
+        let vac = self.cfg.vacuum;
+        let (now, before) = (&self.u_prev[comp][..n], &self.u_before[comp][..n]);
+        for (i, u) in self.u[comp][..n].iter_mut().enumerate() {
+            *u = if self.c[i] > vac {
+                (now[i] + now[i]) - before[i]
+            } else {
+                R::ZERO
+            };
         }
     }
 

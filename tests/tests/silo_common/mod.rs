@@ -59,6 +59,22 @@ pub struct Spec<const D: usize> {
     pub every: f64,
 }
 
+/// The coarse 2D silo (15 x 50, ~10 mm cells), 0.145 m x 0.5 m filled to 0.4 m, W = 0.04 m,
+/// with a 30 deg hopper or a flat floor, sampled every `every` seconds.
+pub fn coarse_2d(hopper: Option<f64>, t_end: f64, every: f64) -> Spec<2> {
+    Spec {
+        cells: [15, 50],
+        height: 0.5,
+        depth: 0.0,
+        fill: 0.4,
+        orifice: 0.04,
+        hopper,
+        hopper_z: 0.01,
+        t_end,
+        every,
+    }
+}
+
 /// What a discharge measured.
 #[derive(Debug, Default)]
 pub struct Outcome {
@@ -121,6 +137,18 @@ pub fn discharge_on<const D: usize, F: Fork>(
     s: Spec<D>,
     fork: &F,
     at_end: impl FnOnce(&Coupled<'_, f64, D, N>),
+    after_step: impl FnMut(&Coupled<'_, f64, D, N>),
+) -> Outcome {
+    discharge_configured(s, fork, |_| {}, at_end, after_step)
+}
+
+/// [`discharge_on`] with the flow configuration changed by `configure` after the runner set
+/// it up (e.g. the solves' initial guess).
+pub fn discharge_configured<const D: usize, F: Fork>(
+    s: Spec<D>,
+    fork: &F,
+    configure: impl FnOnce(&mut FlowConfig<f64, D>),
+    at_end: impl FnOnce(&Coupled<'_, f64, D, N>),
     mut after_step: impl FnMut(&Coupled<'_, f64, D, N>),
 ) -> Outcome {
     let z = D - 1;
@@ -159,6 +187,7 @@ pub fn discharge_on<const D: usize, F: Fork>(
     let mut cfg = FlowConfig::new(mat);
     cfg.free_surface_push = true;
     cfg.t_min = 1e-8;
+    configure(&mut cfg);
     let mut flow: Box<Flow<f64, D, N>> = Box::new(Flow::zeroed());
     flow.setup(grid, sides, cfg).unwrap();
     let cut: Option<Box<CutCells<f64, D, N>>> = s.hopper.map(|angle| {
