@@ -1045,8 +1045,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// limits `c_rcp`, `c_rlp` (back-coupled), the lagged coefficients `eta`, `lambda`, `eps`,
     /// then momentum `m0..`, velocity `u0..` and the velocity at the start of the last step
     /// `u0_start..` (the next step's initial guess extrapolates from it) per axis. Everything
-    /// else (face fluxes, CG and multigrid work space) is rebuilt within a step. With [`Self::counters`] this is the
-    /// state a checkpoint keeps (the geometry and configuration come from the scene).
+    /// else (face fluxes, CG and multigrid work space) is rebuilt within a step. With
+    /// [`Self::counters`] this is the state a checkpoint keeps (the geometry and
+    /// configuration come from the scene).
     pub fn for_each_state_array(&self, mut f: impl FnMut(&'static str, &[R])) {
         let n = self.grid.len();
         f("c", &self.c[..n]);
