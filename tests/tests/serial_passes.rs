@@ -4,7 +4,7 @@
 //! its per-step Psi only where it can cross the threshold (`psi_floor`, `diagnose_fields`).
 //! These tests hold the passes to the per-cell formulas of model.md 3 and 6, bit for bit.
 
-use crate::common::{boxed, config};
+use crate::common::{boxed, config, Lcg};
 use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
 use sieve_core::segregation::direction::{segregation_normal, velocity_gradient};
 use sieve_core::{
@@ -13,18 +13,6 @@ use sieve_core::{
 };
 
 const N: usize = 256;
-
-/// A deterministic pseudo-random number in [0, 1).
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
 
 fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
     let mut s = 0.0;

@@ -13,6 +13,7 @@ mod column_a;
 mod coupled_step_limit;
 mod direction;
 mod direction_flow;
+mod direction_lanes;
 mod flow_boundaries;
 mod flow_cg;
 mod flow_chute;

@@ -5,6 +5,9 @@ use crate::boundary::{Boundaries, Boundary};
 use crate::grid::Grid;
 use crate::real::Real;
 
+use super::eigen3;
+pub use super::eigen3::symmetric_eigen_3;
+
 /// Velocity gradient `G[i][j] = d_j u_i` at cell `i`: central differences inside, one-sided
 /// next to non-periodic boundaries, wrapped across periodic ones.
 pub fn velocity_gradient<R: Real, const D: usize, const N: usize>(
@@ -93,9 +96,10 @@ pub fn segregation_direction<R: Real, const D: usize>(
 /// normalises: in 2D that saves the square roots of the normalisation (three of the five per
 /// cell on the soft sensor's Cortex-M4F, where `sqrtf` is a ~66-instruction software routine).
 ///
-/// In 2D `m` is the closed form of `direction_2d` with `2 <= m . m <= 4`; in 1D, in 3D and
-/// where the shear vanishes (`fallback`, a unit vector) `m` is a unit vector and `m . m` is
-/// returned as exactly 1, so that dividing by it changes no bit.
+/// In 2D `m` is the closed form of `direction_2d` with `2 <= m . m <= 4`; in 3D `e_max +-
+/// e_min` of [`normals_3d`] with `m . m = 2` to round-off; in 1D and where the shear vanishes
+/// (`fallback`, a unit vector) `m` is a unit vector and `m . m` is returned as exactly 1, so
+/// that dividing by it changes no bit.
 #[inline]
 pub fn segregation_normal<R: Real, const D: usize>(
     g: &[[R; D]; D],
@@ -124,24 +128,20 @@ pub fn segregation_normal<R: Real, const D: usize>(
             }
         }
         _ => {
-            let m: [[f64; 3]; 3] =
-                core::array::from_fn(|r| core::array::from_fn(|c| (g[r][c] + g[c][r]).to_f64()));
-            let u3 = [u[0].to_f64(), u[1].to_f64(), u[2].to_f64()];
+            let k = strain_entries(g).map(|x| [x]);
+            let u3 = [[u[0].to_f64()], [u[1].to_f64()], [u[2].to_f64()]];
             let f3 = [
                 fallback[0].to_f64(),
                 fallback[1].to_f64(),
                 fallback[2].to_f64(),
             ];
-            match direction_3d(m, u3, f3) {
-                Some(d) => {
-                    let mut out = [R::ZERO; D];
-                    for a in 0..3 {
-                        out[a] = R::from_f64(d[a]);
-                    }
-                    (out, R::ONE)
-                }
-                None => (fallback, R::ONE),
+            let (mut m, mut mm) = ([[0.0]; 3], [0.0]);
+            normals_3d::<1>(&k, &u3, f3, &mut m, &mut mm);
+            let mut out = [R::ZERO; D];
+            for a in 0..3 {
+                out[a] = R::from_f64(m[a][0]);
             }
+            (out, R::from_f64(mm[0]))
         }
     }
 }
@@ -269,111 +269,86 @@ pub(crate) fn normal_2d_finish<R: Real>(
     }
 }
 
-/// Sweeps of [`symmetric_eigen_3`] before it gives up (it converges in 3 to 6).
-const JACOBI_SWEEPS: usize = 24;
+/// Cells whose 3D normals the solver's pass 1 finds side by side ([`normals_3d`]): two
+/// AVX-512 registers of f64, so that two independent chains overlap.
+pub(crate) const LANES_3D: usize = 16;
 
-/// Eigenvalues and orthonormal eigenvectors (the columns of the matrix returned) of a
-/// symmetric 3 x 3 matrix `k` by cyclic Jacobi rotations (model.md 3: the principal axes of
-/// the strain rate), or `None` if `k` is not finite or the off-diagonal part does not fall
-/// below 1e-15 of the matrix in `JACOBI_SWEEPS` (24) sweeps.
-///
-/// Why Jacobi: a fixed, branch-light sequence of plane rotations, each a few multiplications
-/// and one square root, and the eigenvectors stay orthonormal to round-off by construction
-/// even where two eigenvalues coincide. The general tridiagonal QR of nalgebra it replaced
-/// took 35-40 % of a 3D silo step (docs/parallel.md); this takes a fraction of that. The
-/// order of operations is fixed, so the bits are the same on every platform.
-pub fn symmetric_eigen_3(k: [[f64; 3]; 3]) -> Option<([f64; 3], [[f64; 3]; 3])> {
-    let mut a = k;
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let total: f64 = a.iter().flatten().map(|x| x * x).sum();
-    if !total.is_finite() {
-        return None;
-    }
-    for _ in 0..JACOBI_SWEEPS {
-        let off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
-        if off <= 1e-30 * total {
-            return Some(([a[0][0], a[1][1], a[2][2]], v));
-        }
-        for (p, q, r) in [(0, 1, 2), (0, 2, 1), (1, 2, 0)] {
-            let apq = a[p][q];
-            if apq == 0.0 {
-                continue;
-            }
-            // The rotation that zeroes a[p][q]: t = tan of its angle, the smaller root of
-            // t^2 + 2 theta t - 1 = 0 (stable for any theta).
-            let theta = (a[q][q] - a[p][p]) / (apq + apq);
-            let t = if theta.abs() > 1e150 {
-                0.5 / theta
-            } else {
-                let t = 1.0 / (theta.abs() + libm::sqrt(theta * theta + 1.0));
-                if theta < 0.0 {
-                    -t
-                } else {
-                    t
-                }
-            };
-            let c = 1.0 / libm::sqrt(t * t + 1.0);
-            let s = t * c;
-            a[p][p] -= t * apq;
-            a[q][q] += t * apq;
-            a[p][q] = 0.0;
-            a[q][p] = 0.0;
-            let (arp, arq) = (a[r][p], a[r][q]);
-            a[r][p] = c * arp - s * arq;
-            a[p][r] = a[r][p];
-            a[r][q] = s * arp + c * arq;
-            a[q][r] = a[r][q];
-            for row in v.iter_mut() {
-                let (vp, vq) = (row[p], row[q]);
-                row[p] = c * vp - s * vq;
-                row[q] = s * vp + c * vq;
-            }
-        }
-    }
-    None
+/// The strain-rate matrix `k = g + g^T` of a 3D velocity gradient as the six entries
+/// `[k00, k11, k22, k01, k02, k12]` that [`normals_3d`] reads (summed in `R`, then widened).
+#[inline(always)]
+pub(crate) fn strain_entries<R: Real, const D: usize>(g: &[[R; D]; D]) -> [f64; 6] {
+    let k = |r: usize, c: usize| (g[r][c] + g[c][r]).to_f64();
+    [k(0, 0), k(1, 1), k(2, 2), k(0, 1), k(0, 2), k(1, 2)]
 }
 
-/// 3D: the normals of the planes of largest shear from the principal axes of `k`
-/// ([`symmetric_eigen_3`]): `(e_max +- e_min) / sqrt 2`, the one more orthogonal to the flow.
-fn direction_3d(k: [[f64; 3]; 3], u: [f64; 3], fallback: [f64; 3]) -> Option<[f64; 3]> {
-    let scale = k.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
-    if !(scale > 0.0) {
-        return None;
-    }
-    let (values, vectors) = symmetric_eigen_3(k.map(|row| row.map(|x| x / scale)))?;
-    let (mut imax, mut imin) = (0, 0);
-    for i in 1..3 {
-        if values[i] > values[imax] {
-            imax = i;
+/// 3D, `L` cells side by side: from the strain rate `k` ([`strain_entries`], lane by lane)
+/// and the velocity `u`, the normal `m = e_max +- e_min` of the plane of largest shear more
+/// nearly orthogonal to `u` (model.md 3; `e_max`, `e_min` the principal axes of the largest
+/// and smallest eigenvalues, [`eigen3`]) and `m . m` (2 to round-off); where the shear
+/// vanishes (eigenvalues within 1e-12 of the largest entry), `k` is not finite or the
+/// eigen-solve does not converge, `fallback` and 1.
+///
+/// `S` is of degree 0 in `m`, so `m` is not normalised (no square root): `e_max + e_min` and
+/// `e_max - e_min` have the same length to round-off, and their dot products with `u` are
+/// compared as they are. A tie, `|m1.u| - |m2.u|` within `eps sqrt 2 |u|` (the round-off of
+/// the unit normals' products, squared: no square root either), goes towards `fallback`, so
+/// the choice does not depend on the sign of the shear. Selects only: the lanes vectorise.
+#[inline(always)]
+pub(crate) fn normals_3d<const L: usize>(
+    k: &[[f64; L]; 6],
+    u: &[[f64; L]; 3],
+    fallback: [f64; 3],
+    m: &mut [[f64; L]; 3],
+    mm: &mut [f64; L],
+) {
+    // Scaled by the largest entry (a NaN entry is skipped here and caught by `total`).
+    let mut scaled = [[0.0; L]; 6];
+    let mut total = [0.0; L];
+    let mut fine = [false; L];
+    for l in 0..L {
+        let scale = k.iter().fold(0.0f64, |s, e| s.max(e[l].abs()));
+        let div = if scale > 0.0 { scale } else { 1.0 };
+        for (s, e) in scaled.iter_mut().zip(k) {
+            s[l] = e[l] / div;
         }
-        if values[i] < values[imin] {
-            imin = i;
+        let e = scaled.map(|s| s[l]);
+        total[l] = eigen3::squared_entries([e[0], e[1], e[2]], [e[3], e[4], e[5]]);
+        fine[l] = scale > 0.0 && total[l].is_finite();
+    }
+    let mut a = eigen3::Lanes::new(&scaled);
+    a.sweeps(eigen3::FIXED_SWEEPS);
+    for l in 0..L {
+        if fine[l] && !a.converged(l, total[l]) {
+            fine[l] = a.finish(l, total[l], eigen3::FIXED_SWEEPS);
         }
     }
-    if !(values[imax] - values[imin] > 1e-12) {
-        return None;
-    }
-    let column = |j: usize| [vectors[0][j], vectors[1][j], vectors[2][j]];
-    let (emax, emin) = (column(imax), column(imin));
-    let unit = |w: [f64; 3]| {
-        let n = super::norm(&w);
-        w.map(|x| x / n)
-    };
-    let plus = unit(core::array::from_fn(|a| emax[a] + emin[a]));
-    let minus = unit(core::array::from_fn(|a| emax[a] - emin[a]));
-    let dot = |v: [f64; 3], w: [f64; 3]| super::dot(&v, &w).abs();
-    let speed = super::norm(&u);
-    let (dp, dm) = (dot(plus, u), dot(minus, u));
-    let best = if (dp - dm).abs() <= f64::EPSILON * speed {
-        if dot(minus, fallback) > dot(plus, fallback) {
-            minus
-        } else {
-            plus
+    for l in 0..L {
+        let values = a.diag.map(|x| x[l]);
+        let column = |j: usize| [a.v[0][j][l], a.v[1][j][l], a.v[2][j][l]];
+        let (mut vmax, mut emax) = (values[0], column(0));
+        let (mut vmin, mut emin) = (values[0], column(0));
+        for (j, &value) in values.iter().enumerate().skip(1) {
+            if value > vmax {
+                (vmax, emax) = (value, column(j));
+            }
+            if value < vmin {
+                (vmin, emin) = (value, column(j));
+            }
         }
-    } else if dm < dp {
-        minus
-    } else {
-        plus
-    };
-    Some(best)
+        let sheared = vmax - vmin > 1e-12;
+        let plus: [f64; 3] = core::array::from_fn(|i| emax[i] + emin[i]);
+        let minus: [f64; 3] = core::array::from_fn(|i| emax[i] - emin[i]);
+        let ul = u.map(|x| x[l]);
+        let dot = |v: [f64; 3], w: [f64; 3]| v[0] * w[0] + v[1] * w[1] + v[2] * w[2];
+        let (dp, dm) = (dot(plus, ul).abs(), dot(minus, ul).abs());
+        let tie = (dp - dm) * (dp - dm) <= 2.0 * f64::EPSILON * f64::EPSILON * dot(ul, ul);
+        let towards_fallback = dot(minus, fallback).abs() > dot(plus, fallback).abs();
+        let take_minus = if tie { towards_fallback } else { dm < dp };
+        let best = if take_minus { minus } else { plus };
+        let ok = fine[l] && sheared;
+        for (mi, (&b, &f)) in m.iter_mut().zip(best.iter().zip(&fallback)) {
+            mi[l] = if ok { b } else { f };
+        }
+        mm[l] = if ok { dot(best, best) } else { 1.0 };
+    }
 }

@@ -9,6 +9,7 @@
 
 mod carried;
 pub mod direction;
+mod eigen3;
 mod embedded;
 pub mod flux;
 mod limited;
@@ -1201,6 +1202,7 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
         let cells = self.grid.cells();
         // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
         let mut coords = self.grid.coords(start);
+        let mut block = Block3::new(self.gravity_dir);
         for j in 0..temp.len() {
             let i = start + j;
             let grad = direction::velocity_gradient_at(self.grid, self.bc, self.u, i, coords);
@@ -1227,10 +1229,23 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
                 };
                 temp[j] = heating * eta0 / eps0 * kk;
             }
-            if flow_dir {
+            if flow_dir && D == 3 {
+                // Gathered into a block whose eigen-solves run side by side (below).
+                let l = j - block.start;
+                for (e, x) in block.k.iter_mut().zip(direction::strain_entries(&grad)) {
+                    e[l] = x;
+                }
+                for (ua, u) in block.u.iter_mut().zip(self.u.iter()) {
+                    ua[l] = u[i].to_f64();
+                }
+                if l + 1 == LANES_3D || j + 1 == temp.len() {
+                    block.finish(l + 1, k, flux);
+                    block.start = j + 1;
+                }
+            } else if flow_dir {
                 let ui: [R; D] = core::array::from_fn(|a| self.u[a][i]);
                 // d is the segregation direction up to length and sign, dd = d . d:
-                // exactly 1 except for the unnormalised 2D normal from the flow (see
+                // exactly 1 except for the unnormalised normals from the flow (see
                 // `direction::segregation_normal`), so the division changes no bit
                 // elsewhere.
                 let (d, dd) = direction::segregation_normal(&grad, &ui, self.gravity_dir);
@@ -1239,6 +1254,45 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
                 }
                 flux[j] = dd;
             }
+        }
+    }
+}
+
+use direction::LANES_3D;
+
+/// Up to `LANES_3D` cells of a 3D pass 1 waiting for their directions: the strain rate and
+/// the velocity of each, from the cell `start` of the pass on.
+struct Block3 {
+    start: usize,
+    k: [[f64; LANES_3D]; 6],
+    u: [[f64; LANES_3D]; 3],
+    fallback: [f64; 3],
+}
+
+impl Block3 {
+    fn new<R: Real, const D: usize>(gravity_dir: [R; D]) -> Self {
+        Self {
+            start: 0,
+            k: [[0.0; LANES_3D]; 6],
+            u: [[0.0; LANES_3D]; 3],
+            fallback: core::array::from_fn(|a| gravity_dir.get(a).map_or(0.0, |x| x.to_f64())),
+        }
+    }
+
+    /// The directions of the block's first `n` cells into `k` and `d . d` into `flux`, the
+    /// same bits as [`direction::segregation_normal`] of each cell. The lanes past `n` hold
+    /// the previous block's cells (or zeros) and are solved and dropped.
+    #[inline(always)]
+    fn finish<R: Real>(&self, n: usize, k: &mut [&mut [R]], flux: &mut [R]) {
+        let mut m = [[0.0; LANES_3D]; 3];
+        let mut mm = [0.0; LANES_3D];
+        direction::normals_3d(&self.k, &self.u, self.fallback, &mut m, &mut mm);
+        for l in 0..n.min(LANES_3D) {
+            let j = self.start + l;
+            for (ka, ma) in k.iter_mut().zip(&m) {
+                ka[j] = R::from_f64(ma[l]);
+            }
+            flux[j] = R::from_f64(mm[l]);
         }
     }
 }

@@ -317,3 +317,15 @@ pub fn max_change(a: &[f64], b: &[f64]) -> f64 {
 pub fn phis<R: Real, const D: usize, const N: usize>(s: &Segregation<R, D, N>) -> Vec<f64> {
     (0..s.len()).map(|i| s.phi(i).to_f64()).collect()
 }
+
+/// A deterministic pseudo-random number generator (64-bit LCG): `next` is in [0, 1).
+pub struct Lcg(pub u64);
+impl Lcg {
+    pub fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
