@@ -12,10 +12,6 @@
 #![no_std]
 #![forbid(unsafe_code)]
 
-// Only for the vectorisable square root of the `std` feature (`real.rs`).
-#[cfg(feature = "std")]
-extern crate std;
-
 pub mod boundary;
 pub mod closure;
 pub mod decomp;

@@ -166,40 +166,11 @@ macro_rules! impl_real {
     };
 }
 
-/// The IEEE-754 square root (correctly rounded, so every implementation gives the same
-/// bits): the standard library's with the `std` feature, which the compiler vectorises in
-/// loops; libm's otherwise (an inline `sqrtsd` on x86, a software routine on the Cortex-M4F),
-/// which it does not.
-#[inline(always)]
-fn sqrt_f64(x: f64) -> f64 {
-    #[cfg(feature = "std")]
-    {
-        x.sqrt()
-    }
-    #[cfg(not(feature = "std"))]
-    {
-        libm::sqrt(x)
-    }
-}
-
-/// [`sqrt_f64`] for `f32`.
-#[inline(always)]
-fn sqrt_f32(x: f32) -> f32 {
-    #[cfg(feature = "std")]
-    {
-        x.sqrt()
-    }
-    #[cfg(not(feature = "std"))]
-    {
-        libm::sqrtf(x)
-    }
-}
-
 impl_real!(
     f64,
     "f64",
     f64::from_bits(223u64 << 52), // 2^-800
-    sqrt_f64,
+    libm::sqrt,
     libm::log,
     libm::exp,
     libm::sin,
@@ -211,7 +182,7 @@ impl_real!(
     f32,
     "f32",
     0.0,
-    sqrt_f32,
+    libm::sqrtf,
     libm::logf,
     libm::expf,
     libm::sinf,

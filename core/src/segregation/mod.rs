@@ -734,8 +734,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let shear_noise = self.shear_noise;
         let flow_dir = matches!(cfg.direction, DirectionMode::Flow);
         let from_shear = matches!(cfg.temperature, TemperatureMode::FromShear { .. });
-        // Pass 1, cell by cell (branches; in 3D the eigen-solves of blocks of cells side by
-        // side): where the velocity gradient is needed, T from the shear and the
+        // Pass 1, cell by cell (branches; `libm::sqrt` is an inline `sqrtsd`, which no loop
+        // vectorises): where the velocity gradient is needed, T from the shear and the
         // direction from the flow, `d` into `k` and `d . d` into the scratch `flux`; then
         // sqrt(T) of every cell into the scratch `rhs`. Pass 2 reads them back in the same
         // cell and overwrites them.
@@ -1191,8 +1191,8 @@ struct ShearItem<'a, R> {
 }
 
 impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
-    /// Pass 1 on the cells `start..start + temp.len()` (branches, except the 3D eigen-solves,
-    /// which run `LANES_3D` cells side by side): where the velocity gradient is needed, T from the
+    /// Pass 1 on the cells `start..start + temp.len()` (branches; `libm::sqrt` is an inline
+    /// `sqrtsd`, which no loop vectorises): where the velocity gradient is needed, T from the
     /// shear into `temp` and the direction from the flow, `d` into `k` and `d . d` into
     /// `flux` (pass 2 reads them back in the same cell and overwrites them).
     #[inline(always)]
