@@ -97,7 +97,7 @@ pub fn segregation_direction<R: Real, const D: usize>(
 /// cell on the soft sensor's Cortex-M4F, where `sqrtf` is a ~66-instruction software routine).
 ///
 /// In 2D `m` is the closed form of `direction_2d` with `2 <= m . m <= 4`; in 3D `e_max +-
-/// e_min` of [`normals_3d`] with `m . m = 2` to round-off; in 1D and where the shear vanishes
+/// e_min` of `normals_3d` with `m . m = 2` to round-off; in 1D and where the shear vanishes
 /// (`fallback`, a unit vector) `m` is a unit vector and `m . m` is returned as exactly 1, so
 /// that dividing by it changes no bit.
 #[inline]

@@ -181,7 +181,7 @@ pub fn squared_entries(d: [f64; 3], o: [f64; 3]) -> f64 {
 ///
 /// Why Jacobi: a fixed sequence of plane rotations, and the eigenvectors stay orthonormal to
 /// round-off by construction even where two eigenvalues coincide. The arithmetic is that of
-/// a block's lane ([`Lanes`]), so the bits are those of the solver's cells and the same on
+/// a block's lane (`Lanes`), so the bits are those of the solver's cells and the same on
 /// every platform.
 pub fn symmetric_eigen_3(k: [[f64; 3]; 3]) -> Option<([f64; 3], [[f64; 3]; 3])> {
     let entries = [k[0][0], k[1][1], k[2][2], k[0][1], k[0][2], k[1][2]];
