@@ -339,7 +339,7 @@ pub(crate) fn normals_3d<const L: usize>(
         let plus: [f64; 3] = core::array::from_fn(|i| emax[i] + emin[i]);
         let minus: [f64; 3] = core::array::from_fn(|i| emax[i] - emin[i]);
         let ul = u.map(|x| x[l]);
-        let dot = |v: [f64; 3], w: [f64; 3]| v[0] * w[0] + v[1] * w[1] + v[2] * w[2];
+        let dot = |v: [f64; 3], w: [f64; 3]| super::dot(&v, &w);
         let (dp, dm) = (dot(plus, ul).abs(), dot(minus, ul).abs());
         let tie = (dp - dm) * (dp - dm) <= 2.0 * f64::EPSILON * f64::EPSILON * dot(ul, ul);
         let towards_fallback = dot(minus, fallback).abs() > dot(plus, fallback).abs();

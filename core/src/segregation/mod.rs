@@ -24,6 +24,7 @@ use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};
 use crate::fork::{self, Call, Fork, SerialAt};
 use crate::grid::Grid;
 use crate::real::Real;
+use direction::LANES_3D;
 use serde::{Deserialize, Serialize};
 
 /// Which phase the solver tracks. Its fraction `q` is phi (small) or `psi = c - phi` (large).
@@ -1257,8 +1258,6 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
         }
     }
 }
-
-use direction::LANES_3D;
 
 /// Up to `LANES_3D` cells of a 3D pass 1 waiting for their directions: the strain rate and
 /// the velocity of each, from the cell `start` of the pass on.
