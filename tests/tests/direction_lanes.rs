@@ -201,3 +201,56 @@ fn rotated_simple_shears_give_their_shear_plane() {
         assert!((dot(&m, &m) - mm).abs() < 1e-14);
     }
 }
+
+/// An empty cell has no segregation velocity (model.md 3.2): pass 1 solves no direction for
+/// it, so a shear in the empty part of a box (T given and 1 there, or from that shear) must
+/// not limit the step; only its transport `|u| / h` does. The grains below are at rest with
+/// T = 0. With the empty cells' directions counted the step would be `h / |g|` at most.
+#[test]
+fn empty_cells_have_no_segregation_velocity() {
+    fn check<const D: usize>(cells: [usize; D], from_shear: bool) {
+        let mut cfg = config(
+            Scheme::Modified,
+            Phase::Small,
+            core::array::from_fn(|a| if a + 1 == D { -1.0 } else { 0.0 }),
+            DirectionMode::Flow,
+        );
+        if from_shear {
+            cfg.temperature = sieve_core::TemperatureMode::FromShear {
+                heating: 1.5,
+                eta0: 1.0,
+                eps0: 1.0,
+            };
+        }
+        let h = 0.1;
+        let grid = Grid::new(cells, [0.0; D], cells.map(|n| n as f64 * h), N).unwrap();
+        let mut s = boxed::<f64, D, N>();
+        s.setup(grid, [[Boundary::Wall; 2]; D], cfg).unwrap();
+        let nz = cells[D - 1];
+        let mut umax: f64 = 0.0;
+        for i in 0..grid.len() {
+            let z = grid.coords(i)[D - 1];
+            if z < nz / 2 {
+                s.set_cell(i, 0.5, 0.0, [0.0; D], 0.25);
+            } else {
+                // a simple shear u_0 = 0.3 (z - nz/2) h, no grains (still next to the
+                // grains, so that their T from the shear stays 0)
+                let mut u = [0.0; D];
+                u[0] = 0.3 * (z - nz / 2) as f64 * h;
+                umax = umax.max(u[0]);
+                s.set_cell(i, 0.0, 1.0, u, 0.0);
+            }
+        }
+        s.prepare().unwrap();
+        let want = cfg.courant / (umax / h);
+        let got = s.stable_dt();
+        assert!(
+            (got - want).abs() <= 1e-14 * want,
+            "{D}D, T from the shear {from_shear}: stable dt {got}, want {want} (|u| / h alone)"
+        );
+    }
+    check::<2>([6, 8], false);
+    check::<2>([6, 8], true);
+    check::<3>([5, 3, 8], false);
+    check::<3>([5, 3, 8], true);
+}

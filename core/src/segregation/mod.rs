@@ -667,6 +667,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 grid: &self.grid,
                 bc: &self.bc,
                 u: &self.u,
+                c: &self.c,
                 cfg: &cfg,
                 gravity_dir: gravity_direction(&cfg),
                 shear_noise: self.shear_noise,
@@ -747,6 +748,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 grid: &self.grid,
                 bc: &self.bc,
                 u: &self.u,
+                c: &self.c,
                 cfg: &cfg,
                 gravity_dir,
                 shear_noise,
@@ -856,6 +858,14 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             *r = r.sqrt();
         }
         direction::normal_2d_finish([k0, k1], rhs, flux, [u0, u1], [fallback[0], fallback[1]]);
+        // An empty cell: no direction, no segregation velocity (model.md 3.2), as in pass 1.
+        let (c, vacuum) = (&self.c[..n], self.cfg.vacuum);
+        for i in 0..n {
+            let empty = c[i] <= vacuum;
+            k0[i] = if empty { R::ZERO } else { k0[i] };
+            k1[i] = if empty { R::ZERO } else { k1[i] };
+            flux[i] = if empty { R::ONE } else { flux[i] };
+        }
     }
 
     /// The largest time step the Courant condition allows (`R::MAX` if nothing moves).
@@ -1177,6 +1187,8 @@ struct Shear<'a, R: Real, const D: usize, const N: usize> {
     grid: &'a Grid<R, D>,
     bc: &'a Boundaries<D>,
     u: &'a [[R; N]; D],
+    /// The content: an empty cell (`c <= vacuum`) gets no direction (model.md 3.2).
+    c: &'a [R; N],
     cfg: &'a SegregationConfig<R, D>,
     gravity_dir: [R; D],
     shear_noise: R,
@@ -1195,18 +1207,21 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
     /// Pass 1 on the cells `start..start + temp.len()` (branches; `libm::sqrt` is an inline
     /// `sqrtsd`, which no loop vectorises): where the velocity gradient is needed, T from the
     /// shear into `temp` and the direction from the flow, `d` into `k` and `d . d` into
-    /// `flux` (pass 2 reads them back in the same cell and overwrites them).
+    /// `flux` (pass 2 reads them back in the same cell and overwrites them). An empty cell
+    /// gets `d = 0`, `d . d = 1` (no segregation velocity without grains, model.md 3.2): no
+    /// eigenproblem is solved for it, which in a draining silo is most of the cells by the end.
     #[inline(always)]
     fn pass(&self, start: usize, temp: &mut [R], k: &mut [&mut [R]], flux: &mut [R]) {
         let cfg = self.cfg;
         let flow_dir = matches!(cfg.direction, DirectionMode::Flow);
+        let from_shear = matches!(cfg.temperature, TemperatureMode::FromShear { .. });
         let cells = self.grid.cells();
         // Integer coordinates advanced like an odometer: no division per cell (cheap on a M4).
         let mut coords = self.grid.coords(start);
         let mut block = Block3::new(self.gravity_dir);
         for j in 0..temp.len() {
             let i = start + j;
-            let grad = direction::velocity_gradient_at(self.grid, self.bc, self.u, i, coords);
+            let at = coords;
             for a in 0..D {
                 coords[a] += 1;
                 if coords[a] < cells[a] {
@@ -1214,6 +1229,17 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
                 }
                 coords[a] = 0;
             }
+            let grains = self.c[i] > cfg.vacuum;
+            if flow_dir && !grains {
+                for ka in k.iter_mut().take(D) {
+                    ka[j] = R::ZERO;
+                }
+                flux[j] = R::ONE;
+                if !from_shear {
+                    continue;
+                }
+            }
+            let grad = direction::velocity_gradient_at(self.grid, self.bc, self.u, i, at);
             if let TemperatureMode::FromShear {
                 heating,
                 eta0,
@@ -1230,20 +1256,24 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
                 };
                 temp[j] = heating * eta0 / eps0 * kk;
             }
-            if flow_dir && D == 3 {
+            if !(flow_dir && grains) {
+                continue;
+            }
+            if D == 3 {
                 // Gathered into a block whose eigen-solves run side by side (below).
-                let l = j - block.start;
+                let l = block.len;
                 for (e, x) in block.k.iter_mut().zip(direction::strain_entries(&grad)) {
                     e[l] = x;
                 }
                 for (ua, u) in block.u.iter_mut().zip(self.u.iter()) {
                     ua[l] = u[i].to_f64();
                 }
-                if l + 1 == LANES_3D || j + 1 == temp.len() {
-                    block.finish(l + 1, k, flux);
-                    block.start = j + 1;
+                block.at[l] = j;
+                block.len += 1;
+                if block.len == LANES_3D {
+                    block.finish(k, flux);
                 }
-            } else if flow_dir {
+            } else {
                 let ui: [R; D] = core::array::from_fn(|a| self.u[a][i]);
                 // d is the segregation direction up to length and sign, dd = d . d:
                 // exactly 1 except for the unnormalised normals from the flow (see
@@ -1256,13 +1286,18 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
                 flux[j] = dd;
             }
         }
+        if block.len > 0 {
+            block.finish(k, flux);
+        }
     }
 }
 
 /// Up to `LANES_3D` cells of a 3D pass 1 waiting for their directions: the strain rate and
-/// the velocity of each, from the cell `start` of the pass on.
+/// the velocity of each, and where in the pass each goes (the empty cells between them need
+/// none).
 struct Block3 {
-    start: usize,
+    len: usize,
+    at: [usize; LANES_3D],
     k: [[f64; LANES_3D]; 6],
     u: [[f64; LANES_3D]; 3],
     fallback: [f64; 3],
@@ -1271,28 +1306,30 @@ struct Block3 {
 impl Block3 {
     fn new<R: Real, const D: usize>(gravity_dir: [R; D]) -> Self {
         Self {
-            start: 0,
+            len: 0,
+            at: [0; LANES_3D],
             k: [[0.0; LANES_3D]; 6],
             u: [[0.0; LANES_3D]; 3],
             fallback: core::array::from_fn(|a| gravity_dir.get(a).map_or(0.0, |x| x.to_f64())),
         }
     }
 
-    /// The directions of the block's first `n` cells into `k` and `d . d` into `flux`, the
-    /// same bits as [`direction::segregation_normal`] of each cell. The lanes past `n` hold
-    /// the previous block's cells (or zeros) and are solved and dropped.
+    /// The directions of the block's `len` cells into `k` and `d . d` into `flux`, the same
+    /// bits as [`direction::segregation_normal`] of each cell; empties the block. The lanes
+    /// past `len` hold the previous block's cells (or zeros) and are solved and dropped.
     #[inline(always)]
-    fn finish<R: Real>(&self, n: usize, k: &mut [&mut [R]], flux: &mut [R]) {
+    fn finish<R: Real>(&mut self, k: &mut [&mut [R]], flux: &mut [R]) {
         let mut m = [[0.0; LANES_3D]; 3];
         let mut mm = [0.0; LANES_3D];
         direction::normals_3d(&self.k, &self.u, self.fallback, &mut m, &mut mm);
-        for l in 0..n.min(LANES_3D) {
-            let j = self.start + l;
+        for l in 0..self.len.min(LANES_3D) {
+            let j = self.at[l];
             for (ka, ma) in k.iter_mut().zip(&m) {
                 ka[j] = R::from_f64(ma[l]);
             }
             flux[j] = R::from_f64(mm[l]);
         }
+        self.len = 0;
     }
 }
 
