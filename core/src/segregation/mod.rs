@@ -858,14 +858,6 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             *r = r.sqrt();
         }
         direction::normal_2d_finish([k0, k1], rhs, flux, [u0, u1], [fallback[0], fallback[1]]);
-        // An empty cell: no direction, no segregation velocity (model.md 3.2), as in pass 1.
-        let (c, vacuum) = (&self.c[..n], self.cfg.vacuum);
-        for i in 0..n {
-            let empty = c[i] <= vacuum;
-            k0[i] = if empty { R::ZERO } else { k0[i] };
-            k1[i] = if empty { R::ZERO } else { k1[i] };
-            flux[i] = if empty { R::ONE } else { flux[i] };
-        }
     }
 
     /// The largest time step the Courant condition allows (`R::MAX` if nothing moves).
@@ -1187,7 +1179,8 @@ struct Shear<'a, R: Real, const D: usize, const N: usize> {
     grid: &'a Grid<R, D>,
     bc: &'a Boundaries<D>,
     u: &'a [[R; N]; D],
-    /// The content: an empty cell (`c <= vacuum`) gets no direction (model.md 3.2).
+    /// The content: an empty cell (`c <= vacuum`) needs no direction (pass 2 gives it no
+    /// segregation velocity, model.md 3.2), so none is solved for it.
     c: &'a [R; N],
     cfg: &'a SegregationConfig<R, D>,
     gravity_dir: [R; D],
@@ -1208,8 +1201,9 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
     /// `sqrtsd`, which no loop vectorises): where the velocity gradient is needed, T from the
     /// shear into `temp` and the direction from the flow, `d` into `k` and `d . d` into
     /// `flux` (pass 2 reads them back in the same cell and overwrites them). An empty cell
-    /// gets `d = 0`, `d . d = 1` (no segregation velocity without grains, model.md 3.2): no
-    /// eigenproblem is solved for it, which in a draining silo is most of the cells by the end.
+    /// gets no direction: pass 2 gives it no segregation velocity whatever `k` and `flux`
+    /// hold there (model.md 3.2), so no eigenproblem is solved for it, which in a draining
+    /// silo is most of the cells by the end.
     #[inline(always)]
     fn pass(&self, start: usize, temp: &mut [R], k: &mut [&mut [R]], flux: &mut [R]) {
         let cfg = self.cfg;
@@ -1229,15 +1223,9 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
                 }
                 coords[a] = 0;
             }
-            let grains = self.c[i] > cfg.vacuum;
-            if flow_dir && !grains {
-                for ka in k.iter_mut().take(D) {
-                    ka[j] = R::ZERO;
-                }
-                flux[j] = R::ONE;
-                if !from_shear {
-                    continue;
-                }
+            let direction = flow_dir && self.c[i] > cfg.vacuum;
+            if !(from_shear || direction) {
+                continue;
             }
             let grad = direction::velocity_gradient_at(self.grid, self.bc, self.u, i, at);
             if let TemperatureMode::FromShear {
@@ -1256,7 +1244,7 @@ impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
                 };
                 temp[j] = heating * eta0 / eps0 * kk;
             }
-            if !(flow_dir && grains) {
+            if !direction {
                 continue;
             }
             if D == 3 {
@@ -1356,8 +1344,8 @@ struct Cells<'a, R, const D: usize, const N: usize> {
 
 /// Pass 2 of `derive_coefficients` on the cells `0..n`: sqrt(T) is read from `rates`, and
 /// with `FLOW` the direction `d` from `k` and `d . d` from `percolation` (pass 1 put them
-/// there), else they are `f.dir` and 1. Writes `k_a = S_a / c` (0 in empty cells) and each cell's rate and
-/// percolation rate. `S = -S0 sqrt(T) (g . d) d / (d . d)` (model.md 3), signed for the
+/// there), else they are `f.dir` and 1. Writes `k_a = S_a / c` (0 in empty cells) and each
+/// cell's rate and percolation rate; with `FLOW` an empty cell has `S = 0`. `S = -S0 sqrt(T) (g . d) d / (d . d)` (model.md 3), signed for the
 /// tracked phase. Every array is cut to `n` first, so the loop has no bounds checks.
 /// Inlined into `derive_coefficients`' hot loop (its arrays arrive as separate arguments, so
 /// the vectoriser still knows they do not overlap).
@@ -1383,9 +1371,13 @@ fn cell_coefficients<R: Real, const D: usize, const N: usize, const FLOW: bool>(
         let g_dot_d = dot(&f.g, &d);
         let s_mag = -(f.s0 * rates[i] * g_dot_d / dd) * f.sign;
         let ci = c[i];
+        // With the direction from the flow an empty cell has none (pass 1 leaves whatever
+        // `k` and `percolation` held there, even a NaN): no segregation velocity, so its
+        // rates count only the flow (model.md 3.2). A select, not a branch: still vectorised.
+        let grains = !FLOW || ci > f.vacuum;
         let (mut cell_rate, mut cell_percolation) = (f.diffusion_rate, f.diffusion_rate);
         for a in 0..D {
-            let s_a = s_mag * d[a];
+            let s_a = if grains { s_mag * d[a] } else { R::ZERO };
             k[a][i] = if ci > f.vacuum { s_a / ci } else { R::ZERO };
             cell_rate += (u[a][i].abs() + s_a.abs()) / f.h[a];
             cell_percolation += s_a.abs() / f.h[a];
