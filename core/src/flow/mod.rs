@@ -764,13 +764,16 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // Free fall: a velocity gained within the step must not break the Courant limit,
         // |g| dt^2 / h <= C^2, i.e. a rate sqrt(|g_a| / h_a) per axis.
         let body = self.body_bound();
+        // The free-fall rate is the same in every cell: one square root per axis, not per cell
+        // (added in the same place of the sum, so the same bits).
+        let fall: [R; D] = core::array::from_fn(|a| (body[a] / h[a]).sqrt());
         let mut rate = R::ZERO;
         for i in 0..n {
             let (c, rcp, rlp) = (self.c_eff(i), self.c_rcp[i], self.c_rlp[i]);
             let a_s = closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt();
             let mut r = R::ZERO;
             for a in 0..D {
-                r += (self.u[a][i].abs() + a_s) / h[a] + (body[a] / h[a]).sqrt();
+                r += (self.u[a][i].abs() + a_s) / h[a] + fall[a];
             }
             rate = rate.max(r);
         }
