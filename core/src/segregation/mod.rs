@@ -1345,8 +1345,9 @@ struct Cells<'a, R, const D: usize, const N: usize> {
 /// Pass 2 of `derive_coefficients` on the cells `0..n`: sqrt(T) is read from `rates`, and
 /// with `FLOW` the direction `d` from `k` and `d . d` from `percolation` (pass 1 put them
 /// there), else they are `f.dir` and 1. Writes `k_a = S_a / c` (0 in empty cells) and each
-/// cell's rate and percolation rate; with `FLOW` an empty cell has `S = 0`. `S = -S0 sqrt(T) (g . d) d / (d . d)` (model.md 3), signed for the
-/// tracked phase. Every array is cut to `n` first, so the loop has no bounds checks.
+/// cell's rate and percolation rate; with `FLOW` an empty cell has `S = 0`.
+/// `S = -S0 sqrt(T) (g . d) d / (d . d)` (model.md 3), signed for the tracked phase.
+/// Every array is cut to `n` first, so the loop has no bounds checks.
 /// Inlined into `derive_coefficients`' hot loop (its arrays arrive as separate arguments, so
 /// the vectoriser still knows they do not overlap).
 #[inline(always)]
