@@ -1375,11 +1375,12 @@ fn cell_coefficients<R: Real, const D: usize, const N: usize, const FLOW: bool>(
         // With the direction from the flow an empty cell has none (pass 1 leaves whatever
         // `k` and `percolation` held there, even a NaN): no segregation velocity, so its
         // rates count only the flow (model.md 3.2). A select, not a branch: still vectorised.
-        let grains = !FLOW || ci > f.vacuum;
+        let full = ci > f.vacuum;
+        let grains = !FLOW || full;
         let (mut cell_rate, mut cell_percolation) = (f.diffusion_rate, f.diffusion_rate);
         for a in 0..D {
             let s_a = if grains { s_mag * d[a] } else { R::ZERO };
-            k[a][i] = if ci > f.vacuum { s_a / ci } else { R::ZERO };
+            k[a][i] = if full { s_a / ci } else { R::ZERO };
             cell_rate += (u[a][i].abs() + s_a.abs()) / f.h[a];
             cell_percolation += s_a.abs() / f.h[a];
         }
