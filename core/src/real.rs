@@ -2,7 +2,10 @@
 //!
 //! Every transcendental goes through `libm` so that results are bit-identical on every
 //! target (host x86-64, Cortex-M4F firmware) and independent of which features other crates
-//! in the build enable. The trait is deliberately small: it is what the model needs.
+//! in the build enable. Square roots come from the workspace crate `sieve-sqrt`: correctly
+//! rounded like libm's (the same bits), but the compiler's own instruction on x86-64, so a hot
+//! loop compiled for AVX does not pay an SSE/AVX transition per call (docs/simd.md). The trait
+//! is deliberately small: it is what the model needs.
 
 use core::fmt::Debug;
 use core::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
@@ -170,7 +173,7 @@ impl_real!(
     f64,
     "f64",
     f64::from_bits(223u64 << 52), // 2^-800
-    libm::sqrt,
+    sieve_sqrt::sqrt,
     libm::log,
     libm::exp,
     libm::sin,
@@ -182,7 +185,7 @@ impl_real!(
     f32,
     "f32",
     0.0,
-    libm::sqrtf,
+    sieve_sqrt::sqrtf,
     libm::logf,
     libm::expf,
     libm::sinf,

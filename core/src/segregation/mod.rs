@@ -736,11 +736,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let shear_noise = self.shear_noise;
         let flow_dir = matches!(cfg.direction, DirectionMode::Flow);
         let from_shear = matches!(cfg.temperature, TemperatureMode::FromShear { .. });
-        // Pass 1, cell by cell (branches; `libm::sqrt` is an inline `sqrtsd`, which no loop
-        // vectorises): where the velocity gradient is needed, T from the shear and the
-        // direction from the flow, `d` into `k` and `d . d` into the scratch `flux`; then
-        // sqrt(T) of every cell into the scratch `rhs`. Pass 2 reads them back in the same
-        // cell and overwrites them.
+        // Pass 1, cell by cell (branches, so it stays scalar): where the velocity gradient is
+        // needed, T from the shear and the direction from the flow, `d` into `k` and `d . d`
+        // into the scratch `flux`; then sqrt(T) of every cell into the scratch `rhs` (a
+        // straight loop; `Real::sqrt` takes the encoding of the runner: docs/simd.md). Pass 2
+        // reads them back in the same cell and overwrites them.
         if flow_dir && !from_shear && D == 2 {
             self.flow_normals_2d(gravity_dir);
         } else if (flow_dir || from_shear) && pass1 {
@@ -1197,9 +1197,8 @@ struct ShearItem<'a, R> {
 }
 
 impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
-    /// Pass 1 on the cells `start..start + temp.len()` (branches; `libm::sqrt` is an inline
-    /// `sqrtsd`, which no loop vectorises): where the velocity gradient is needed, T from the
-    /// shear into `temp` and the direction from the flow, `d` into `k` and `d . d` into
+    /// Pass 1 on the cells `start..start + temp.len()` (branches, so it stays scalar): where
+    /// the velocity gradient is needed, T from the shear into `temp` and the direction from the flow, `d` into `k` and `d . d` into
     /// `flux` (pass 2 reads them back in the same cell and overwrites them). An empty cell
     /// gets no direction: pass 2 gives it no segregation velocity whatever `k` and `flux`
     /// hold there (model.md 3.2), so no eigenproblem is solved for it, which in a draining
