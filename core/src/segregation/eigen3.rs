@@ -3,9 +3,10 @@
 //! of the strain rate in every cell).
 //!
 //! Why lanes: one matrix at a time is a chain of dependent divisions and square roots (then
-//! libm's inline `sqrtsd`, which no loop vectorises), and it was 37 % of a 3D silo step. Here every matrix of a block takes the same [`FIXED_SWEEPS`] sweeps without
-//! branches (selects only) and the square roots are Newton iterations on `[1, 2]` (multiply
-//! and subtract), so the compiler runs the lanes in vector registers. A matrix that has not
+//! libm's inline `sqrtsd`, which no loop vectorises), and it was 37 % of a 3D silo step.
+//! Here every matrix of a block takes the same [`FIXED_SWEEPS`] sweeps without branches
+//! (selects only) and the square roots are Newton iterations on `[1, 2]` (multiply and
+//! subtract), so the compiler runs the lanes in vector registers. A matrix that has not
 //! converged after them goes on alone with the convergence test. Each lane's arithmetic does
 //! not depend on the other lanes, so a cell's bits do not depend on the block it is in (nor on
 //! a thread's share of the grid), and the single-matrix [`symmetric_eigen_3`] is the same

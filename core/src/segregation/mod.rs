@@ -1198,8 +1198,9 @@ struct ShearItem<'a, R> {
 
 impl<R: Real, const D: usize, const N: usize> Shear<'_, R, D, N> {
     /// Pass 1 on the cells `start..start + temp.len()` (branches, so it stays scalar): where
-    /// the velocity gradient is needed, T from the shear into `temp` and the direction from the flow, `d` into `k` and `d . d` into
-    /// `flux` (pass 2 reads them back in the same cell and overwrites them). An empty cell
+    /// the velocity gradient is needed, T from the shear into `temp` and the direction from
+    /// the flow, `d` into `k` and `d . d` into `flux` (pass 2 reads them back in the same cell
+    /// and overwrites them). An empty cell
     /// gets no direction: pass 2 gives it no segregation velocity whatever `k` and `flux`
     /// hold there (model.md 3.2), so no eigenproblem is solved for it, which in a draining
     /// silo is most of the cells by the end.
