@@ -167,18 +167,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let s = fb.stride;
             for b in 0..fb.blocks {
                 let l0 = b * fb.block_stride;
-                if !emb && !implicit && matches!(self.cfg.frame, Frame::Lab) {
-                    self.lab_explicit_fluxes(a, l0, dt, cap);
-                } else {
-                    for l in l0..l0 + fb.block_len {
-                        let mut f = self.interior_flux(a, l, l + s, dt, cap, vac);
-                        if emb {
-                            f *= self.transport_aperture(a, l, l + s);
-                        }
-                        self.flux[a][l] = f;
+                for l in l0..l0 + fb.block_len {
+                    let mut f = self.interior_flux(a, l, l + s, dt, cap, vac);
+                    if emb {
+                        f *= self.transport_aperture(a, l, l + s);
                     }
+                    self.flux[a][l] = f;
+                    self.count(l, l + s, lam * f);
                 }
-                self.count_block(a, l0, lam);
             }
             let (lo, hi) = (self.bc[a][0], self.bc[a][1]);
             grid.for_each_boundary_cell(a, true, |last, first| {
@@ -253,12 +249,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let s = fb.stride;
             for b in 0..fb.blocks {
                 let l0 = b * fb.block_stride;
-                if emb {
-                    for l in l0..l0 + fb.block_len {
-                        self.exchange(a, l, l + s, lam);
-                    }
-                } else {
-                    self.exchange_block(a, l0, lam);
+                for l in l0..l0 + fb.block_len {
+                    self.exchange(a, l, l + s, lam);
                 }
             }
             let (lo, hi) = (self.bc[a][0], self.bc[a][1]);
@@ -329,123 +321,20 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let (ff, _) = self.implicit_face_force(a, l, r);
             return upwind(cl, cr, self.implicit_face_velocity(a, l, r, dt, ff, vac));
         }
-        let face = ExplicitFace {
-            surface: self.cfg.surface,
-            h: self.grid.spacing()[a],
-            body: self.face_body(a, l),
-            dt,
-            cap,
-            vac,
-        };
-        let (kf, u, p) = (&self.kf[a], &self.u[a], &self.p);
-        face.flux([cl, cr], [p[l], p[r]], [kf[l], kf[r]], [u[l], u[r]])
-    }
-
-    /// [`Self::interior_flux`] of the explicit pressure over the interior faces along `a` of
-    /// the face block starting at `l0`, in the lab frame without embedded walls (one body
-    /// force for every face): a loop over slices that vectorises, the same bits.
-    #[inline(always)]
-    fn lab_explicit_fluxes(&mut self, a: usize, l0: usize, dt: R, cap: R) {
-        let fb = self.grid.face_blocks(a);
-        let (s, len) = (fb.stride, fb.block_len);
-        let face = ExplicitFace {
-            surface: self.cfg.surface,
-            h: self.grid.spacing()[a],
-            body: self.g_now[a],
-            dt,
-            cap,
-            vac: self.cfg.vacuum,
-        };
-        let (lo, hi) = (l0..l0 + len, l0 + s..l0 + s + len);
-        let (cl, cr) = (&self.c[lo.clone()], &self.c[hi.clone()]);
-        let (pl, pr) = (&self.p[lo.clone()], &self.p[hi.clone()]);
-        let (kl, kr) = (&self.kf[a][lo.clone()], &self.kf[a][hi.clone()]);
-        let (ul, ur) = (&self.u[a][lo.clone()], &self.u[a][hi]);
-        let out = &mut self.flux[a][lo];
-        for j in 0..len {
-            out[j] = face.flux(
-                [cl[j], cr[j]],
-                [pl[j], pr[j]],
-                [kl[j], kr[j]],
-                [ul[j], ur[j]],
-            );
-        }
-    }
-
-    /// Books the stored fluxes of the interior faces along `a` of the face block starting at
-    /// `l0` as inflow and outflow of their cells ([`Self::count`] face by face). Two loops over
-    /// slices, the faces' high cells first and then their low cells: every cell gets the same
-    /// additions in the same order as in one loop over the faces, so the same bits.
-    #[inline(always)]
-    fn count_block(&mut self, a: usize, l0: usize, lam: R) {
-        let fb = self.grid.face_blocks(a);
-        let (s, len) = (fb.stride, fb.block_len);
-        let f = &self.flux[a][l0..l0 + len];
-        let (inflow, diag) = (
-            &mut self.inflow[l0 + s..l0 + s + len],
-            &mut self.diag[l0 + s..l0 + s + len],
-        );
-        for j in 0..len {
-            let df = lam * f[j];
-            let forward = df > R::ZERO;
-            inflow[j] = if forward { inflow[j] + df } else { inflow[j] };
-            diag[j] = if forward { diag[j] } else { diag[j] - df };
-        }
-        let (inflow, diag) = (&mut self.inflow[l0..l0 + len], &mut self.diag[l0..l0 + len]);
-        for j in 0..len {
-            let df = lam * f[j];
-            let forward = df > R::ZERO;
-            diag[j] = if forward { diag[j] + df } else { diag[j] };
-            inflow[j] = if forward { inflow[j] } else { inflow[j] - df };
-        }
-    }
-
-    /// [`Self::exchange`] of every interior face along `a` of the face block starting at `l0`
-    /// without embedded walls: the faces' high cells first, then their low cells (which also
-    /// store each face's applied amount), so every cell gets the same additions in the same
-    /// order as in one loop over the faces: the same bits, in loops over slices.
-    #[inline(always)]
-    fn exchange_block(&mut self, a: usize, l0: usize, lam: R) {
-        let fb = self.grid.face_blocks(a);
-        let (s, len) = (fb.stride, fb.block_len);
-        let (lo, hi) = (l0..l0 + len, l0 + s..l0 + s + len);
-        let moves = FaceMoves {
-            lam,
-            f: &self.flux[a][lo.clone()],
-            inflow: [&self.inflow[lo.clone()], &self.inflow[hi.clone()]],
-            outflow: [&self.diag[lo.clone()], &self.diag[hi.clone()]],
-        };
-        // Each cell quantity in turn (c, then c u_b, then c T), high cells then low cells:
-        // per cell the additions come in the order of one loop over the faces.
-        for (cells, sign) in [(hi.clone(), R::ONE), (lo.clone(), -R::ONE)] {
-            let c = &mut self.c[cells.clone()];
-            for (j, c) in c.iter_mut().enumerate() {
-                let (on, _, df) = moves.at(j);
-                *c = if on { *c + sign * df } else { *c };
+        let (ff, _) = self.face_force(a, self.face_body(a, l), cl, self.p[l], cr, self.p[r]);
+        let cf = (cl + cr) * R::HALF;
+        let acc = |i: usize| {
+            if self.c[i] > vac {
+                self.kf[a][i] / self.c[i]
+            } else {
+                R::ZERO
             }
-            for b in 0..D {
-                let (ul, ur) = (&self.u[b][lo.clone()], &self.u[b][hi.clone()]);
-                let m = &mut self.m[b][cells.clone()];
-                for (j, m) in m.iter_mut().enumerate() {
-                    let (on, forward, df) = moves.at(j);
-                    let u = if forward { ul[j] } else { ur[j] };
-                    *m = if on { *m + sign * df * u } else { *m };
-                }
-            }
-            let (tl, tr) = (&self.t[lo.clone()], &self.t[hi.clone()]);
-            let e = &mut self.e[cells];
-            for (j, e) in e.iter_mut().enumerate() {
-                let (on, forward, df) = moves.at(j);
-                let t = if forward { tl[j] } else { tr[j] };
-                *e = if on { *e + sign * df * t } else { *e };
-            }
-        }
-        let (inl, inr) = (&self.inflow[lo.clone()], &self.inflow[hi.clone()]);
-        let (dl, dr) = (&self.diag[lo.clone()], &self.diag[hi]);
-        for (j, f) in self.flux[a][lo].iter_mut().enumerate() {
-            let (on, _, df) = face_move(lam, *f, [inl[j], inr[j]], [dl[j], dr[j]]);
-            *f = if on { df } else { R::ZERO };
-        }
+        };
+        let face_acc = if cf > vac { ff / cf } else { R::ZERO };
+        let du = (dt * (face_acc - (acc(l) + acc(r)) * R::HALF))
+            .max(-cap)
+            .min(cap);
+        upwind(cl, cr, (self.u[a][l] + self.u[a][r]) * R::HALF + du)
     }
 
     /// Books `df = lam f` of the face (l, r) as inflow and outflow of the two cells.
@@ -501,8 +390,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Returns `(F, w)`.
     #[inline(always)]
     pub(super) fn face_force(&self, a: usize, b: R, cl: R, pl: R, cr: R, pr: R) -> (R, R) {
+        let w = (cl.min(cr) / self.cfg.surface).min(R::ONE);
         let h = self.grid.spacing()[a];
-        compact_face_force(self.cfg.surface, h, b, cl, pl, cr, pr)
+        (w * ((pl - pr) / h + b * (cl + cr) * R::HALF), w)
     }
 
     /// Body acceleration along `a` at the high face of cell `l` (`l` = the last cell of a line:
@@ -612,22 +502,17 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             };
             let fb = grid.face_blocks(a);
             let s = fb.stride;
-            if !emb && matches!(self.cfg.frame, Frame::Lab) {
-                self.lab_face_forces(a, open, direct(self.g_now[a]));
-            } else {
-                for b in 0..fb.blocks {
-                    let l0 = b * fb.block_stride;
-                    for l in l0..l0 + fb.block_len {
-                        let r = l + s;
-                        let b = self.face_body(a, l);
-                        let (c, p) = (&self.c, &self.p);
-                        let (f, w) = self.face_force(a, b, c[l], p[l], c[r], p[r]);
-                        let rest = R::HALF * (R::ONE - w) * direct(b);
-                        let push = (R::ONE - w) * open;
-                        let wa = if emb { self.walls.ap_hi[a][l] } else { R::ONE };
-                        self.kf[a][l] += wa * (R::HALF * f + rest * c[l] + push * p[l]);
-                        self.kf[a][r] += wa * (R::HALF * f + rest * c[r] - push * p[r]);
-                    }
+            for b in 0..fb.blocks {
+                let l0 = b * fb.block_stride;
+                for l in l0..l0 + fb.block_len {
+                    let r = l + s;
+                    let b = self.face_body(a, l);
+                    let (f, w) = self.face_force(a, b, self.c[l], self.p[l], self.c[r], self.p[r]);
+                    let rest = R::HALF * (R::ONE - w) * direct(b);
+                    let push = (R::ONE - w) * open;
+                    let wa = if emb { self.walls.ap_hi[a][l] } else { R::ONE };
+                    self.kf[a][l] += wa * (R::HALF * f + rest * self.c[l] + push * self.p[l]);
+                    self.kf[a][r] += wa * (R::HALF * f + rest * self.c[r] - push * self.p[r]);
                 }
             }
             for (high, side) in [(false, self.bc[a][0]), (true, self.bc[a][1])] {
@@ -660,40 +545,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         if emb {
             self.embedded_forces();
-        }
-    }
-
-    /// The interior faces' terms of [`Self::cell_forces`] along `a` in the lab frame without
-    /// embedded walls: one body force `g_a` for every face (`direct` = it, or 0 for the compact
-    /// parts only) and no apertures, so the sums run over slices and vectorise. Each cell gets
-    /// its low face's term before its high face's, as in the general loop: the same bits.
-    #[inline(always)]
-    fn lab_face_forces(&mut self, a: usize, open: R, direct: R) {
-        let fb = self.grid.face_blocks(a);
-        let (s, len) = (fb.stride, fb.block_len);
-        let (surface, h, body) = (self.cfg.surface, self.grid.spacing()[a], self.g_now[a]);
-        let term = |cl: R, pl: R, cr: R, pr: R| {
-            let (f, w) = compact_face_force(surface, h, body, cl, pl, cr, pr);
-            (
-                R::HALF * f,
-                R::HALF * (R::ONE - w) * direct,
-                (R::ONE - w) * open,
-            )
-        };
-        for blk in 0..fb.blocks {
-            let l0 = blk * fb.block_stride;
-            let (cl, cr) = (&self.c[l0..l0 + len], &self.c[l0 + s..l0 + s + len]);
-            let (pl, pr) = (&self.p[l0..l0 + len], &self.p[l0 + s..l0 + s + len]);
-            let kr = &mut self.kf[a][l0 + s..l0 + s + len];
-            for j in 0..len {
-                let (half, rest, push) = term(cl[j], pl[j], cr[j], pr[j]);
-                kr[j] += half + rest * cr[j] - push * pr[j];
-            }
-            let kl = &mut self.kf[a][l0..l0 + len];
-            for j in 0..len {
-                let (half, rest, push) = term(cl[j], pl[j], cr[j], pr[j]);
-                kl[j] += half + rest * cl[j] + push * pl[j];
-            }
         }
     }
 
@@ -1359,75 +1210,4 @@ const SPARE_ULPS: f64 = 64.0;
 pub(super) fn open_low<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
     matches!(side.kind, Boundary::Inflow | Boundary::Outflow)
         || (side.kind == Boundary::Wall && !side.openings.is_empty())
-}
-
-/// [`Flow::face_force`] as a pure function of the face's two states, the fade `surface`, the
-/// spacing `h` and the body acceleration `b`, for loops over slices. Returns `(F, w)`.
-#[inline(always)]
-fn compact_face_force<R: Real>(surface: R, h: R, b: R, cl: R, pl: R, cr: R, pr: R) -> (R, R) {
-    let w = (cl.min(cr) / surface).min(R::ONE);
-    (w * ((pl - pr) / h + b * (cl + cr) * R::HALF), w)
-}
-
-/// The constants of an interior face's explicit mass flux ([`ExplicitFace::flux`]).
-struct ExplicitFace<R> {
-    surface: R,
-    h: R,
-    body: R,
-    dt: R,
-    cap: R,
-    vac: R,
-}
-
-impl<R: Real> ExplicitFace<R> {
-    /// Upwind mass flux of an interior face with the Rhie-Chow face velocity
-    /// ([`Flow::interior_flux`]) from the two cells' `c`, `p`, cell force `kf` along the axis
-    /// and velocity `u` along it, each `[left, right]`: a pure function, so face loops over
-    /// slices vectorise.
-    #[inline(always)]
-    fn flux(&self, c: [R; 2], p: [R; 2], kf: [R; 2], u: [R; 2]) -> R {
-        let [cl, cr] = c;
-        let (ff, _) = compact_face_force(self.surface, self.h, self.body, cl, p[0], cr, p[1]);
-        let cf = (cl + cr) * R::HALF;
-        let acc = |c: R, k: R| if c > self.vac { k / c } else { R::ZERO };
-        let face_acc = if cf > self.vac { ff / cf } else { R::ZERO };
-        let du = (self.dt * (face_acc - (acc(cl, kf[0]) + acc(cr, kf[1])) * R::HALF))
-            .max(-self.cap)
-            .min(self.cap);
-        upwind(cl, cr, (u[0] + u[1]) * R::HALF + du)
-    }
-}
-
-/// The moves of one face block's stored fluxes through the limiters ([`Flow::exchange`]):
-/// the raw fluxes `f` and the limiter factors of the faces' `[low, high]` cells.
-#[derive(Clone, Copy)]
-struct FaceMoves<'a, R> {
-    lam: R,
-    f: &'a [R],
-    inflow: [&'a [R]; 2],
-    outflow: [&'a [R]; 2],
-}
-
-impl<R: Real> FaceMoves<'_, R> {
-    /// [`face_move`] of face `j`.
-    #[inline(always)]
-    fn at(&self, j: usize) -> (bool, bool, R) {
-        let (inflow, outflow) = (self.inflow.map(|x| x[j]), self.outflow.map(|x| x[j]));
-        face_move(self.lam, self.f[j], inflow, outflow)
-    }
-}
-
-/// One face's move ([`Flow::exchange`]) from its raw flux `f` and the limiter factors of its
-/// `[low, high]` cells: whether anything moves (`f` is not 0 or NaN), whether it moves along
-/// the axis (the low cell donates), and the amount `lam f g`, `g` the smaller factor of donor
-/// (outflow) and receiver (inflow).
-#[inline(always)]
-fn face_move<R: Real>(lam: R, f: R, inflow: [R; 2], outflow: [R; 2]) -> (bool, bool, R) {
-    let forward = f > R::ZERO;
-    let g = if forward {
-        inflow[1].min(outflow[0])
-    } else {
-        inflow[0].min(outflow[1])
-    };
-    (forward || f < R::ZERO, forward, lam * f * g)
 }
