@@ -17,10 +17,15 @@
 //! stops such a run: "the stable time step fell to 1.887e-17 s, below 1e-9 of the run's first
 //! step" at step 456, so this test fails in 3 s, checked by disabling the fix) and at the end (t = 0.65 s, past the blow-up): every value finite, `0 <= c`,
 //! `0 <= phi <= c` exactly in every cell, the speed of every faded cell (`0 < c < surface`,
-//! the dust over the free surface, where the runaway starts) below 10 m/s (free fall across
+//! the dust over the free surface, where the runaway starts) below 30 m/s (free fall across
 //! the whole drum reaches `sqrt(2 g D)` = 1.4 m/s and the drum's wall moves at 0.03 m/s; the
-//! dense bed's transients below throw dust at up to 3.6 m/s here; the runaway went to 1e4 and
-//! then 1e50 m/s) and its `T` below 10 m^2/s^2 (1.1 seen); both phases to
+//! dense bed's transients below threw dust at up to 3.6 m/s here; the runaway went to 1e4 and
+//! then 1e50 m/s. Since dust takes no heating under the implicit pressure (model.md 5.4,
+//! "Dust under the implicit pressure") it is cold and has no viscosity to hold it back: at
+//! this loosest tolerance a cell of c = 3e-12 next to the bed is pushed from 0.6 to 12.1 m/s
+//! over 0.62 - 0.64 s, about 700 m/s^2, steady, not growing, and is at 0.7 m/s again at
+//! 0.65 s; the default 34 x 34 tumbler's dust stays below 1 m/s over 25 s, 2.9 before) and its
+//! `T` below 10 m^2/s^2 (1.1 seen before, 4.5e-3 since); both phases to
 //! round-off (1e-12 of their initial amounts). The dense bed is only required to stay
 //! finite: at this tolerance its own solve error heats it in transients (13 m/s, `T` 37 at
 //! t = 0.13 s near the drum's bottom, settled again by 0.2 s), with or without the fix; the
@@ -46,7 +51,7 @@ struct Worst {
     total_drift: f64,
 }
 
-const SPEED_BOUND: f64 = 10.0;
+const SPEED_BOUND: f64 = 30.0;
 const T_BOUND: f64 = 10.0;
 
 /// Worst speed and temperature of the faded cells (`0 < c < surface`), and the bounds of phi

@@ -7,29 +7,13 @@
 //! discharge (the rate roughly constant while the bed is high); and the side walls' friction
 //! slows the discharge per unit depth against the 2D silo on the same cells.
 
-use crate::silo_common::{discharge, Spec};
+use crate::silo_common::{coarse_3d, discharge, Spec};
 use sieve_tests::run_big;
-
-/// Coarse (~10 mm cells, 4 across the depth), a shortened silo (0.3 m tall, filled to 0.25 m,
-/// still more than one silo width), a 6-cell slot W = 0.06 m, 1.6 s.
-fn spec3() -> Spec<3> {
-    Spec {
-        cells: [15, 4, 30],
-        height: 0.3,
-        depth: 0.04,
-        fill: 0.25,
-        orifice: 0.06,
-        hopper: None,
-        hopper_z: 0.0,
-        t_end: 1.6,
-        every: 0.1,
-    }
-}
 
 #[test]
 fn slot_silo_3d_is_exact_bounded_granular_and_slowed_by_its_side_walls() {
     run_big(|| {
-        let s3 = spec3();
+        let s3 = coarse_3d(1.6);
         let o3 = discharge(s3);
         let sm = o3.series.summary();
         assert!(!o3.nonfinite);

@@ -23,6 +23,7 @@ mod flow_coupled;
 mod flow_cut_friction;
 mod flow_drum;
 mod flow_drum_coupled;
+mod flow_dust;
 mod flow_frame;
 mod flow_guess;
 mod flow_hopper;

@@ -75,6 +75,23 @@ pub fn coarse_2d(hopper: Option<f64>, t_end: f64, every: f64) -> Spec<2> {
     }
 }
 
+/// The coarse 3D silo (15 x 4 x 30, ~10 mm cells, 4 across the 0.04 m depth): a shortened
+/// silo (0.3 m tall, filled to 0.25 m, still more than one silo width), a 6-cell slot
+/// W = 0.06 m across the depth, sampled every 0.1 s.
+pub fn coarse_3d(t_end: f64) -> Spec<3> {
+    Spec {
+        cells: [15, 4, 30],
+        height: 0.3,
+        depth: 0.04,
+        fill: 0.25,
+        orifice: 0.06,
+        hopper: None,
+        hopper_z: 0.0,
+        t_end,
+        every: 0.1,
+    }
+}
+
 /// What a discharge measured.
 #[derive(Debug, Default)]
 pub struct Outcome {
