@@ -822,7 +822,7 @@ pub fn run_scene_with(
     let start = Instant::now();
     // Run guard (issue 10): the output must fit the limit and the disk before anything runs.
     crate::estimate::check_output(scene, &opts.out)?;
-    if let Some(w) = crate::silo::implicit_outlet_warning(scene) {
+    if let Some(w) = crate::silo::outlet_rate_caveat(scene) {
         eprintln!("{w}");
     }
     let staging = Staging::new(&opts.out)?;
