@@ -670,3 +670,48 @@ fn three_d_tumblers_run_coupled_on_cut_cells_with_both_phases_to_round_off() {
         assert!(s["steps"].as_u64().unwrap() >= 5, "{scene}: it ran");
     }
 }
+
+/// The explicit pressure on the shipped tumbler past t = 1.9 - 2.0 s, where it used to run
+/// away (model.md 5.3, "The solves' floor does not scale with the field's speed"): the
+/// velocity solves' floor scaled with the field's largest speed, and the extrapolated guess
+/// repeated the error it let through, so one cell gained 0.1 m/s per step until T ran away
+/// and the step collapsed (2,046,098 steps to t = 1.92 s). Measured since (2026-12-04, 5 s):
+/// 47,318 steps, T max 5.8e-3, largest speed 0.47 m/s. A relapse would take minutes to fail
+/// on its own, so the run is killed after 10 minutes.
+#[test]
+fn explicit_tumbler_runs_past_the_old_runaway() {
+    let d = tempfile::tempdir().unwrap();
+    let o = assert_cmd::Command::cargo_bin("sieve")
+        .unwrap()
+        .current_dir(d.path())
+        .args([
+            "run",
+            "tumbler",
+            "--quiet",
+            "--threads",
+            "1",
+            "--t-end",
+            "2.2",
+        ])
+        .args(["--set", "flow.pressure=explicit", "--out", "x"])
+        .timeout(std::time::Duration::from_secs(600))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = json(&d.path().join("x").join("summary.json"));
+    assert_eq!(s["status"], "complete");
+    let steps = s["steps"].as_u64().unwrap();
+    let (t_max, speed) = (
+        s["flow"]["t_max"].as_f64().unwrap(),
+        s["flow"]["max_speed"].as_f64().unwrap(),
+    );
+    println!("explicit tumbler to 2.2 s: {steps} steps, T max {t_max:e}, speed {speed}");
+    // ~1.1e-4 s steps (the acoustic limit of the packed bed): about 21,000
+    assert!(steps < 30_000, "{steps} steps: the step collapsed");
+    assert!(t_max < 0.05, "T max {t_max}");
+    assert!(speed < 2.0, "largest speed {speed} m/s");
+    let drift = s["mass_rel_drift"].as_f64().unwrap();
+    assert!(drift.abs() < 1e-12, "small-grain drift {drift}");
+    assert_eq!(s["overshoot_max"].as_f64().unwrap(), 0.0);
+    assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
+}

@@ -18,7 +18,7 @@ fn run(spec: Spec<2>, guess: VelocityGuess) -> (Outcome, u64) {
         &Serial,
         |cfg| {
             cfg.guess = guess;
-            cfg.cg_tolerance = 1e-6; // as scenes/silo.toml and hopper.toml
+            cfg.cg_tolerance = 1e-5; // as scenes/silo.toml and hopper.toml
         },
         |_| {},
         |c| iterations = c.flow.cg_iterations(),
@@ -26,8 +26,10 @@ fn run(spec: Spec<2>, guess: VelocityGuess) -> (Outcome, u64) {
     (o, iterations)
 }
 
-/// Measured (2026-12-02): the silo 132,023 -> 37,762 iterations (x 0.286), discharged grains
-/// the same to 1.5e-4, fines fraction to 1e-5; the hopper 55,978 -> 31,687 (x 0.566), 6.4e-6.
+/// Measured (2026-12-02, tolerance 1e-6, the old floor): the silo 132,023 -> 37,762 iterations
+/// (x 0.286), discharged grains the same to 1.5e-4, fines fraction to 1e-5; the hopper 55,978
+/// -> 31,687 (x 0.566), 6.4e-6. With the floor of 2026-12-04 at 1e-5: the silo 136,612 ->
+/// 46,588 (x 0.341), the hopper 55,427 -> 32,497 (x 0.586).
 fn compare(spec: Spec<2>, what: &str, max_ratio: f64) {
     let (old, it_old) = run(spec, VelocityGuess::Explicit);
     let (new, it_new) = run(spec, VelocityGuess::Extrapolated);
