@@ -784,6 +784,39 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
     }
 
+    /// Per axis `a`, `max_i (|u_a| + a_s) / h_a + sqrt(|b_a| / h_a)` with the body
+    /// acceleration `b` of now: the rates that set the Rhie-Chow time scales (model.md 5.3).
+    /// Each axis has its own, so a face's correction reads nothing of the spacing across it
+    /// (an x-independent flow on fewer columns keeps its bits), and the frame enters only
+    /// through the body force it exerts now (a frame at rest is the lab frame to the bit).
+    pub(super) fn rhie_chow_rates(&self) -> [R; D] {
+        let h = self.grid.spacing();
+        let m = &self.cfg.material;
+        let mut rate = [R::ZERO; D];
+        for i in 0..self.grid.len() {
+            let (c, rcp, rlp) = (self.c_eff(i), self.c_rcp[i], self.c_rlp[i]);
+            let a_s = closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt();
+            for a in 0..D {
+                rate[a] = rate[a].max((self.u[a][i].abs() + a_s) / h[a]);
+            }
+        }
+        for a in 0..D {
+            let mut b = self.g_now[a].abs();
+            if let Frame::Rotating(rot) = &self.cfg.frame {
+                if rot.in_plane(a) {
+                    let (lo, cells) = (self.grid.origin()[a], self.grid.cells()[a]);
+                    let hi = lo + h[a] * R::from_usize(cells);
+                    b += rot
+                        .centrifugal(a, lo)
+                        .abs()
+                        .max(rot.centrifugal(a, hi).abs());
+                }
+            }
+            rate[a] += (b / h[a]).sqrt();
+        }
+        rate
+    }
+
     /// [`Self::stable_dt`] with the implicit pressure (model.md 5.4; module docs): no acoustic
     /// term, `C / (max_i sum_a |u_a| / h_a + sum_a sqrt(b_a / h_a))`. Near-empty cells
     /// (`c < surface`: dust thrown off a free surface at ~1 m/s) do not count in `|u_a|`: the

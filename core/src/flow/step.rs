@@ -147,28 +147,39 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let h = self.grid.spacing();
         let grid = self.grid;
         let vac = self.cfg.vacuum;
-        // Compact parts only: the direct gravity of faded faces is not a pressure mode, and
-        // counting it would let the correction hold an unsupported surface cell in the air.
-        // (The implicit face velocity needs no cell accelerations.)
+        // The Rhie-Chow time scale of each axis: a function of the state, never of the step
+        // taken (model.md 5.3); scaled with `dt`, it made the silo's steady discharge rate
+        // fall with the Courant number.
+        let mut rate = [R::ZERO; D];
         if self.cfg.pressure == PressureMode::Explicit {
+            // Compact parts only: the direct gravity of faded faces is not a pressure mode,
+            // and counting it would let the correction hold an unsupported surface cell in
+            // the air. (The implicit face velocity needs no cell accelerations.)
             self.cell_forces(false);
+            rate = self.rhie_chow_rates();
         }
+        let k = R::from_f64(RHIE_CHOW_COURANT) / R::from_usize(D);
         // With an embedded wall every face flux is scaled by its open aperture (0 inside a
         // merge group) and the limiters and the update work in content units (`walls`).
         let emb = self.walls.on;
-        let implicit = self.cfg.pressure == PressureMode::Implicit;
         // Pass 1: face fluxes (stored at the left cell), inflow and outflow of each cell.
         self.inflow[..n].fill(R::ZERO);
         self.diag[..n].fill(R::ZERO);
         for a in 0..D {
             let lam = dt / h[a];
-            let cap = self.cfg.courant * h[a] / dt;
+            // `tau_a = (C_rc / D) / rate_a`; the correction is capped at `C_rc h_a / tau_a`
+            let tau = if rate[a] > R::ZERO {
+                k / rate[a]
+            } else {
+                R::ZERO
+            };
+            let cap = R::from_usize(D) * h[a] * rate[a];
             let fb = grid.face_blocks(a);
             let s = fb.stride;
             for b in 0..fb.blocks {
                 let l0 = b * fb.block_stride;
                 for l in l0..l0 + fb.block_len {
-                    let mut f = self.interior_flux(a, l, l + s, dt, cap, vac);
+                    let mut f = self.interior_flux(a, l, l + s, dt, tau, cap, vac);
                     if emb {
                         f *= self.transport_aperture(a, l, l + s);
                     }
@@ -179,7 +190,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let (lo, hi) = (self.bc[a][0], self.bc[a][1]);
             grid.for_each_boundary_cell(a, true, |last, first| {
                 let mut f = if hi.kind == Boundary::Periodic {
-                    self.interior_flux(a, last, first, dt, cap, vac)
+                    self.interior_flux(a, last, first, dt, tau, cap, vac)
                 } else {
                     self.high_flux(a, last, first, &hi, dt)
                 };
@@ -205,11 +216,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     if emb {
                         f *= self.walls.ap_lo[a][first];
                     }
-                    if implicit {
-                        // kept for pass 2: the implicit outlet velocity depends on the cell's
-                        // c, which pass 2 changes, and the limiter factors are for this flux
-                        self.flux_low[a][first] = f;
-                    }
+                    // Kept for pass 2, which changes the cell's c before it reaches this
+                    // face: recomputed there, an outlet saw the step's inflow as content
+                    // (an O(dt) excess; the limiter factors are for this flux, too).
+                    self.flux_low[a][first] = f;
                     if f > R::ZERO {
                         self.inflow[first] += lam * f;
                     } else {
@@ -277,13 +287,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             });
             if open_low(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
-                    let f = if implicit {
-                        self.flux_low[a][first]
-                    } else if emb {
-                        self.low_flux(a, first, &lo, dt) * self.walls.ap_lo[a][first]
-                    } else {
-                        self.low_flux(a, first, &lo, dt)
-                    };
+                    let f = self.flux_low[a][first];
                     let mut df = R::ZERO;
                     if f > R::ZERO {
                         let f = f * self.inflow[first];
@@ -310,10 +314,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
     }
 
-    /// Upwind mass flux of an interior (or wrap) face with the Rhie-Chow face velocity; the
-    /// correction is capped at `cap = C h / dt` (it is O(dt) anyway).
+    /// Upwind mass flux of an interior (or wrap) face with the Rhie-Chow face velocity of
+    /// time scale `tau`; the correction is capped at `cap = 0.4 h / tau`.
     #[inline(always)]
-    fn interior_flux(&self, a: usize, l: usize, r: usize, dt: R, cap: R, vac: R) -> R {
+    #[allow(clippy::too_many_arguments)]
+    fn interior_flux(&self, a: usize, l: usize, r: usize, dt: R, tau: R, cap: R, vac: R) -> R {
         let (cl, cr) = (self.c[l], self.c[r]);
         if self.cfg.pressure == PressureMode::Implicit {
             // The end-of-step face velocity `u_f* + dt F_f(p^{n+1}) / c_f` (`p` holds the
@@ -331,7 +336,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             }
         };
         let face_acc = if cf > vac { ff / cf } else { R::ZERO };
-        let du = (dt * (face_acc - (acc(l) + acc(r)) * R::HALF))
+        let du = (tau * (face_acc - (acc(l) + acc(r)) * R::HALF))
             .max(-cap)
             .min(cap);
         upwind(cl, cr, (self.u[a][l] + self.u[a][r]) * R::HALF + du)
@@ -1219,6 +1224,12 @@ pub(super) fn spendable<R: Real>(c: R) -> R {
 
 /// Machine epsilons of a cell's content the donor limiter keeps back ([`spendable`]).
 const SPARE_ULPS: f64 = 64.0;
+
+/// Courant number of the Rhie-Chow time scales (model.md 5.3): per axis `a`,
+/// `tau_a = (0.4 / D) / rate_a` ([`Flow::rhie_chow_rates`]), which in a state of equal
+/// spacings and sound speed dominated rates is the stable step at the default
+/// `flow.courant` 0.4, the correction's scale when it was the step itself.
+const RHIE_CHOW_COURANT: f64 = 0.4;
 
 pub(super) fn open_low<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
     matches!(side.kind, Boundary::Inflow | Boundary::Outflow)
