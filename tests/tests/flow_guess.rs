@@ -29,7 +29,10 @@ fn run(spec: Spec<2>, guess: VelocityGuess) -> (Outcome, u64) {
 /// Measured (2026-12-02, tolerance 1e-6, the old floor): the silo 132,023 -> 37,762 iterations
 /// (x 0.286), discharged grains the same to 1.5e-4, fines fraction to 1e-5; the hopper 55,978
 /// -> 31,687 (x 0.566), 6.4e-6. With the floor of 2026-12-04 at 1e-5: the silo 136,612 ->
-/// 46,588 (x 0.341), the hopper 55,427 -> 32,497 (x 0.586).
+/// 46,588 (x 0.341), the hopper 55,427 -> 32,497 (x 0.586). Since the outlet's `p = 0` sits
+/// on the orifice face (2026-12-04) the coarse silo flows from the start instead of creeping
+/// for a second through a nearly jammed orifice, where the explicit guess was worst: 68,823
+/// -> 35,796 (x 0.520).
 fn compare(spec: Spec<2>, what: &str, max_ratio: f64) {
     let (old, it_old) = run(spec, VelocityGuess::Explicit);
     let (new, it_new) = run(spec, VelocityGuess::Extrapolated);
@@ -82,7 +85,7 @@ fn compare(spec: Spec<2>, what: &str, max_ratio: f64) {
 
 #[test]
 fn extrapolated_guess_on_the_silo() {
-    run_big(|| compare(coarse_2d(None, 1.2, 0.3), "silo 15 x 50", 0.4));
+    run_big(|| compare(coarse_2d(None, 1.2, 0.3), "silo 15 x 50", 0.6));
 }
 
 #[test]

@@ -400,7 +400,7 @@ impl SiloOutcome {
 }
 
 /// The coarse coupled silo of tests/tests/flow_silo.rs (15 x 50 cells, W = 0.04 m, p = 0
-/// outlet, 5 s, samples every 0.25 s).
+/// outlet, 2 s, samples every 0.25 s).
 fn silo(mode: PressureMode, courant: f64) -> SiloOutcome {
     const M: usize = 1024;
     let (width, height) = (0.145, 0.5);
@@ -447,7 +447,7 @@ fn silo(mode: PressureMode, courant: f64) -> SiloOutcome {
         seconds: 0.0,
     };
     let start = std::time::Instant::now();
-    let (every, t_end) = (0.25, 5.0);
+    let (every, t_end) = (0.25, 2.0);
     let mut k = 0u32;
     loop {
         let t = cpl.seg.time();
@@ -487,9 +487,12 @@ fn silo(mode: PressureMode, courant: f64) -> SiloOutcome {
 
 /// Silo, implicit against explicit: grains and fines in + out to round-off, bounds exact, the
 /// rate constant while the bed is high (within 10 %, as in explicit mode). The implicit rate is
-/// first order in dt and approaches the explicit one as the step shrinks: measured 7.31e-3
-/// m^2/s at Courant 0.4, 4.40e-3 at 0.1, explicit 3.38e-3 (docs/implicit-pressure.md), so
-/// the test asserts that convergence, not agreement at the default step.
+/// first order in dt and approaches the explicit one as the step shrinks, so the test asserts
+/// that convergence, not agreement at the default step. Measured since the outlet's `p = 0`
+/// sits on the orifice face (2026-12-04; `sieve run silo --grid 15x50`, W = 0.04 m, over
+/// [1.25, 1.75] s): implicit 1.63e-2 m^2/s at Courant 0.4 (after a slow opening: 7.5e-3 over
+/// [0.25, 0.75] s), 1.32e-2 at 0.1, explicit 1.22e-2 (before: 7.31e-3, 4.40e-3, 3.38e-3
+/// over later windows; docs/implicit-pressure.md).
 #[test]
 fn silo_discharges_granularly_and_its_rate_converges_to_the_explicit_one() {
     run_big(|| {
@@ -497,9 +500,9 @@ fn silo_discharges_granularly_and_its_rate_converges_to_the_explicit_one() {
         let fine = silo(IMPLICIT, 0.1);
         let exp = silo(EXPLICIT, 0.4);
         let si = imp.series.summary();
-        let (ri1, ri2) = (imp.rate_in(1.5, 2.5), imp.rate_in(2.5, 3.5));
-        let rf = fine.rate_in(1.5, 2.5);
-        let (re1, re2) = (exp.rate_in(1.5, 2.5), exp.rate_in(4.0, 5.0));
+        let (ri1, ri2) = (imp.rate_in(0.75, 1.25), imp.rate_in(1.25, 1.75));
+        let rf = fine.rate_in(1.25, 1.75);
+        let (re1, re2) = (exp.rate_in(0.25, 0.75), exp.rate_in(1.25, 1.75));
         println!(
             "silo 15 x 50, W = 0.04 m: implicit C = 0.4 {} steps {:.2} s wall, rates {ri1:.4e} \
              {ri2:.4e} m^2/s; implicit C = 0.1 {} steps, rate {rf:.4e}; explicit {} steps {:.2} s \
@@ -522,7 +525,7 @@ fn silo_discharges_granularly_and_its_rate_converges_to_the_explicit_one() {
             assert!(o.over <= 0.0 && o.under <= 0.0);
         }
         assert!((ri2 / ri1 - 1.0).abs() < 0.1, "{ri1} {ri2}");
-        assert!(rf > re1 && rf < ri1, "{re1} < {rf} < {ri1}");
-        assert!(rf - re1 < 0.5 * (ri1 - re1), "{re1} {rf} {ri1}");
+        assert!(rf > re2 && rf < ri2, "{re2} < {rf} < {ri2}");
+        assert!(rf - re2 < 0.5 * (ri2 - re2), "{re2} {rf} {ri2}");
     });
 }

@@ -80,13 +80,15 @@ fn mass_balance_at_every_height_and_no_flux_through_the_walls() {
 }
 
 /// The short silo of sensor_silo.rs replayed from the discharge rate alone, B = 8 mm (about
-/// 2.4 diameters: the scene's 0.02 m orifice is "about 6 grain diameters").
+/// 2.4 diameters: the scene's 0.02 m orifice is "about 6 grain diameters"). Measured
+/// (2026-12-04, 1.5 s): largest window error 0.016 over the 14 windows that flow, fines
+/// fraction of all that left 0.500 against the truth's 0.487, 51 % of the truth's grains out.
 #[test]
 fn silo_outflow_fines_from_the_rate_alone() {
     let sets: Vec<String> = [
         "grid.cells=[15,50]",
         "boundary.flow.z_low.outlet.width=0.04",
-        "run.t_end=2.5",
+        "run.t_end=1.5",
     ]
     .iter()
     .map(|s| s.to_string())
@@ -106,10 +108,16 @@ fn silo_outflow_fines_from_the_rate_alone() {
     let r = replay_kinematic(&bytes, 0.008).unwrap();
     let o = r.outflow.as_ref().expect("the silo discharges");
     println!("{o:?} c_err {} {}", r.max_c_error, r.mean_c_error);
-    assert_eq!(r.counters.accepted, 25);
+    assert_eq!(r.counters.accepted, 15);
     assert_eq!(r.counters.phi_excursions, 0);
-    assert!(o.windows >= 15, "{}", o.windows);
-    assert!(o.max_window_error < 0.03, "{}", o.max_window_error);
+    // the first window, before the first moving frame, is silent (tests/tests/sensor_silo.rs)
+    assert!(o.windows >= 14, "{}", o.windows);
+    assert!(o.silent_windows <= 1, "{}", o.silent_windows);
+    assert!(
+        o.max_window_error_flowing < 0.03,
+        "{}",
+        o.max_window_error_flowing
+    );
     assert!(o.total_out[0] > 0.0);
     let again = replay_kinematic(&bytes, 0.008).unwrap();
     assert_eq!(again.final_state_hash, r.final_state_hash);

@@ -4,12 +4,14 @@
 //! and whose c is carried with the measured flow.
 //!
 //! A short, coarse silo so that it runs in seconds: 15 x 50 truth (~10 mm cells), orifice
-//! 0.04 m (it opens after ~0.5 s on this grid, docs/silo.md), 2.5 s at 10 Hz, 5 % noise,
-//! estimator 8 x 28, sensor 2 x 7 (4x coarser). Measured when written: outflow fines fraction
-//! over 1 s windows within 0.014 of the truth's (mean 0.008, 22 windows), fines fraction of all
-//! that left 0.499 against 0.491, no cell with phi outside [0, c]; the estimator lets out 41 %
+//! 0.04 m (it drains from the start on this grid since the outlet's `p = 0` sits on the
+//! orifice face, docs/silo.md section 4), 1.5 s at 10 Hz (55 % out), 5 % noise, estimator
+//! 8 x 28, sensor 2 x 7 (4x coarser). Measured (2026-12-04): outflow fines fraction over 1 s
+//! windows within 0.014 of the truth's over the 14 windows in which the estimator let
+//! something out (the first, before a moving frame arrives, is silent), fines fraction of all
+//! that left 0.499 against 0.487, no cell with phi outside [0, c]; the estimator lets out 66 %
 //! of what the truth discharges (its 2 x 7 sensor averages the orifice jet with the slow bed
-//! beside it) and its carried c drifts from the truth's by up to 0.27 (mean 0.062).
+//! beside it) and its carried c drifts from the truth's by up to 0.26 (mean 0.064).
 
 use sieve::soft_sensor::{record_scene, replay_bytes, ReplayOptions, SceneRecordOptions};
 
@@ -17,7 +19,7 @@ fn coarse_silo() -> Vec<u8> {
     let sets: Vec<String> = [
         "grid.cells=[15,50]",
         "boundary.flow.z_low.outlet.width=0.04",
-        "run.t_end=2.5",
+        "run.t_end=1.5",
     ]
     .iter()
     .map(|s| s.to_string())
@@ -34,7 +36,7 @@ fn coarse_silo() -> Vec<u8> {
         cpu_share: 1.0,
     };
     let (bytes, report) = record_scene(&scene, &fields, &opts).expect("record");
-    assert_eq!(report.record.frames, 25);
+    assert_eq!(report.record.frames, 15);
     // The budget is a 168 MHz Cortex-M4F's at 10 Hz (it affords far more substeps than the
     // fastest frame needs), and the estimator starts from the silo's bed (c 0.6 to 0.4 m).
     assert!(report
@@ -74,9 +76,22 @@ fn outlet_fines_fraction_of_a_discharging_silo() {
         r.max_psi_error,
         r.counters.budget_limited
     );
-    // Issue 9's goal: the outlet fines fraction within 0.05 over the whole discharge.
-    assert!(o.windows >= 15, "{}", o.windows);
-    assert!(o.max_window_error < 0.05, "{}", o.max_window_error);
+    // Issue 9's goal: the outlet fines fraction within 0.05 over the whole discharge. The
+    // truth drains from its first steps (since the outlet's p = 0 sits on the orifice face),
+    // before the first frame that moves reaches the estimator: in that first window the
+    // estimator lets nothing out, its fraction is undefined and counts as 0 (an error of the
+    // truth's whole fraction, ~0.5), so the goal is asserted over the windows that flow.
+    println!(
+        "silent windows {}, largest error over the others {:.5}",
+        o.silent_windows, o.max_window_error_flowing
+    );
+    assert!(o.windows >= 14, "{}", o.windows);
+    assert!(o.silent_windows <= 1, "{}", o.silent_windows);
+    assert!(
+        o.max_window_error_flowing < 0.05,
+        "{}",
+        o.max_window_error_flowing
+    );
     assert!(
         (o.total_fines[0] - o.total_fines[1]).abs() < 0.02,
         "{:?}",

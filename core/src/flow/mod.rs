@@ -106,8 +106,10 @@ pub enum Slip<R> {
 /// of the outlet ghost is always zero-gradient (model.md 2, "outflow (silo orifice)").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum OutletPressure {
-    /// `p = 0` outside (free outflow into air): the face pushes the cell out with its own
-    /// pressure, the finite-volume form of `p = 0` on the orifice plane.
+    /// `p = 0` on the orifice plane (free outflow into air): the ghost mirrors the cell,
+    /// `p_ghost = -p_cell`, so the face's mean pressure is 0 and the cell is pushed out by
+    /// `p_cell / (h/2)`. A ghost of `p = 0` at the ghost's centre put the plane half a cell
+    /// below the orifice: an unresolved pressure layer that slowed coarse grids (model.md 5.3).
     #[default]
     Zero,
     /// `p_ghost = p_cell`: no pressure difference across the face; only gravity pulls the

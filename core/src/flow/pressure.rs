@@ -19,9 +19,10 @@
 //!   `V dp / a_s^2 + (dt/h)^2 sum_f alpha_f w_f (c_up/c_f)_f (dp_i - dp_j) = -(dt/h) sum_f
 //!   alpha_f F_f^0` with `F^0` the face fluxes at `p^n`: symmetric positive definite (the
 //!   upwind side of each face is lagged from `F^0`), solved by [`super::cg`]. An outlet opening
-//!   with ghost pressure 0 moves grains out with the cell's velocity plus `dt` times the cell's
-//!   half of the outlet face force over `c` (what the momentum update gives the cell), which
-//!   adds `(dt/h)^2 alpha w / 2` to its cell's diagonal (Dirichlet `dp = 0` outside).
+//!   with `p = 0` on its face moves grains out with the cell's velocity plus `dt` times the
+//!   cell's half of the outlet face force over `c` (what the momentum update gives the cell);
+//!   its ghost mirrors the cell (`p_ghost = -p`, so `dp_ghost = -dp`), which adds
+//!   `(dt/h)^2 alpha w` to its cell's diagonal (Dirichlet `dp = 0` on the face).
 //! - `p = max(p^n + dp, 0)` then drives both the transport's face velocities (stage 1, whose
 //!   conservative limiters act on those final fluxes: mass to round-off and
 //!   `0 <= c <= c_max` by construction) and the momentum update (stage 2, the same face
@@ -314,8 +315,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// `a`), and the coefficient `open w` of its pressure coupling: in explicit mode the
     /// cell's velocity (and 0); in implicit mode the cell's end-of-step velocity from its
     /// half of the outlet face force, `u_i + dt F_open / (2 c_i)` with the outlet ghost
-    /// `(c_i, p_ghost)`, and `open w / 2` if the ghost pressure is 0 and the face moves
-    /// grains out (a Dirichlet `dp = 0` outside).
+    /// `(c_i, p_ghost)`, and `open w` if the face holds `p = 0` (ghost `-p_i`) and moves
+    /// grains out (a Dirichlet `dp = 0` on the face).
     pub(super) fn outlet_velocity(
         &self,
         a: usize,
@@ -336,7 +337,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         let pi = self.p[i];
         let pg = match side.outlet {
-            OutletPressure::Zero => R::ZERO,
+            OutletPressure::Zero => -pi,
             OutletPressure::ZeroGradient => pi,
         };
         let (f, w) = if high {
@@ -350,7 +351,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let v = u + dt * (R::HALF * f / ci);
         let out = if high { v > R::ZERO } else { v < R::ZERO };
         let k = if out && side.outlet == OutletPressure::Zero {
-            R::HALF * open * w
+            open * w
         } else {
             R::ZERO
         };

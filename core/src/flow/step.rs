@@ -444,14 +444,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             // Hydrostatic ghost (c_i, p_i -+ h c_i g_a): the wall carries its half exactly.
             Boundary::Wall if side.openings.is_empty() => return (R::ZERO, R::ONE),
             // An opening: the outlet ghost (c_i, p_ghost) on the open fraction of the face,
-            // the wall's (0, 1) on the rest.
+            // the wall's (0, 1) on the rest. `p = 0` on the face: the ghost mirrors the cell.
             Boundary::Wall => {
                 let open = self.open_fraction(a, high, i);
                 if open == R::ZERO {
                     return (R::ZERO, R::ONE);
                 }
                 let pg = match side.outlet {
-                    OutletPressure::Zero => R::ZERO,
+                    OutletPressure::Zero => -pi,
                     OutletPressure::ZeroGradient => pi,
                 };
                 let (f, w) = if high {

@@ -36,7 +36,7 @@ impl Coords {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PressureSpec {
-    /// p = 0 outside.
+    /// p = 0 on the orifice face (the ghost mirrors the cell's pressure).
     #[default]
     Zero,
     /// p_ghost = p_cell.
