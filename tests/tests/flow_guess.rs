@@ -31,8 +31,8 @@ fn run(spec: Spec<2>, guess: VelocityGuess) -> (Outcome, u64) {
 /// -> 31,687 (x 0.566), 6.4e-6. With the floor of 2026-12-04 at 1e-5: the silo 136,612 ->
 /// 46,588 (x 0.341), the hopper 55,427 -> 32,497 (x 0.586). Since the outlet's `p = 0` sits
 /// on the orifice face (2026-12-04) the coarse silo flows from the start instead of creeping
-/// for a second through a nearly jammed orifice, where the explicit guess was worst: 68,823
-/// -> 35,796 (x 0.520).
+/// for a second through a nearly jammed orifice (likely where the explicit guess did worst;
+/// not measured apart): 68,823 -> 35,796 (x 0.520).
 fn compare(spec: Spec<2>, what: &str, max_ratio: f64) {
     let (old, it_old) = run(spec, VelocityGuess::Explicit);
     let (new, it_new) = run(spec, VelocityGuess::Extrapolated);
