@@ -335,16 +335,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if open == R::ZERO {
             return (u, R::ZERO);
         }
-        let pi = self.p[i];
-        let pg = match side.outlet {
-            OutletPressure::Zero => -pi,
-            OutletPressure::ZeroGradient => pi,
-        };
-        let (f, w) = if high {
-            self.face_force(a, self.face_body(a, i), ci, pi, ci, pg)
-        } else {
-            self.face_force(a, self.low_face_body(a), ci, pg, ci, pi)
-        };
+        let (f, w) = self.outlet_face_force(a, i, high, side);
         // The cell's own half of the face force, as the momentum update gives it (the other
         // half belongs to the ghost): the full face force would double the outlet's push
         // against the explicit mode, where the outflow leaves with the cell's velocity.

@@ -425,6 +425,28 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
     }
 
+    /// Compact face force `(F, w)` of the outlet ghost `(c_i, p_ghost)` on the boundary face of
+    /// cell `i` (side `high` of axis `a`), unscaled by the open fraction. The one place the
+    /// ghost pressure is chosen, for the momentum update and the implicit outflow alike.
+    pub(super) fn outlet_face_force(
+        &self,
+        a: usize,
+        i: usize,
+        high: bool,
+        side: &FlowSide<R, D>,
+    ) -> (R, R) {
+        let (ci, pi) = (self.c[i], self.p[i]);
+        let pg = match side.outlet {
+            OutletPressure::Zero => -pi,
+            OutletPressure::ZeroGradient => pi,
+        };
+        if high {
+            self.face_force(a, self.face_body(a, i), ci, pi, ci, pg)
+        } else {
+            self.face_force(a, self.low_face_body(a), ci, pg, ci, pi)
+        }
+    }
+
     /// Face force of the boundary face of cell `i` (`other`: the other end of its line).
     fn boundary_face_force(
         &self,
@@ -450,15 +472,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 if open == R::ZERO {
                     return (R::ZERO, R::ONE);
                 }
-                let pg = match side.outlet {
-                    OutletPressure::Zero => -pi,
-                    OutletPressure::ZeroGradient => pi,
-                };
-                let (f, w) = if high {
-                    self.face_force(a, b, ci, pi, ci, pg)
-                } else {
-                    self.face_force(a, b, ci, pg, ci, pi)
-                };
+                let (f, w) = self.outlet_face_force(a, i, high, side);
                 return (open * f, (R::ONE - open) + open * w);
             }
             Boundary::Periodic => (self.c[other], self.p[other]),
