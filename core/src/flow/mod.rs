@@ -5,8 +5,9 @@
 //! Operator splitting, every stage conservative or positivity-preserving:
 //! 1. **Transport** (explicit, upwind, the same face rule as the segregation transport:
 //!    face velocity = mean of the two cells, upwind donor), plus a Rhie-Chow face-velocity
-//!    correction `dt (F_f / c_f - (A_L + A_R)/2)` (compact face acceleration minus the mean cell
-//!    acceleration; zero at a discrete rest state, O(h^2) on smooth flows) that damps the
+//!    correction `w tau (F_f - (K_L + K_R)/2) / c_f` (compact face force minus the mean compact
+//!    force of its cells, over the face's mass; zero at a discrete rest state, O(h^2) on
+//!    smooth flows, `tau` a time scale of the state, model.md 5.3) that damps the
 //!    odd-even pressure modes of the collocated grid. Mass flux `F`, momentum flux `F u_donor`,
 //!    energy flux `F T_donor`. Two conservative *flux limiters*: each face flux is scaled by the
 //!    smaller of its receiver's factor (so that `c <= c_max = (1 - margin) c_rcp`) and its

@@ -137,8 +137,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Stage 1: upwind transport of c, c u, c T with conservative limiters.
     ///
     /// The face velocity is the mean of the two cells plus a Rhie-Chow correction
-    /// `dt (F_f / c_f - (A_L + A_R)/2)`: the compact face acceleration minus the mean of the
-    /// cell accelerations. It vanishes at a discrete rest state and on smooth flows (O(h^2)),
+    /// `w tau (F_f - (K_L + K_R)/2) / c_f`: the compact face force minus the mean of its
+    /// cells' compact forces, over the face's mass, faded like the face force (model.md 5.3:
+    /// the momentum form, so that a nearly empty cell's force is not divided by its tiny
+    /// mass). It vanishes at a discrete
+    /// rest state and on smooth flows (O(h^2)),
     /// and it drives a mass flux against the odd-even (checkerboard) pressure modes that the
     /// collocated central pressure gradient cannot see, so those are damped, not frozen in.
     #[inline(always)]
@@ -326,19 +329,21 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let (ff, _) = self.implicit_face_force(a, l, r);
             return upwind(cl, cr, self.implicit_face_velocity(a, l, r, dt, ff, vac));
         }
-        let (ff, _) = self.face_force(a, self.face_body(a, l), cl, self.p[l], cr, self.p[r]);
+        let (ff, w) = self.face_force(a, self.face_body(a, l), cl, self.p[l], cr, self.p[r]);
         let cf = (cl + cr) * R::HALF;
-        let acc = |i: usize| {
-            if self.c[i] > vac {
-                self.kf[a][i] / self.c[i]
-            } else {
-                R::ZERO
-            }
+        // The face's force minus the mean of its cells' forces, over the face's mass (the
+        // momentum form), faded with the face force (`w`, 1 in the bulk) (model.md 5.3).
+        // Dividing each cell's force by its own mass made a nearly empty cell over a free
+        // surface, pushed by `~ w p / h` with a mass of `~ w surface`, look like an
+        // acceleration of `p / (h surface)` that shut the face of a rising surface, which
+        // then packed to c_rcp.
+        let du = if cf > vac {
+            (w * tau * (ff - (self.kf[a][l] + self.kf[a][r]) * R::HALF) / cf)
+                .max(-cap)
+                .min(cap)
+        } else {
+            R::ZERO
         };
-        let face_acc = if cf > vac { ff / cf } else { R::ZERO };
-        let du = (tau * (face_acc - (acc(l) + acc(r)) * R::HALF))
-            .max(-cap)
-            .min(cap);
         upwind(cl, cr, (self.u[a][l] + self.u[a][r]) * R::HALF + du)
     }
 
