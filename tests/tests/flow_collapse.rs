@@ -330,9 +330,8 @@ fn block_collapses_spreads_and_stops_near_the_friction_angle() {
 
 /// The same collapse on a 1 mm grid (100 x 32 cells over 0.1 m x 0.032 m): the README's
 /// "11.7 deg on 1 mm cells" (read from it); it asserts the flank, the invariants and that the
-/// deposit is at rest, like the 2 mm test. ~21 s at opt-level 3 (24,440 steps): in the default
-/// suite since 2026-12-04 (it took ~2 min before the surface faces' Rhie-Chow correction took
-/// its momentum form, model.md 5.3, and was ignored then).
+/// deposit is at rest, like the 2 mm test. Ignored until 2026-12-04 as "~2 min"; measured then
+/// at 21 s (24,440 steps, opt-level 3), so it runs in the default suite.
 #[test]
 fn fine_grid_collapse() {
     run_big(|| {

@@ -3,18 +3,19 @@
 //! at c = 0.6, cold and at rest, under air (c = 1e-9), in a box 0.1 m tall with one periodic
 //! column. At c = 0.6 the bed holds its yield pressure `p_y(0.6)` everywhere, also in its top
 //! row, where the free surface has p = 0; the surface pressure push releases it, and the top
-//! of the bed expands upwards in a rarefaction (about 0.8 m/s after 10 ms here).
+//! of the bed expands upwards in a rarefaction (its c = 0.3 level rises ~6 mm in 10 ms here).
 //!
 //! A rarefaction only loosens. Before 2026-12-04 the top row instead packed to `c_max`
-//! (0.6711 from 0.6 within 0.7 ms on 0.625 mm cells, then `p` in the thousands and a step of
-//! 1e-14 s: the 0.625 mm silo of docs/silo.md failed the same way). Cause: the Rhie-Chow
+//! (the CLI's coupled column on 0.625 mm cells: 0.6 -> 0.648 at 0.6 ms -> 0.6717 at 0.7 ms,
+//! `p` 1,234 m^2/s^2, then a step of 1e-14 s; the 0.625 mm silo of docs/silo.md failed the
+//! same way; this flow-only column's step fell to 1/10 at 0.31 ms). Cause: the Rhie-Chow
 //! correction divided each cell's force by its own mass, and the nearly empty cell above the
 //! surface (a faded face force `~ w p / h` on a mass `~ w surface`) looked like an acceleration
 //! of `p / (h surface)`; the correction then shut the face of the rising surface, and the bed
-//! below ran into its top row. Coarse cells survived by their larger yield-viscous coupling,
-//! the finer the cells the sooner the failure (1.25 / 0.625 / 0.3125 mm: 1.2 / 0.71 /
-//! 0.45 ms; 2.5 mm survived). The correction is now the momentum form, the face's force minus
-//! the mean of its cells' forces over the face's mass.
+//! below ran into its top row. The finer the cells the sooner it failed (the CLI column on
+//! 1.25 / 0.625 / 0.3125 mm: 1.2 / 0.71 / 0.45 ms; 2.5 mm survived). The correction is now the
+//! momentum form, the face's force minus the mean of its cells' forces over the face's mass,
+//! faded like the face force (model.md 5.3).
 //!
 //! Asserted on 0.625, 0.3125 and 0.156 mm cells, every step: finite state, `0 <= c <= c_max`,
 //! no cell of the bed's upper quarter denser than it started (a rarefaction cannot compress),
