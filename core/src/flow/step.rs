@@ -157,7 +157,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if self.cfg.pressure == PressureMode::Explicit {
             // Compact parts only: the direct gravity of faded faces is not a pressure mode,
             // and counting it would let the correction hold an unsupported surface cell in
-            // the air. (The implicit face velocity needs no cell accelerations.)
+            // the air. (The implicit face velocity needs no cell forces.)
             self.cell_forces(false);
             rate = self.rhie_chow_rates();
         }
