@@ -109,6 +109,15 @@ pub fn yield_pressure<R: Real>(c: R, c_rcp: R, c_rlp: R, t0: R) -> R {
     }
 }
 
+/// The packing `c >= c_rlp` whose yield pressure is `p >= 0`: the inverse of
+/// [`yield_pressure`] above `c_rlp`, `c = (p + T0 c_rlp) / (T0 + p / c_rcp)` (from
+/// `p (1 - c / c_rcp) = T0 (c - c_rlp)`). It is `c_rlp` at `p = 0` and tends to `c_rcp` as
+/// `p` grows, so a cold bed under any finite load packs below `c_rcp`.
+#[inline]
+pub fn yield_packing<R: Real>(p: R, c_rcp: R, c_rlp: R, t0: R) -> R {
+    (p + t0 * c_rlp) / (t0 + p / c_rcp)
+}
+
 /// Total pressure `p = p_k + p_y`.
 #[inline]
 pub fn pressure<R: Real>(m: &Material<R>, c: R, t: R, c_rcp: R, c_rlp: R) -> R {

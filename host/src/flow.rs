@@ -18,10 +18,9 @@ use crate::data::{
 use crate::error::{Error, Result};
 use crate::scene::validate::{FlowModel, WallSlip};
 use crate::scene::{
-    solver_errors, BackCoupling, Equations, Fields, FrameKind, PressureKind, Scene, SpinUp,
-    StressKind,
+    solver_errors, Equations, Fields, FrameKind, PressureKind, Scene, SpinUp, StressKind,
 };
-use sieve_core::closure::{Material, Packing};
+use sieve_core::closure::Packing;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{
     CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, PressureMode, Slip,
@@ -34,29 +33,6 @@ use std::time::Instant;
 
 /// Columns of the x-reduced spin-up grid (periodic x needs a few cells for the stencils).
 pub const SPIN_UP_COLUMNS: usize = 4;
-
-/// The material of the flow.
-pub fn material<R: Real>(scene: &Scene, fm: &FlowModel) -> Material<R> {
-    Material {
-        eta0: R::from_f64(fm.eta0),
-        lambda0: R::from_f64(fm.lambda0),
-        eps0: R::from_f64(fm.eps0),
-        t0: R::from_f64(fm.t0),
-        phi_rcp: R::from_f64(scene.phi_rcp),
-        phi_rlp: R::from_f64(fm.phi_rlp),
-        heating: R::from_f64(fm.heating),
-        s0: R::from_f64(scene.s0),
-    }
-}
-
-/// The packing switch of the core.
-pub fn packing(b: BackCoupling) -> Packing {
-    match b {
-        BackCoupling::Off => Packing::Constant,
-        BackCoupling::R0 => Packing::BoundR0,
-        BackCoupling::Half => Packing::FitHalf,
-    }
-}
 
 fn boundaries<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowBoundaries<R, D> {
     core::array::from_fn(|a| {
@@ -82,7 +58,7 @@ fn boundaries<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowBou
 }
 
 fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<R, D> {
-    let mut cfg = FlowConfig::new(material(scene, fm));
+    let mut cfg = FlowConfig::new(scene.flow_material(fm));
     cfg.gravity = core::array::from_fn(|a| R::from_f64(scene.gravity[a]));
     cfg.courant = R::from_f64(fm.courant);
     cfg.t_min = R::from_f64(fm.t_min);
@@ -169,8 +145,8 @@ fn setup<R: Real, const D: usize, const N: usize>(
         Grid::new(cells, lower, extent, N).map_err(|e| solver_errors::grid_error(scene, &e))?;
     flow.setup(grid, boundaries(scene, fm), config(scene, fm))
         .map_err(|e| solver_errors::flow_error(scene, &e))?;
-    let mat = material::<R>(scene, fm);
-    let pk = packing(fm.back_coupling);
+    let mat = scene.flow_material::<R>(fm);
+    let pk = fm.back_coupling.packing();
     for i in 0..grid.len() {
         // The full-grid cell with the same row (x-independent data when reduced).
         let src = if columns == nx {
@@ -433,7 +409,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
         .ok_or_else(|| Error::failure("no flow in scene"))?;
     setup(flow, scene, fields, scene.cells[0])?;
     let mut cc = CouplingConfig::new(Mode::Coupled);
-    cc.packing = packing(fm.back_coupling);
+    cc.packing = fm.back_coupling.packing();
     cc.steady_tolerance = R::from_f64(fm.steady_tolerance);
     let fail = |e| Error::failure(format!("{}: coupled step failed: {e}", scene.label));
     let mut cpl = match geo {

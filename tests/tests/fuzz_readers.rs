@@ -441,6 +441,38 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(config())]
+
+    /// The silo with a settled fill (model.md 5.8) and one number replaced by a hostile value:
+    /// the settling runs on whatever the validator lets through (gravity, T0, the packing
+    /// limits, the grid) and never panics or lets a non-finite c out.
+    #[test]
+    fn settled_scene_mutated_values(at in any::<usize>(), value in prop_oneof![
+            Just("nan".to_string()), Just("inf".to_string()), Just("0".to_string()),
+            Just("-1".to_string()), Just("1e308".to_string()), Just("1e-308".to_string()),
+            Just("1e6".to_string()), Just("-1e6".to_string()), Just("0.6399".to_string()),
+            any::<f64>().prop_map(|v| format!("{v:e}")), (0u32..1000).prop_map(|v| v.to_string())
+        ]) {
+        let b = builtin::find("silo").expect("built-in");
+        let settled = b.toml.replace("phi = \"c / 2\"", "phi = \"c / 2\"\nfill = \"settled\"");
+        prop_assert!(settled.contains("fill = \"settled\""));
+        let text = replace_number(&settled, at, &value);
+        scene_ok(&text)?;
+        let label = "fuzz.toml";
+        if let Ok(s) = scene::parse_table(label, &text)
+            .and_then(|t| scene::deserialize(label, t))
+            .and_then(|f| SceneSpec::validate(label, f))
+        {
+            if s.len() <= 4096 {
+                if let Ok(f) = s.evaluate_fields() {
+                    prop_assert!(f.c.iter().all(|c| c.is_finite() && *c > 0.0), "{text}");
+                }
+            }
+        }
+    }
+}
+
 /// The whole scene path short of running: parse, deserialise, validate, and the fields of
 /// small grids (evaluating 262144 cells per case would make the fuzz slow, not safer).
 fn scene_ok(text: &str) -> Result<(), TestCaseError> {

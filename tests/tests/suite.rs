@@ -31,6 +31,7 @@ mod flow_implicit;
 mod flow_implicit_dilute;
 mod flow_objective;
 mod flow_pile;
+mod flow_settled_fill;
 mod flow_settling;
 mod flow_shear_cell;
 mod flow_silo;

@@ -77,6 +77,7 @@ pub mod cg;
 pub mod coupled;
 mod objective;
 mod pressure;
+pub mod rest;
 mod step;
 mod walls;
 

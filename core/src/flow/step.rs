@@ -430,6 +430,18 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
     }
 
+    /// Body acceleration at the boundary face of cell `i` on side `high` of axis `a`: the
+    /// one choice between [`Self::face_body`] and [`Self::low_face_body`] every boundary
+    /// term makes.
+    #[inline(always)]
+    fn boundary_body(&self, a: usize, i: usize, high: bool) -> R {
+        if high {
+            self.face_body(a, i)
+        } else {
+            self.low_face_body(a)
+        }
+    }
+
     /// Compact face force `(F, w)` of the outlet ghost `(c_i, p_ghost)` on the boundary face of
     /// cell `i` (side `high` of axis `a`), unscaled by the open fraction. The one place the
     /// ghost pressure is chosen, for the momentum update and the implicit outflow alike.
@@ -445,10 +457,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             OutletPressure::Zero => -pi,
             OutletPressure::ZeroGradient => pi,
         };
+        let b = self.boundary_body(a, i, high);
         if high {
-            self.face_force(a, self.face_body(a, i), ci, pi, ci, pg)
+            self.face_force(a, b, ci, pi, ci, pg)
         } else {
-            self.face_force(a, self.low_face_body(a), ci, pg, ci, pi)
+            self.face_force(a, b, ci, pg, ci, pi)
         }
     }
 
@@ -462,11 +475,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         side: &FlowSide<R, D>,
     ) -> (R, R) {
         let (ci, pi) = (self.c[i], self.p[i]);
-        let b = if high {
-            self.face_body(a, i)
-        } else {
-            self.low_face_body(a)
-        };
+        let b = self.boundary_body(a, i, high);
         let (cg, pg) = match side.kind {
             // Hydrostatic ghost (c_i, p_i -+ h c_i g_a): the wall carries its half exactly.
             Boundary::Wall if side.openings.is_empty() => return (R::ZERO, R::ONE),
@@ -545,11 +554,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
                 grid.for_each_boundary_cell(a, high, |i, other| {
                     let (f, w) = self.boundary_face_force(a, i, other, high, &side);
-                    let b = if high {
-                        self.face_body(a, i)
-                    } else {
-                        self.low_face_body(a)
-                    };
+                    let b = self.boundary_body(a, i, high);
                     let rest = R::HALF * (R::ONE - w) * direct(b);
                     let wa = match (emb, high) {
                         (false, _) => R::ONE,

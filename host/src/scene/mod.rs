@@ -110,6 +110,39 @@ impl BackCoupling {
             BackCoupling::Half => "half",
         }
     }
+
+    /// The core's packing switch.
+    pub fn packing(self) -> sieve_core::closure::Packing {
+        use sieve_core::closure::Packing;
+        match self {
+            BackCoupling::Off => Packing::Constant,
+            BackCoupling::R0 => Packing::BoundR0,
+            BackCoupling::Half => Packing::FitHalf,
+        }
+    }
+}
+
+/// `initial.fill`: how the bed's packing is set.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Fill {
+    /// c as `initial.c` gives it.
+    #[default]
+    Given,
+    /// The bed (cells where `initial.c` is at least the flow's free-surface threshold) at
+    /// rest: each run of bed cells along gravity packed in the flow step's discrete balance
+    /// under its own weight, cold (model.md 5.8); phihat as `initial.phi / initial.c` gives it.
+    Settled,
+}
+
+impl Fill {
+    /// "given" or "settled".
+    pub fn name(self) -> &'static str {
+        match self {
+            Fill::Given => "given",
+            Fill::Settled => "settled",
+        }
+    }
 }
 
 /// Which equations a scene runs.
@@ -374,6 +407,8 @@ pub struct InitialSpec {
     pub u: Option<Vec<ExprSrc>>,
     /// Small-phase fraction phi(x, y, z, c).
     pub phi: ExprSrc,
+    /// "given" (default) or "settled" (the bed at rest under its weight; flow scenes).
+    pub fill: Option<Fill>,
 }
 
 /// `[flow]`: numerics of the granular flow.

@@ -3,10 +3,10 @@
 //! `(1 - FLOW_MARGIN) phi_rcp` with a solved flow, model.md 2), `T >= 0`, `0 <= phi <= c`,
 //! all finite. A bad field is reported once per key, at its first bad cell.
 
-use super::{axis_names, physical_axes, Fields, Problems, Scene, Temperature, FLOW_MARGIN};
+use super::{axis_names, Fields, Problems, Scene, Temperature, FLOW_MARGIN};
 use crate::error::{Error, Result};
 use crate::scene::expr::{Expr, Vars};
-use crate::scene::{ExactKind, ExprSrc, InitialSpec};
+use crate::scene::{ExactKind, ExprSrc, Fill, InitialSpec};
 
 /// The compiled initial expressions: c, T (None when derived from shear), u per axis, phi.
 pub(super) struct Initial {
@@ -95,13 +95,6 @@ impl Scene {
         };
         let names = axis_names(self.dim);
         let c_flow_max = (1.0 - FLOW_MARGIN) * self.phi_rcp;
-        let at = |pt: [f64; 3]| {
-            let coords: Vec<String> = physical_axes(self.dim)
-                .iter()
-                .map(|&a| format!("{} = {}", ["x", "y", "z"][a], pt[a]))
-                .collect();
-            format!("(at {})", coords.join(", "))
-        };
         // An expression that fails to evaluate (or a value out of range) is recorded once per
         // key; the cell gets a harmless placeholder so that the other keys are still checked.
         let mut eval = |p: &mut Problems, e: &Expr, pt: [f64; 3], c: f64, key: &str| match e
@@ -136,7 +129,7 @@ impl Scene {
                         Error::range(
                             l,
                             "initial.c",
-                            format!("{c} {}", at(pt)),
+                            format!("{c} {}", self.at(i)),
                             &format!(
                                 "0 < c < c_rcp strictly with a solved flow: c < (1 - {FLOW_MARGIN}) material.phi_rcp = {c_flow_max}"
                             ),
@@ -150,7 +143,7 @@ impl Scene {
                         Error::range(
                             l,
                             "initial.c",
-                            format!("{c} {}", at(pt)),
+                            format!("{c} {}", self.at(i)),
                             &format!("0 < c <= material.phi_rcp = {}", self.phi_rcp),
                         ),
                     );
@@ -169,7 +162,12 @@ impl Scene {
             if !(t >= 0.0 && t.is_finite()) {
                 p.push_once(
                     "initial.T",
-                    Error::range(l, "initial.T", format!("{t} {}", at(pt)), "a finite T >= 0"),
+                    Error::range(
+                        l,
+                        "initial.T",
+                        format!("{t} {}", self.at(i)),
+                        "a finite T >= 0",
+                    ),
                 );
             }
             for (a, e) in self.u.iter().enumerate() {
@@ -181,7 +179,7 @@ impl Scene {
                         Error::range(
                             l,
                             &key,
-                            format!("{v} {}", at(pt)),
+                            format!("{v} {}", self.at(i)),
                             &format!("a finite velocity along {}", names[a]),
                         ),
                     );
@@ -195,7 +193,7 @@ impl Scene {
                     Error::range(
                         l,
                         "initial.phi",
-                        format!("{phi} {}", at(pt)),
+                        format!("{phi} {}", self.at(i)),
                         &format!("0 <= phi <= c = {c}"),
                     ),
                 );
@@ -209,7 +207,7 @@ impl Scene {
                             Error::range(
                                 l,
                                 "boundary.inflow.phi",
-                                format!("{v} {}", at(pt)),
+                                format!("{v} {}", self.at(i)),
                                 &format!("0 <= phi <= c = {c}"),
                             ),
                         );
@@ -222,6 +220,9 @@ impl Scene {
             f.t.push(t);
             f.phi.push(phi);
             f.inflow.push(inflow);
+        }
+        if self.fill == Fill::Settled && p.is_empty() {
+            self.settle(&mut f, &mut p);
         }
         if self.exact == Some(ExactKind::ColumnA) && p.is_empty() {
             let m0 = f.phi[0] / f.c[0];

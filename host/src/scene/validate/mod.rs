@@ -10,6 +10,7 @@
 //! puts the sections together.
 
 mod boundary;
+mod fill;
 mod flow;
 pub mod frame;
 pub mod geometry;
@@ -26,9 +27,12 @@ pub use problems::Problems;
 
 use super::expr::Expr;
 use super::{
-    BackCoupling, Equations, ExactKind, Precision, PressureKind, SceneFile, SpinUp, StressKind,
+    BackCoupling, Equations, ExactKind, Fill, Precision, PressureKind, SceneFile, SpinUp,
+    StressKind,
 };
 use crate::error::{Error, Result};
+use sieve_core::closure::Material;
+use sieve_core::real::Real;
 use sieve_core::{Boundary, Phase, Scheme, Transport};
 
 /// Compiled cell capacity for each dimension (index `dim - 1`): 65536 cells in 1D, 512 x 512
@@ -204,6 +208,8 @@ pub struct Scene {
     pub u: Vec<Expr>,
     /// phi(x, c).
     pub phi: Expr,
+    /// How the bed's packing is set (`initial.fill`).
+    pub fill: Fill,
     /// Inflow phi(x, c), if a side is inflow.
     pub inflow_phi: Option<Expr>,
     /// End time.
@@ -343,6 +349,14 @@ impl Scene {
                 bounds.as_ref().map(|(b, _)| b.as_slice()),
             )
         });
+        let fill = fill::check(
+            &mut p,
+            l,
+            &f,
+            has_flow,
+            physics.as_ref().map(|ph| ph.gravity.as_slice()),
+            bounds.as_ref().map(|(b, _)| b.as_slice()),
+        );
         let output = output::check(&mut p, l, f.output.as_ref());
         let checkpoint_interval = run::check_checkpoint(&mut p, l, &f.run);
         p.finish()?;
@@ -394,6 +408,7 @@ impl Scene {
             t: initial.t,
             u: initial.u,
             phi: initial.phi,
+            fill,
             inflow_phi,
             t_end,
             output_interval,
@@ -407,6 +422,30 @@ impl Scene {
             scene.check_column_a()?;
         }
         Ok(scene)
+    }
+
+    /// The flow's material in the core's form (`fm`: this scene's flow model).
+    pub fn flow_material<R: Real>(&self, fm: &FlowModel) -> Material<R> {
+        Material {
+            eta0: R::from_f64(fm.eta0),
+            lambda0: R::from_f64(fm.lambda0),
+            eps0: R::from_f64(fm.eps0),
+            t0: R::from_f64(fm.t0),
+            phi_rcp: R::from_f64(self.phi_rcp),
+            phi_rlp: R::from_f64(fm.phi_rlp),
+            heating: R::from_f64(fm.heating),
+            s0: R::from_f64(self.s0),
+        }
+    }
+
+    /// "(at x = .., z = ..)": where cell `i` is, for messages.
+    pub(super) fn at(&self, i: usize) -> String {
+        let pt = self.center(i);
+        let coords: Vec<String> = physical_axes(self.dim)
+            .iter()
+            .map(|&a| format!("{} = {}", ["x", "y", "z"][a], pt[a]))
+            .collect();
+        format!("(at {})", coords.join(", "))
     }
 
     /// Total number of cells.
