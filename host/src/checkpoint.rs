@@ -1206,6 +1206,7 @@ pub fn put_frozen(e: &mut Entries, fr: &Frozen) {
     e.put("frozen.back_coupling", Value::Text(s.back_coupling.clone()));
     e.put("frozen.pressure", Value::Text(s.pressure.clone()));
     e.put("frozen.stress", Value::Text(s.stress.clone()));
+    e.put("frozen.fill", Value::Text(s.fill.clone()));
     e.put(
         "frozen.flow_steps_to_steady",
         Value::U64s(s.flow_steps_to_steady.into_iter().collect()),
@@ -1269,6 +1270,8 @@ pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<Frozen> {
             pressure: e.text("frozen.pressure").unwrap_or("explicit").into(),
             // (checkpoints written before the stress choice: the spec's)
             stress: e.text("frozen.stress").unwrap_or("spec").into(),
+            // (checkpoints written before the settled fill: as given)
+            fill: e.text("frozen.fill").unwrap_or("given").into(),
             flow_steps_to_steady: steady,
             flow_steps: e.u64("frozen.flow_steps")?,
             cg_iterations: e.u64("frozen.cg_iterations")?,

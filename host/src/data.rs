@@ -323,6 +323,8 @@ pub struct FlowSummary {
     pub pressure: String,
     /// The flow's viscous stress: "spec" or "objective" (`flow.stress`, model.md 2.6).
     pub stress: String,
+    /// How the bed was filled: "given" or "settled" (`initial.fill`, model.md 5.8).
+    pub fill: String,
     /// Flow steps to the steady state (frozen-flow; null when coupled).
     pub flow_steps_to_steady: Option<u64>,
     /// Flow steps in total.

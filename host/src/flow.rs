@@ -183,6 +183,7 @@ fn diag_f64<R: Real>(d: &FlowDiagnostics<R>) -> FlowDiagnostics<f64> {
 
 fn summary_of<R: Real, const D: usize, const N: usize>(
     flow: &Flow<R, D, N>,
+    scene: &Scene,
     fm: &FlowModel,
     seconds: f64,
     to_steady: Option<u64>,
@@ -194,6 +195,7 @@ fn summary_of<R: Real, const D: usize, const N: usize>(
         back_coupling: fm.back_coupling.name().into(),
         pressure: flow.config().pressure.name().into(),
         stress: flow.config().stress.name().into(),
+        fill: scene.fill.name().into(),
         flow_steps_to_steady: to_steady,
         flow_steps: flow.steps(),
         cg_iterations: flow.cg_iterations(),
@@ -260,7 +262,14 @@ pub fn spin_up<R: Real, const D: usize, const N: usize>(
         }
     }
     let steps = flow.steps();
-    let summary = summary_of(flow, fm, start.elapsed().as_secs_f64(), Some(steps), 0.0);
+    let summary = summary_of(
+        flow,
+        scene,
+        fm,
+        start.elapsed().as_secs_f64(),
+        Some(steps),
+        0.0,
+    );
     let n = scene.len();
     let nx = scene.cells[0];
     // An x-independent flow between walls in z has c u_z = 0 exactly at steady state
@@ -576,7 +585,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
     stats.segregation_time = timer.time();
     stats.record_bounds(cpl.seg);
     let clipped = cpl.guarded_mass().to_f64();
-    let mut summary = summary_of(cpl.flow, fm, flow_seconds, None, clipped);
+    let mut summary = summary_of(cpl.flow, scene, fm, flow_seconds, None, clipped);
     summary.outlet = discharge.as_ref().map(|d| d.summary());
     Ok(CoupledStats {
         stats,

@@ -828,6 +828,11 @@ pub fn run_scene_with(
     let staging = Staging::new(&opts.out)?;
     let fields_dir = staging.subdir("fields")?;
     let plots_dir = staging.subdir("plots")?;
+    let overrides = resume
+        .source
+        .as_ref()
+        .map(|s| s.sets.clone())
+        .unwrap_or_default();
     let ckpt = match resume.source {
         Some(source) => Some(crate::checkpoint::Session::new(
             &opts.out,
@@ -898,6 +903,7 @@ pub fn run_scene_with(
         stopped: stop.map(summary::Stopped::of),
         scene: scene.name.clone(),
         scene_file: scene.label.clone(),
+        overrides,
         scheme: scene.scheme.name().into(),
         phase: match scene.phase {
             sieve_core::Phase::Small => "small".into(),

@@ -311,6 +311,17 @@ fn set_overrides_and_flags_reach_the_run() {
     assert_eq!(s["t_end"], 0.5);
     assert_eq!(s["courant"], 0.4);
     assert_eq!(s["output_interval"], 0.25);
+    // summary.json says what changed the scene file, in the order applied (flags after --set)
+    assert_eq!(
+        s["overrides"],
+        serde_json::json!([
+            "grid.cells=[40]",
+            "numerics.scheme=\"upwind\"",
+            "run.output_interval=0.25",
+            "run.t_end=0.5",
+            "numerics.courant=0.4"
+        ])
+    );
     // --scheme beats --set (flags apply after --set), --grid sets every axis.
     let (code, _, err) = run_full(
         d.path(),

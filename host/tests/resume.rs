@@ -37,6 +37,20 @@ fn summary_without_timings(dir: &Path) -> serde_json::Value {
     v
 }
 
+/// Asserts that the resumed run `b` (checkpointed every `interval`) wrote the summary of the
+/// uninterrupted run `a` but for the timings and its overrides, which are `a`'s plus the
+/// checkpoint interval (`--checkpoint-interval` sets a scene key).
+fn same_summary(a: &Path, b: &Path, interval: &str, what: &str) -> serde_json::Value {
+    let (mut sa, mut sb) = (summary_without_timings(a), summary_without_timings(b));
+    let mut want = sa["overrides"].as_array().expect("overrides").clone();
+    want.push(format!("run.checkpoint_interval={interval}").into());
+    assert_eq!(sb["overrides"], serde_json::Value::Array(want), "{what}");
+    sa["overrides"].take();
+    sb["overrides"].take();
+    assert_eq!(sa, sb, "{what}: summary.json differs after resume");
+    sa
+}
+
 /// Every file of a run directory but the pictures and summary.json, by relative path.
 fn data_files(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
@@ -136,9 +150,7 @@ fn kill_and_resume(args: &[&str]) -> serde_json::Value {
             f.display()
         );
     }
-    let (sa, sb) = (summary_without_timings(&a), summary_without_timings(&b));
-    assert_eq!(sa, sb, "{args:?}: summary.json differs after resume");
-    sa
+    same_summary(&a, &b, "0.04", &format!("{args:?}"))
 }
 
 #[test]
@@ -428,7 +440,7 @@ fn a_stale_temporary_file_is_removed_on_resume_and_never_read() {
     let hash = |dir: &Path| json(&dir.join("summary.json"))["state_hash"].clone();
     assert_eq!(hash(&a).as_str().map(str::len), Some(16));
     assert_eq!(hash(&a), hash(&b));
-    assert_eq!(summary_without_timings(&a), summary_without_timings(&b));
+    same_summary(&a, &b, "0.02", "column-b");
     let files = data_files(&a);
     assert_eq!(files, data_files(&b));
     for f in &files {

@@ -5,21 +5,22 @@
 
 use crate::common::run_in;
 
-/// `sieve run silo` on the coarse 15 x 50 grid (~10 mm cells) to `t_end` with one `--set`.
-fn run_coarse_silo(dir: &std::path::Path, t_end: &str, set: &str) -> (i32, String) {
-    run_in(
-        dir,
-        &[
-            "run", "silo", "--grid", "15x50", "--t-end", t_end, "--set", set, "--quiet",
-        ],
-    )
+/// `sieve run silo` on the coarse 15 x 50 grid (~10 mm cells) to `t_end` with `--set`s.
+fn run_coarse_silo(dir: &std::path::Path, t_end: &str, sets: &[&str]) -> (i32, String) {
+    let mut args = vec![
+        "run", "silo", "--grid", "15x50", "--t-end", t_end, "--quiet",
+    ];
+    for s in sets {
+        args.extend(["--set", s]);
+    }
+    run_in(dir, &args)
 }
 
 #[test]
 fn coarse_silo_discharges_with_exact_mass_accounting() {
     let d = tempfile::tempdir().unwrap();
     // ~10 mm cells, a 4-cell orifice: discharging from ~0.4 s on
-    let (code, err) = run_coarse_silo(d.path(), "0.7", "boundary.flow.z_low.outlet.width=0.04");
+    let (code, err) = run_coarse_silo(d.path(), "0.7", &["boundary.flow.z_low.outlet.width=0.04"]);
     assert_eq!(code, 0, "{err}");
     assert!(!err.contains("warning"), "explicit silo warned: {err}");
     // no caveat: the explicit rate is converged in dt (`explicit_rate_does_not_depend_on_the_step`)
@@ -27,6 +28,7 @@ fn coarse_silo_discharges_with_exact_mass_accounting() {
     let dir = d.path().join("runs/silo");
     let s: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["flow"]["fill"], "given");
     let o = &s["flow"]["outlet"];
     let f = |k: &str| o[k].as_f64().unwrap_or(f64::NAN);
     assert!(f("mass_error") < 1e-13, "{o}");
@@ -58,6 +60,57 @@ fn coarse_silo_discharges_with_exact_mass_accounting() {
         );
         assert!(r[8] > 0.35 && r[8] < 0.45, "surface {r:?}");
     }
+}
+
+/// `--set initial.fill=settled` (model.md 5.8): the bed starts at rest, packed under its
+/// weight, so it holds fewer grains than the uniform fill and its surface never rises; the
+/// summary says how it was filled and which overrides ran.
+#[test]
+fn settled_silo_starts_at_rest_and_says_so() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, err) = run_coarse_silo(
+        d.path(),
+        "0.7",
+        &[
+            "boundary.flow.z_low.outlet.width=0.04",
+            "initial.fill=settled",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let dir = d.path().join("runs/silo");
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["flow"]["fill"], "settled");
+    assert_eq!(
+        s["overrides"],
+        serde_json::json!([
+            "boundary.flow.z_low.outlet.width=0.04",
+            "initial.fill=settled",
+            "grid.cells=[15,50]",
+            "run.t_end=0.7"
+        ])
+    );
+    let o = &s["flow"]["outlet"];
+    let f = |k: &str| o[k].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        f("mass_error") < 1e-13 && f("mass_small_error") < 1e-13,
+        "{o}"
+    );
+    // c from c_rlp(1/2) = 0.431 under the surface to ~0.59 at the floor, not 0.6 throughout
+    let m0 = f("mass_initial");
+    assert!(m0 > 0.145 * 0.4 * 0.5 && m0 < 0.0348 * 0.93, "{o}");
+    assert!(f("out") > 1e-4, "{o}");
+    let csv = std::fs::read_to_string(dir.join("discharge.csv")).unwrap();
+    let surface: Vec<f64> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(8).unwrap().parse().unwrap())
+        .collect();
+    println!("settled surface heights: {surface:?}");
+    assert!(
+        surface.iter().all(|&h| h <= surface[0] + 1e-9 && h > 0.3),
+        "{surface:?}"
+    );
 }
 
 #[test]
@@ -97,7 +150,7 @@ fn orifice_wider_than_the_floor_is_rejected() {
 #[test]
 fn implicit_silo_warns_that_its_rate_depends_on_the_step() {
     let d = tempfile::tempdir().unwrap();
-    let (code, err) = run_coarse_silo(d.path(), "0.02", "flow.pressure=implicit");
+    let (code, err) = run_coarse_silo(d.path(), "0.02", &["flow.pressure=implicit"]);
     assert_eq!(code, 0, "{err}");
     let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
     assert_eq!(warnings.len(), 1, "{err}");

@@ -86,6 +86,10 @@ pub struct Summary {
     pub scene: String,
     /// Scene file (or `scenes/<name>.toml` for a built-in).
     pub scene_file: String,
+    /// What changed the scene file for this run, in the order applied: the `--set`
+    /// overrides and the options that set scene keys (`--grid`, `--t-end`, ...), each as
+    /// `key=value` (empty for a run without them or one started by a library caller).
+    pub overrides: Vec<String>,
     /// Face flux.
     pub scheme: String,
     /// Tracked phase.
