@@ -159,9 +159,20 @@ fn the_settled_silo_packs_every_column_under_its_weight() {
     }
 }
 
-/// Each misuse is refused with one line naming the key and what is allowed.
+/// Each misuse is refused with one line naming the key and what is allowed; the tumbler in
+/// the lab frame (gravity fixed, the drum wall turning) may start settled.
 #[test]
 fn settled_fill_misuse_names_the_key() {
+    let lab = ["initial.fill=settled", "frame.kind=\"lab\""].map(String::from);
+    let (_, settled) = sieve::scene::load("tumbler", &lab).expect("a lab-frame drum settles");
+    let (_, given) = sieve::scene::load("tumbler", &lab[1..]).expect("the lab-frame drum");
+    // every bed cell repacked (the drum's given c = 0.6 is below the beads' c_rlp: loose)
+    let bed = given.c.iter().filter(|&&c| c >= 0.05).count();
+    let moved = (0..given.c.len())
+        .filter(|&i| given.c[i] >= 0.05 && settled.c[i] != given.c[i])
+        .count();
+    println!("lab-frame drum: {moved} of {bed} bed cells repacked");
+    assert!(bed > 100 && moved == bed, "{moved} of {bed}");
     let cases: [(&str, &[&str], &str); 5] = [
         (
             "column-a",

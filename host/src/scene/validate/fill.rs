@@ -7,12 +7,12 @@
 
 use super::{Fields, Problems, Scene, FLOW_MARGIN};
 use crate::error::Error;
-use crate::scene::{Fill, SceneFile};
+use crate::scene::{Fill, FrameKind, SceneFile};
 use sieve_core::flow::rest::settle_run;
 use sieve_core::flow::FlowConfig;
 use sieve_core::Boundary;
 
-/// Checks what `initial.fill = "settled"` needs: a solved flow, the lab frame, gravity along
+/// Checks what `initial.fill = "settled"` needs: a solved flow, no rotating frame, gravity along
 /// exactly one axis, and that axis not periodic (a periodic column has no top). `gravity`
 /// and `bounds` are the validated ones (solver axis order), None if invalid (then nothing is
 /// reported twice).
@@ -33,7 +33,11 @@ pub(super) fn check(
         p.push(bad(
             "\"given\" unless the flow is solved (model.equations = \"frozen\" or \"coupled\")",
         ));
-    } else if f.frame.is_some() {
+    } else if f
+        .frame
+        .as_ref()
+        .is_some_and(|fs| fs.kind.unwrap_or_default() == FrameKind::Rotating)
+    {
         p.push(bad(
             "\"given\" in a rotating frame (its gravity turns: no bed is at rest in it)",
         ));
