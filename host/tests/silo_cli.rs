@@ -16,6 +16,11 @@ fn run_coarse_silo(dir: &std::path::Path, t_end: &str, sets: &[&str]) -> (i32, S
     run_in(dir, &args)
 }
 
+/// The run's summary.json.
+fn summary(dir: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
 #[test]
 fn coarse_silo_discharges_with_exact_mass_accounting() {
     let d = tempfile::tempdir().unwrap();
@@ -26,8 +31,7 @@ fn coarse_silo_discharges_with_exact_mass_accounting() {
     // no caveat: the explicit rate is converged in dt (`explicit_rate_does_not_depend_on_the_step`)
     assert!(!err.contains("depends on the time step"), "{err}");
     let dir = d.path().join("runs/silo");
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let s = summary(&dir);
     assert_eq!(s["flow"]["fill"], "given");
     let o = &s["flow"]["outlet"];
     let f = |k: &str| o[k].as_f64().unwrap_or(f64::NAN);
@@ -78,8 +82,7 @@ fn settled_silo_starts_at_rest_and_says_so() {
     );
     assert_eq!(code, 0, "{err}");
     let dir = d.path().join("runs/silo");
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let s = summary(&dir);
     assert_eq!(s["flow"]["fill"], "settled");
     assert_eq!(
         s["overrides"],
@@ -189,10 +192,7 @@ fn explicit_rate_does_not_depend_on_the_step() {
             ],
         );
         assert_eq!(code, 0, "{err}");
-        let s: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(d.path().join("runs/silo/summary.json")).unwrap(),
-        )
-        .unwrap();
+        let s = summary(&d.path().join("runs/silo"));
         let o = &s["flow"]["outlet"];
         (
             o["steady_rate"].as_f64().unwrap(),

@@ -37,19 +37,16 @@ fn balanced_pressure<R: Real>(a: R, k: R, c_rcp: R, c_rlp: R, t0: R) -> R {
 /// the balance gives, not what `c` held before.
 ///
 /// # Panics
-/// Never: the slices' lengths must agree; extra entries of `c_rcp`/`c_rlp` are ignored, and
-/// cells of `c` beyond them are left as they are.
+/// Never: extra entries of `c_rcp`/`c_rlp` are ignored, and cells of `c` beyond them are left
+/// as they are.
 pub fn settle_run<R: Real>(b_h: R, t0: R, c_rcp: &[R], c_rlp: &[R], c: &mut [R]) {
     let k = R::HALF * b_h;
-    let mut above: Option<(R, R)> = None; // (p, c) of the cell above
+    // the known part of the cell's pressure: `p_above + k c_above` (0 under the surface)
+    let mut a = R::ZERO;
     for ((ci, &rcp), &rlp) in c.iter_mut().zip(c_rcp).zip(c_rlp) {
-        let a = match above {
-            None => R::ZERO,
-            Some((p, c)) => p + k * c,
-        };
         let p = balanced_pressure(a, k, rcp, rlp, t0);
         *ci = yield_packing(p, rcp, rlp, t0);
-        above = Some((p, *ci));
+        a = p + k * *ci;
     }
 }
 
