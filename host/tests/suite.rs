@@ -16,6 +16,7 @@ mod isa;
 mod outsafe;
 mod pvti;
 mod resume;
+mod scene_words;
 mod sensor_cli;
 mod silo_cli;
 mod silo_plots;

@@ -14,13 +14,46 @@ use serde::Deserialize;
 use sieve_core::flow::OutletPressure;
 
 /// One number or one per tangential axis.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(untagged)]
+#[derive(Debug, Clone)]
 pub enum Coords {
     /// A number (2D).
     One(f64),
     /// One per tangential axis.
     Many(Vec<f64>),
+}
+
+// A hand-written visitor instead of `#[serde(untagged)]`: a wrong type then says what is
+// allowed instead of "data did not match any variant of untagged enum Coords".
+impl<'de> Deserialize<'de> for Coords {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = Coords;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a number or a list of numbers, one per axis along the side")
+            }
+            fn visit_f64<E>(self, v: f64) -> std::result::Result<Coords, E> {
+                Ok(Coords::One(v))
+            }
+            fn visit_i64<E>(self, v: i64) -> std::result::Result<Coords, E> {
+                Ok(Coords::One(v as f64))
+            }
+            fn visit_u64<E>(self, v: u64) -> std::result::Result<Coords, E> {
+                Ok(Coords::One(v as f64))
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> std::result::Result<Coords, A::Error> {
+                let mut v = Vec::new();
+                while let Some(x) = seq.next_element::<f64>()? {
+                    v.push(x);
+                }
+                Ok(Coords::Many(v))
+            }
+        }
+        d.deserialize_any(V)
+    }
 }
 
 impl Coords {
