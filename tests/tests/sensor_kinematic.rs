@@ -4,7 +4,7 @@
 //! like sqrt(4 B z)), the mass balance at every height and the walls; then the short silo's
 //! outflow fines fraction from the rate alone against the truth.
 
-use sieve::soft_sensor::{record_scene, replay_kinematic, SceneRecordOptions, DEFAULT_CPU_HZ};
+use sieve::soft_sensor::replay_kinematic;
 use sieve_core::sensor::kinematic::{series, Kinematic, KinematicError};
 
 /// A narrow orifice in the middle of a wide silo is a point source: at a height where the
@@ -85,27 +85,9 @@ fn mass_balance_at_every_height_and_no_flux_through_the_walls() {
 /// fraction of all that left 0.500 against the truth's 0.487, 51 % of the truth's grains out.
 #[test]
 fn silo_outflow_fines_from_the_rate_alone() {
-    let sets: Vec<String> = [
-        "grid.cells=[15,50]",
-        "boundary.flow.z_low.outlet.width=0.04",
-        "run.t_end=1.5",
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect();
-    let (scene, fields) = sieve::scene::load("silo", &sets).expect("scene");
-    let opts = SceneRecordOptions {
-        estimator_cells: [8, 28],
-        sensor: [2, 7],
-        noise: 0.05,
-        seed: 1,
-        period: Some(0.1),
-        frames: None,
-        cpu_hz: DEFAULT_CPU_HZ,
-        cpu_share: 1.0,
-    };
-    let (bytes, _) = record_scene(&scene, &fields, &opts).expect("record");
-    let r = replay_kinematic(&bytes, 0.008).unwrap();
+    // the recording of sensor_silo.rs; its frames are replaced by the kinematic field
+    let bytes = crate::sensor_silo::coarse_silo();
+    let r = replay_kinematic(bytes, 0.008).unwrap();
     let o = r.outflow.as_ref().expect("the silo discharges");
     println!("{o:?} c_err {} {}", r.max_c_error, r.mean_c_error);
     assert_eq!(r.counters.accepted, 15);
@@ -119,6 +101,6 @@ fn silo_outflow_fines_from_the_rate_alone() {
         o.max_window_error_flowing
     );
     assert!(o.total_out[0] > 0.0);
-    let again = replay_kinematic(&bytes, 0.008).unwrap();
+    let again = replay_kinematic(bytes, 0.008).unwrap();
     assert_eq!(again.final_state_hash, r.final_state_hash);
 }

@@ -15,7 +15,14 @@
 
 use sieve::soft_sensor::{record_scene, replay_bytes, ReplayOptions, SceneRecordOptions};
 
-fn coarse_silo() -> Vec<u8> {
+/// The short silo's recording (its checks below run once): `sieve record` of a coupled run is
+/// the slow part of these tests, so the replays here and in sensor_kinematic.rs share it.
+pub fn coarse_silo() -> &'static [u8] {
+    static RECORDING: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    RECORDING.get_or_init(record_coarse_silo)
+}
+
+fn record_coarse_silo() -> Vec<u8> {
     let sets: Vec<String> = [
         "grid.cells=[15,50]",
         "boundary.flow.z_low.outlet.width=0.04",
@@ -59,7 +66,7 @@ fn coarse_silo() -> Vec<u8> {
 #[test]
 fn outlet_fines_fraction_of_a_discharging_silo() {
     let bytes = coarse_silo();
-    let r = replay_bytes(&bytes, &ReplayOptions::default()).expect("replay");
+    let r = replay_bytes(bytes, &ReplayOptions::default()).expect("replay");
     let o = r.outflow.as_ref().expect("the truth discharged");
     println!(
         "outflow fines error max {:.5} mean {:.5} over {} windows of {} ticks; total fines est {:.5} truth {:.5}; out est {:.4e} truth {:.4e}; c error max {:.4} mean {:.4}; psi error {:.5}; budget limited {}",
@@ -118,6 +125,6 @@ fn outlet_fines_fraction_of_a_discharging_silo() {
     // here at what was measured with some room (0.041 mean).
     assert!(r.mean_c_error < 0.1, "{}", r.mean_c_error);
     // The replay is deterministic.
-    let again = replay_bytes(&bytes, &ReplayOptions::default()).expect("replay");
+    let again = replay_bytes(bytes, &ReplayOptions::default()).expect("replay");
     assert_eq!(again.final_state_hash, r.final_state_hash);
 }
