@@ -240,13 +240,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
                 }
                 o[j] = v;
             }
-            for a in 1..D {
-                k[a] += 1;
-                if k[a] < cells[a] {
-                    break;
-                }
-                k[a] = 0;
-            }
+            next_line(&mut k, &cells);
         }
     }
 
@@ -332,13 +326,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
                     }
                 }
             }
-            for a in 1..D {
-                k[a] += 1;
-                if k[a] < cells[a] {
-                    break;
-                }
-                k[a] = 0;
-            }
+            next_line(&mut k, &cells);
         }
     }
 
@@ -669,13 +657,7 @@ fn for_each_cell<const D: usize>(
                 f(i, &k);
                 i += 1;
             }
-            for a in 1..D {
-                k[a] += 1;
-                if k[a] < cells[a] {
-                    break;
-                }
-                k[a] = 0;
-            }
+            next_line(&mut k, &cells);
         }
     } else {
         for a in 0..D {
@@ -711,13 +693,7 @@ fn for_each_line<const D: usize>(
     let mut k = [0usize; D];
     for line in 0..lines {
         f(line * cells[0], parent(&k, sc));
-        for a in 1..D {
-            k[a] += 1;
-            if k[a] < cells[a] {
-                break;
-            }
-            k[a] = 0;
-        }
+        next_line(&mut k, &cells);
     }
 }
 
@@ -961,13 +937,7 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
                 }
                 o[j] = v;
             }
-            for a in 1..D {
-                k[a] += 1;
-                if k[a] < cells[a] {
-                    break;
-                }
-                k[a] = 0;
-            }
+            next_line(&mut k, &cells);
         }
     }
 
@@ -1404,5 +1374,18 @@ pub fn solve_on<R: Real, const D: usize, const N: usize, F: Fork>(
     Solve {
         iterations: it,
         relative_residual: rr.sqrt() / bnorm,
+    }
+}
+
+/// Steps the line index `k` (axes 1 and up; axis 0 runs along the line) to the next line in
+/// memory order: the odometer every line loop of this module walks.
+#[inline(always)]
+fn next_line<const D: usize>(k: &mut [usize; D], cells: &[usize; D]) {
+    for a in 1..D {
+        k[a] += 1;
+        if k[a] < cells[a] {
+            return;
+        }
+        k[a] = 0;
     }
 }
