@@ -439,6 +439,29 @@ proptest! {
         let text = replace_number(b.toml, at, &value);
         scene_ok(&text)?;
     }
+
+    /// A built-in scene with one quoted value (a one-of word such as `fill = "given"`, or an
+    /// expression) replaced by a value of any type: the refusal names what is allowed
+    /// (schema_errors.rs) and never panics.
+    #[test]
+    fn scene_mutated_words(which in any::<usize>(), at in any::<usize>(), value in prop_oneof![
+            Just("1".to_string()), Just("-2.5".to_string()), Just("nan".to_string()), Just("true".to_string()),
+            Just("[]".to_string()), Just("[[1]]".to_string()), Just("{a = 1}".to_string()), Just("{}".to_string()),
+            Just("1979-05-27".to_string()), Just("\"\"".to_string()), Just("\"\\u007f\"".to_string()),
+            "[a-z\\-]{0,12}".prop_map(|w| format!("\"{w}\"")),
+            "\\PC{0,60}".prop_map(|w| format!("{w:?}"))
+        ]) {
+        let names = builtin::names();
+        let b = builtin::find(names[which % names.len()]).expect("built-in");
+        let text = replace_quoted(b.toml, at, &value);
+        scene_ok(&text)?;
+        let label = "fuzz.toml";
+        if let Err(e) = scene::parse_table(label, &text).and_then(|t| scene::deserialize(label, t)) {
+            let line = e.to_string();
+            prop_assert_eq!(line.lines().count(), 1, "{}", line);
+            prop_assert!(!line.contains("unit variant") && !line.contains("untagged"), "{}", line);
+        }
+    }
 }
 
 proptest! {
@@ -493,6 +516,23 @@ fn scene_ok(text: &str) -> Result<(), TestCaseError> {
         }
     }
     Ok(())
+}
+
+/// `text` with its `at`-th quoted value after `= ` (modulo their count) replaced by `value`.
+fn replace_quoted(text: &str, at: usize, value: &str) -> String {
+    let spans: Vec<(usize, usize)> = text
+        .match_indices("= \"")
+        .filter_map(|(i, _)| {
+            let s = i + 2;
+            let e = text[s + 1..].find('"')? + s + 2;
+            Some((s, e))
+        })
+        .collect();
+    if spans.is_empty() {
+        return text.to_string();
+    }
+    let (s, e) = spans[at % spans.len()];
+    format!("{}{}{}", &text[..s], value, &text[e..])
 }
 
 /// `text` with its `at`-th number literal (modulo their count) replaced by `value`.
