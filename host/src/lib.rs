@@ -20,6 +20,7 @@ pub mod error;
 pub mod estimate;
 pub mod fit;
 pub mod flow;
+pub mod grid_error;
 pub mod interrupt;
 pub mod isa;
 #[cfg(feature = "mpi")]
