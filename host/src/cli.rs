@@ -25,8 +25,9 @@ pub enum Command {
     Scenes,
     /// Run a scene and write summary.json, series.csv, final.csv, fields/ and plots/ to DIR.
     Run(RunArgs),
-    /// Run a scene on several grids and print a work-precision table (errors, orders, times);
-    /// draws it as converge.png (error against cell size and against wall time).
+    /// Run a scene on several grids and print a work-precision table (errors, orders, times)
+    /// and the scene's readouts per grid with their grid error (order, extrapolated value,
+    /// GCI); draws converge.png (error against cell size and wall time) and readouts.png.
     Converge(ConvergeArgs),
     /// Redraw the pictures of a finished run DIR (into DIR/plots) from its files:
     /// summary.json, series.csv, fields/*.vti, profiles.csv.
@@ -328,7 +329,8 @@ pub struct ConvergeArgs {
     /// shocks meet.
     #[arg(long = "t-end", value_name = "T", allow_negative_numbers = true)]
     pub t_end: Option<String>,
-    /// Output directory for converge.csv and converge.json [default: runs/{scene}-converge].
+    /// Output directory for converge.csv, converge.json and readouts.csv [default:
+    /// runs/{scene}-converge].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Override any scene key in dotted form (repeatable).

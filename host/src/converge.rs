@@ -1,14 +1,21 @@
 //! `sieve converge`: runs a scene on a sequence of grids and tabulates the errors of phihat at
-//! `t_end` (L1, L2, Linf) with observed orders and wall times, a work-precision table.
+//! `t_end` (L1, L2, Linf) with observed orders and wall times, a work-precision table, and the
+//! scene's readouts (Psi at `t_end`; a silo's discharge rate and fines fractions; the flow's
+//! largest speed and temperature) on every grid with their grid error from the three finest
+//! ([`crate::grid_error`]).
 //!
 //! A level `L` is the number of cells along the vertical (last) axis; the other axes keep the
 //! scene's cell aspect (`cells_a = L * cells_a / cells_last`). The reference is the exact
 //! solution where the scene names one (`run.exact = "column-a"`: exact cell averages at
 //! `t_end`), else the finest level restricted to each coarser grid by mass-weighted averaging
 //! (`phihat = sum phi / sum c` over the fine cells of a coarse cell), which needs nested grids.
-//! Norms: `L1 = sum |e| |C|`, `L2 = sqrt(sum e^2 |C|)`, `Linf = max |e|`.
+//! Norms: `L1 = sum |e| |C|`, `L2 = sqrt(sum e^2 |C|)`, `Linf = max |e|`. Scenes with cut
+//! cells (drums, hoppers) compare readouts only: their cells' open volumes differ from grid
+//! to grid, so a cell-by-cell restriction of phihat would compare different volumes.
 
+use crate::data::{FlowSummary, LoopStats};
 use crate::error::{Error, Result};
+use crate::grid_error::{self, Estimate};
 use crate::output::{num, write_file, Staging};
 use crate::run::{load, time_loop, SolverJob};
 use crate::scene::{self, Fields, Scene};
@@ -69,12 +76,70 @@ pub struct Study {
     pub t_end: f64,
     /// One row per level, coarse to fine.
     pub levels: Vec<LevelRow>,
+    /// The scene's readouts on every level and their grid error.
+    pub readouts: Vec<ReadoutRow>,
+}
+
+/// One readout of the scene on every level.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct ReadoutRow {
+    /// Its key in summary.json (`psi_final`, `flow.outlet.steady_rate`, ...).
+    pub name: String,
+    /// Its value per level, coarse to fine (`None` where a level does not have it, e.g. a
+    /// segregation time not reached).
+    pub values: Vec<Option<f64>>,
+    /// What the three finest levels say about its grid error.
+    pub estimate: Estimate,
 }
 
 struct LevelRun {
     phi: Vec<f64>,
     c: Vec<f64>,
     steps: u64,
+    readouts: Vec<(&'static str, f64)>,
+}
+
+/// The readouts of a finished level, under their summary.json keys: what `sieve run` of the
+/// same grid reports, from the same statistics.
+fn readouts(stats: &LoopStats, flow: Option<&FlowSummary>) -> Vec<(&'static str, f64)> {
+    let mut r = Vec::new();
+    if let Some(last) = stats.series.last() {
+        r.push(("psi_final", last.psi));
+    }
+    if let Some(t) = stats.segregation_time {
+        r.push(("segregation_time", t));
+    }
+    if let Some(f) = flow {
+        r.push(("flow.max_speed", f.max_speed));
+        r.push(("flow.t_max", f.t_max));
+        r.push(("flow.kinetic_energy", f.kinetic_energy));
+        if let Some(o) = &f.outlet {
+            r.extend([
+                ("flow.outlet.out", o.out),
+                ("flow.outlet.steady_rate", o.steady_rate),
+                ("flow.outlet.steady_fines_fraction", o.steady_fines_fraction),
+                ("flow.outlet.final_fines_fraction", o.final_fines_fraction),
+                ("flow.outlet.stagnant_fraction", o.stagnant_fraction),
+                ("flow.outlet.band_phihat", o.band_phihat),
+                ("flow.outlet.core_phihat", o.core_phihat),
+            ]);
+        }
+    }
+    r
+}
+
+fn level_run<R: Real, const D: usize, const N: usize>(
+    s: &Segregation<R, D, N>,
+    stats: &LoopStats,
+    flow: Option<&FlowSummary>,
+) -> LevelRun {
+    let n = s.len();
+    LevelRun {
+        phi: (0..n).map(|i| s.phi(i).to_f64()).collect(),
+        c: (0..n).map(|i| s.c(i).to_f64()).collect(),
+        steps: stats.steps,
+        readouts: readouts(stats, flow),
+    }
 }
 
 struct ConvergeJob<'a> {
@@ -89,15 +154,15 @@ impl SolverJob for ConvergeJob<'_> {
         s: &mut Segregation<R, D, N>,
     ) -> Result<LevelRun> {
         load(s, self.scene, self.fields)?;
+        let geo = crate::embedded::build(s, self.scene)?;
+        let geo = geo.as_deref();
+        if let Some(g) = geo {
+            crate::embedded::prepare(s, self.scene, g)?;
+        }
         let bar = crate::progress::Progress::hidden();
         // Same output stops as `sieve run`, so a level reproduces the run of that grid.
-        let stats = time_loop(s, self.scene, &bar, None, |_, _, _| Ok(()))?;
-        let n = s.len();
-        Ok(LevelRun {
-            phi: (0..n).map(|i| s.phi(i).to_f64()).collect(),
-            c: (0..n).map(|i| s.c(i).to_f64()).collect(),
-            steps: stats.steps,
-        })
+        let stats = time_loop(s, self.scene, &bar, geo, |_, _, _| Ok(()))?;
+        Ok(level_run(s, &stats, None))
     }
 }
 
@@ -110,25 +175,27 @@ impl crate::run::FlowJob for ConvergeJob<'_> {
     ) -> Result<LevelRun> {
         use crate::scene::Equations;
         load(s, self.scene, self.fields)?;
+        // a container: coupled scenes only (validation refuses a frozen flow with one)
+        let geo = crate::embedded::build(s, self.scene)?;
         let bar = crate::progress::Progress::hidden();
         let coupled = self.scene.flow.as_ref().map(|m| m.equations) == Some(Equations::Coupled);
-        let steps = if coupled {
-            crate::flow::coupled_loop(f, s, self.scene, self.fields, None, &bar, |_, _, _, _| {
-                Ok(())
-            })?
-            .stats
-            .steps
+        if coupled {
+            let cs = crate::flow::coupled_loop(
+                f,
+                s,
+                self.scene,
+                self.fields,
+                geo.as_deref(),
+                &bar,
+                |_, _, _, _| Ok(()),
+            )?;
+            Ok(level_run(s, &cs.stats, Some(&cs.summary)))
         } else {
             let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
             crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
-            time_loop(s, self.scene, &bar, None, |_, _, _| Ok(()))?.steps
-        };
-        let n = s.len();
-        Ok(LevelRun {
-            phi: (0..n).map(|i| s.phi(i).to_f64()).collect(),
-            c: (0..n).map(|i| s.c(i).to_f64()).collect(),
-            steps,
-        })
+            let stats = time_loop(s, self.scene, &bar, None, |_, _, _| Ok(()))?;
+            Ok(level_run(s, &stats, Some(&frozen.summary)))
+        }
     }
 }
 
@@ -150,6 +217,17 @@ fn cells_for(level: usize, base: &[usize], label: &str) -> Result<Vec<usize>> {
             }
         })
         .collect()
+}
+
+/// A level's bad input or numerical failure, saying which level: a grid can be too coarse
+/// for the scene (a drum of fewer than two cells of radius, an orifice narrower than a cell).
+fn on_level(e: Error, level: usize, cells: &[usize]) -> Error {
+    let say = |m: String| format!("{m} (on level {level}, {} cells)", cells_text(cells));
+    match e {
+        Error::Input(m) => Error::Input(say(m)),
+        Error::Numerical(m) => Error::Numerical(say(m)),
+        e => e,
+    }
 }
 
 fn gcd(a: usize, b: usize) -> usize {
@@ -244,7 +322,8 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
     }
     let sets = &sets[..];
     let (base, _) = scene::load(spec, sets)?;
-    crate::embedded::refuse(&base, "sieve converge")?;
+    // cut cells: readouts only (module docs)
+    let fields_compared = base.geometry.is_none();
     let mut levels = opts.levels.clone();
     levels.sort_unstable();
     levels.dedup();
@@ -270,7 +349,7 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
             ));
         }
         for (l, g) in levels.iter().zip(&grids) {
-            if g.iter().zip(&finest).any(|(c, f)| f % c != 0) {
+            if fields_compared && g.iter().zip(&finest).any(|(c, f)| f % c != 0) {
                 return Err(Error::at(
                     &base.label,
                     "--levels",
@@ -296,8 +375,8 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
         scenes.push(s);
     }
     let mut loaded = Vec::with_capacity(levels.len());
-    for s in &scenes {
-        loaded.push(scene::load(spec, s)?);
+    for ((s, l), g) in scenes.iter().zip(&levels).zip(&grids) {
+        loaded.push(scene::load(spec, s).map_err(|e| on_level(e, *l, g))?);
     }
     let out_dir = opts
         .out
@@ -308,7 +387,9 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
     for (scene, fields) in &loaded {
         let start = Instant::now();
         let job = ConvergeJob { scene, fields };
-        let r = crate::run::with_scene_solvers(scene, job)?;
+        let level = scene.cells[scene.dim - 1];
+        let r = crate::run::with_scene_solvers(scene, job)
+            .map_err(|e| on_level(e, level, &scene.cells))?;
         let secs = start.elapsed().as_secs_f64();
         if !opts.quiet {
             eprintln!("level {:?}: {} steps, {:.3} s", scene.cells, r.steps, secs);
@@ -326,7 +407,7 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
                     .map(|i| ex.phihat_cell_average(i as f64 * h, (i + 1) as f64 * h, scene.t_end))
                     .collect(),
             )
-        } else if idx + 1 < levels.len() {
+        } else if fields_compared && idx + 1 < levels.len() {
             Some(restrict(&runs[levels.len() - 1].0, &finest, &scene.cells))
         } else {
             None
@@ -371,12 +452,15 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
         );
     }
     let loaded_cell_sizes: Vec<f64> = loaded.iter().map(|(s, _)| s.spacing()[s.dim - 1]).collect();
+    let level_runs: Vec<&LevelRun> = runs.iter().map(|(r, _)| r).collect();
     let study = Study {
         scene: base.name.clone(),
         scheme: base.scheme.name().into(),
         quantity: "phihat at t_end".into(),
         reference: if exact {
             "exact solution column-a (cell averages)".into()
+        } else if !fields_compared {
+            "none: cut cells, whose open volumes differ between grids (readouts only)".into()
         } else {
             format!(
                 "finest level {} (mass-weighted restriction)",
@@ -385,18 +469,131 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
         },
         t_end: base.t_end,
         levels: rows,
+        readouts: readout_rows(&levels, &level_runs),
     };
     write_file(&staging.path().join("converge.csv"), csv(&study).as_bytes())?;
-    draw(
-        &study,
-        &loaded_cell_sizes,
-        &staging.path().join("converge.png"),
+    write_file(
+        &staging.path().join("readouts.csv"),
+        readouts_csv(&study).as_bytes(),
     )?;
+    if fields_compared {
+        draw(
+            &study,
+            &loaded_cell_sizes,
+            &staging.path().join("converge.png"),
+        )?;
+    }
+    if !study.readouts.is_empty() {
+        draw_readouts(
+            &study,
+            &loaded_cell_sizes,
+            &staging.path().join("readouts.png"),
+        )?;
+    }
     let mut json = serde_json::to_string_pretty(&study).map_err(Error::failure)?;
     json.push('\n');
     write_file(&staging.path().join("converge.json"), json.as_bytes())?;
     let dir = staging.commit()?;
     Ok((study, dir))
+}
+
+/// Every readout any level has, in the order the levels report them, with its values per
+/// level and the grid error of the three finest.
+fn readout_rows(levels: &[usize], runs: &[&LevelRun]) -> Vec<ReadoutRow> {
+    let mut names: Vec<&'static str> = Vec::new();
+    for r in runs {
+        for (name, _) in &r.readouts {
+            if !names.contains(name) {
+                names.push(name);
+            }
+        }
+    }
+    names
+        .into_iter()
+        .map(|name| {
+            let values: Vec<Option<f64>> = runs
+                .iter()
+                .map(|r| r.readouts.iter().find(|(n, _)| *n == name).map(|(_, v)| *v))
+                .collect();
+            let pairs: Vec<(usize, f64)> = levels
+                .iter()
+                .zip(&values)
+                .filter_map(|(&l, v)| Some((l, (*v)?)))
+                .collect();
+            ReadoutRow {
+                name: name.into(),
+                values,
+                estimate: grid_error::estimate(&pairs),
+            }
+        })
+        .collect()
+}
+
+/// readouts.csv: one row per readout, its value on every level (columns `level_L`), then what
+/// the three finest say: `behaviour,order,extrapolated,error_finest,gci_finest`.
+pub fn readouts_csv(study: &Study) -> String {
+    let mut s = String::from("readout");
+    for r in &study.levels {
+        let _ = write!(s, ",level_{}", r.level);
+    }
+    s.push_str(",behaviour,order,extrapolated,error_finest,gci_finest\n");
+    for r in &study.readouts {
+        s.push_str(&r.name);
+        for v in &r.values {
+            let _ = write!(s, ",{}", opt(*v));
+        }
+        let e = &r.estimate;
+        let _ = writeln!(
+            s,
+            ",{},{},{},{},{}",
+            e.behaviour.name(),
+            opt(e.order),
+            opt(e.extrapolated),
+            opt(e.error_finest),
+            opt(e.gci_finest)
+        );
+    }
+    s
+}
+
+/// readouts.png: every readout against the vertical cell size, with its extrapolated value.
+fn draw_readouts(study: &Study, h: &[f64], path: &std::path::Path) -> Result<()> {
+    let panels: Vec<crate::output::plot::ReadoutPanel> = study
+        .readouts
+        .iter()
+        .map(|r| {
+            let e = &r.estimate;
+            crate::output::plot::ReadoutPanel {
+                name: r.name.clone(),
+                points: h
+                    .iter()
+                    .zip(&r.values)
+                    .filter_map(|(&h, v)| Some((h, (*v)?)))
+                    .collect(),
+                extrapolated: e.extrapolated,
+                caption: match (e.order, e.gci_finest) {
+                    (Some(p), Some(g)) => {
+                        format!(
+                            "{}, order {p:.2}, GCI {:.2} %",
+                            e.behaviour.name(),
+                            100.0 * g
+                        )
+                    }
+                    (Some(p), None) => format!("{}, order {p:.2}", e.behaviour.name()),
+                    _ => e.behaviour.name().into(),
+                },
+            }
+        })
+        .collect();
+    crate::output::plot::readouts(
+        path,
+        &format!(
+            "{}: readouts at t_end = {} on every level (orange: extrapolated to h = 0)",
+            study.scene,
+            num(study.t_end)
+        ),
+        &panels,
+    )
 }
 
 /// converge.png: the work-precision picture, L1 error against the vertical cell size h (with
@@ -484,6 +681,40 @@ pub fn table(study: &Study) -> String {
             o(r.order_linf),
             r.steps,
             r.wall_seconds
+        );
+    }
+    if study.readouts.is_empty() {
+        return s;
+    }
+    let _ = writeln!(
+        s,
+        "# readouts per level; grid error from the three finest (Richardson, GCI of the finest)"
+    );
+    let _ = write!(s, "{:>34}", "readout");
+    for r in &study.levels {
+        let _ = write!(s, " {:>11}", r.level);
+    }
+    let _ = writeln!(
+        s,
+        " {:>13} {:>6} {:>12} {:>9}",
+        "behaviour", "order", "extrapolated", "GCI"
+    );
+    for r in &study.readouts {
+        let _ = write!(s, "{:>34}", r.name);
+        for v in &r.values {
+            let _ = write!(s, " {:>11}", e(*v));
+        }
+        let est = &r.estimate;
+        let gci = est
+            .gci_finest
+            .map_or_else(|| "-".into(), |g| format!("{:.2}%", 100.0 * g));
+        let _ = writeln!(
+            s,
+            " {:>13} {:>6} {:>12} {:>9}",
+            est.behaviour.name(),
+            o(est.order),
+            e(est.extrapolated),
+            gci
         );
     }
     s

@@ -6,6 +6,7 @@
 mod common;
 
 mod cli;
+mod converge_readouts;
 mod drum_readouts;
 mod flow_cli;
 mod frame_equivalence;

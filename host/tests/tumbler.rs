@@ -336,11 +336,6 @@ fn a_geometry_is_refused_where_cut_cells_do_not_run() {
         "geometry",
         "allowed with \"prescribed\"",
     );
-    refused(
-        &["converge", "drum-settling", "--levels", "16,32"],
-        "geometry",
-        "allowed with `sieve run`",
-    );
     // a 1D scene has no x-z plane
     refused(
         &[

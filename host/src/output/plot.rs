@@ -2,7 +2,7 @@
 //! (mixing index Psi, mass drift, bound violations against time), phihat at output times
 //! (profiles phihat(z) in 1D; colour maps with a labelled colour bar and masked empty cells in
 //! 2D, the mid-plane y slice in 3D; an animation over the output times), flow profiles, and
-//! the work-precision picture of `sieve converge`. Every function takes plain data: what is
+//! the work-precision and readout pictures of `sieve converge`. Every function takes plain data: what is
 //! drawn is decided by `output::redraw`, which reads a run's files.
 
 use crate::data::{Profiles, SeriesRow};
@@ -763,6 +763,92 @@ pub fn work_precision(
             }
         }
         legend(&mut c, SeriesLabelPosition::LowerRight).map_err(fail(path))?;
+    }
+    root.present().map_err(fail(path))
+}
+
+/// One panel of [`readouts`]: a readout's name, its `(cell size, value)` per level, the
+/// extrapolated value at `h = 0` if there is one, and a caption (what the grids say).
+pub struct ReadoutPanel {
+    /// Its key in summary.json.
+    pub name: String,
+    /// `(h, value)` per level.
+    pub points: Vec<(f64, f64)>,
+    /// The Richardson-extrapolated value.
+    pub extrapolated: Option<f64>,
+    /// The panel's caption.
+    pub caption: String,
+}
+
+/// readouts.png of `sieve converge`: one panel per readout, its value against the cell size
+/// (linear, from h = 0, where the extrapolated value is drawn as a line across), three panels
+/// a row.
+pub fn readouts(path: &Path, title: &str, panels: &[ReadoutPanel]) -> Result<()> {
+    ensure_font()?;
+    const COLUMNS: usize = 3;
+    let rows = panels.len().div_ceil(COLUMNS).max(1);
+    let root = BitMapBackend::new(path, (1200, 40 + 300 * rows as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(fail(path))?;
+    let root = root.titled(title, (FONT_NAME, 18)).map_err(fail(path))?;
+    let areas = root.split_evenly((rows, COLUMNS));
+    for (panel, area) in panels.iter().zip(&areas) {
+        let pts: Vec<(f64, f64)> = panel
+            .points
+            .iter()
+            .copied()
+            .filter(|p| p.0.is_finite() && p.0 > 0.0 && p.1.is_finite())
+            .collect();
+        let h1 = pts.iter().fold(0.0f64, |m, p| m.max(p.0)) * 1.1;
+        let ys = pts.iter().map(|p| p.1).chain(panel.extrapolated);
+        let (y0, y1) = ys.fold((f64::MAX, f64::MIN), |(a, b), y| (a.min(y), b.max(y)));
+        if pts.is_empty() || h1 <= 0.0 || y0 > y1 {
+            continue;
+        }
+        let pad = if y1 > y0 {
+            0.08 * (y1 - y0)
+        } else {
+            0.05 * y0.abs().max(1e-12)
+        };
+        let (y0, y1) = (y0 - pad, y1 + pad);
+        check_axes(path, &[(0.0, h1), (y0, y1)])?;
+        let mut c = ChartBuilder::on(area)
+            .caption(
+                format!("{} ({})", panel.name, panel.caption),
+                (FONT_NAME, 13),
+            )
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..h1, y0..y1)
+            .map_err(fail(path))?;
+        c.configure_mesh()
+            .x_labels(5)
+            .y_labels(6)
+            .light_line_style(RGBColor(238, 238, 238))
+            .x_desc("cell size h (vertical) [m]")
+            .x_label_formatter(&|x: &f64| format!("{x:.1e}"))
+            .y_label_formatter(&|y: &f64| format!("{y:.3e}"))
+            .label_style((FONT_NAME, 11))
+            .axis_desc_style((FONT_NAME, 12))
+            .draw()
+            .map_err(fail(path))?;
+        if let Some(e) = panel.extrapolated {
+            c.draw_series(LineSeries::new(
+                vec![(0.0, e), (h1, e)],
+                PALETTE[1].stroke_width(1),
+            ))
+            .map_err(fail(path))?;
+            c.draw_series(std::iter::once(Circle::new(
+                (0.0, e),
+                5,
+                PALETTE[1].filled(),
+            )))
+            .map_err(fail(path))?;
+        }
+        c.draw_series(LineSeries::new(pts.clone(), PALETTE[0].stroke_width(2)))
+            .map_err(fail(path))?;
+        c.draw_series(pts.iter().map(|&p| Circle::new(p, 4, PALETTE[0].filled())))
+            .map_err(fail(path))?;
     }
     root.present().map_err(fail(path))
 }
