@@ -13,7 +13,7 @@
 //! cells (drums, hoppers) compare readouts only: their cells' open volumes differ from grid
 //! to grid, so a cell-by-cell restriction of phihat would compare different volumes.
 
-use crate::data::{FlowSummary, LoopStats};
+use crate::data::{DrumSummary, FlowSummary, LoopStats, Snapshot};
 use crate::error::{Error, Result};
 use crate::grid_error::{self, Estimate};
 use crate::output::{num, write_file, Staging};
@@ -99,9 +99,57 @@ struct LevelRun {
     readouts: Vec<(&'static str, f64)>,
 }
 
+/// The snapshots a drum's readouts are measured from ([`crate::drum`]), kept in memory as the
+/// bytes `sieve run` writes and reads back, so that the readouts are the run's.
+struct DrumWindow<'a> {
+    scene: &'a Scene,
+    volume: Option<Vec<f64>>,
+    kept: Vec<(f64, crate::output::vtk::Vti)>,
+}
+
+impl<'a> DrumWindow<'a> {
+    fn new(scene: &'a Scene, volume: Option<Vec<f64>>) -> Self {
+        Self {
+            scene,
+            volume,
+            kept: Vec::new(),
+        }
+    }
+
+    /// Keeps the snapshot at output time `t` (drums only), dropping those no later window
+    /// needs.
+    fn keep(&mut self, t: f64, mut snap: Snapshot) -> Result<()> {
+        let Some(from) = crate::drum::needed_from(self.scene, t) else {
+            return Ok(());
+        };
+        self.kept.retain(|(tk, _)| *tk >= from);
+        snap.volume = self.volume.clone();
+        let bytes = crate::output::vtk::vti_bytes(self.scene, &snap);
+        let vti = crate::output::vtk::vti_from_bytes(&bytes, "snapshot")?;
+        self.kept.push((t, vti));
+        Ok(())
+    }
+
+    fn summary(self) -> Option<DrumSummary> {
+        let t_last = self.kept.last()?.0;
+        let t0 = crate::drum::window_start(self.scene, t_last)?;
+        let window = self
+            .kept
+            .into_iter()
+            .filter(|(t, _)| *t >= t0)
+            .map(|(_, v)| v)
+            .collect();
+        crate::drum::analyse_snapshots(self.scene, t_last, window)
+    }
+}
+
 /// The readouts of a finished level, under their summary.json keys: what `sieve run` of the
 /// same grid reports, from the same statistics.
-fn readouts(stats: &LoopStats, flow: Option<&FlowSummary>) -> Vec<(&'static str, f64)> {
+fn readouts(
+    stats: &LoopStats,
+    flow: Option<&FlowSummary>,
+    drum: Option<&DrumSummary>,
+) -> Vec<(&'static str, f64)> {
     let mut r = Vec::new();
     if let Some(last) = stats.series.last() {
         r.push(("psi_final", last.psi));
@@ -125,6 +173,14 @@ fn readouts(stats: &LoopStats, flow: Option<&FlowSummary>) -> Vec<(&'static str,
             ]);
         }
     }
+    if let Some(d) = drum {
+        r.extend([
+            ("drum.angle_of_repose_deg", d.angle_of_repose_deg),
+            ("drum.flowing_layer_thickness", d.flowing_layer_thickness),
+            ("drum.centre_phihat", d.centre_phihat),
+            ("drum.centre_speed", d.centre_speed),
+        ]);
+    }
     r
 }
 
@@ -132,13 +188,14 @@ fn level_run<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
     stats: &LoopStats,
     flow: Option<&FlowSummary>,
+    drum: DrumWindow<'_>,
 ) -> LevelRun {
     let n = s.len();
     LevelRun {
         phi: (0..n).map(|i| s.phi(i).to_f64()).collect(),
         c: (0..n).map(|i| s.c(i).to_f64()).collect(),
         steps: stats.steps,
-        readouts: readouts(stats, flow),
+        readouts: readouts(stats, flow, drum.summary().as_ref()),
     }
 }
 
@@ -160,9 +217,12 @@ impl SolverJob for ConvergeJob<'_> {
             crate::embedded::prepare(s, self.scene, g)?;
         }
         let bar = crate::progress::Progress::hidden();
+        let mut drum = DrumWindow::new(self.scene, geo.map(crate::embedded::volumes));
         // Same output stops as `sieve run`, so a level reproduces the run of that grid.
-        let stats = time_loop(s, self.scene, &bar, geo, |_, _, _| Ok(()))?;
-        Ok(level_run(s, &stats, None))
+        let stats = time_loop(s, self.scene, &bar, geo, |_, t, s| {
+            drum.keep(t, Snapshot::of(s, self.scene))
+        })?;
+        Ok(level_run(s, &stats, None, drum))
     }
 }
 
@@ -179,6 +239,7 @@ impl crate::run::FlowJob for ConvergeJob<'_> {
         let geo = crate::embedded::build(s, self.scene)?;
         let bar = crate::progress::Progress::hidden();
         let coupled = self.scene.flow.as_ref().map(|m| m.equations) == Some(Equations::Coupled);
+        let mut drum = DrumWindow::new(self.scene, geo.as_deref().map(crate::embedded::volumes));
         if coupled {
             let cs = crate::flow::coupled_loop(
                 f,
@@ -187,14 +248,18 @@ impl crate::run::FlowJob for ConvergeJob<'_> {
                 self.fields,
                 geo.as_deref(),
                 &bar,
-                |_, _, _, _| Ok(()),
+                |_, t, s, f| {
+                    let mut snap = Snapshot::of(s, self.scene);
+                    snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
+                    drum.keep(t, snap)
+                },
             )?;
-            Ok(level_run(s, &cs.stats, Some(&cs.summary)))
+            Ok(level_run(s, &cs.stats, Some(&cs.summary), drum))
         } else {
             let frozen = crate::flow::spin_up(f, self.scene, self.fields)?;
             crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
             let stats = time_loop(s, self.scene, &bar, None, |_, _, _| Ok(()))?;
-            Ok(level_run(s, &stats, Some(&frozen.summary)))
+            Ok(level_run(s, &stats, Some(&frozen.summary), drum))
         }
     }
 }

@@ -81,6 +81,17 @@ struct Drum {
     turn: f64,
 }
 
+impl Drum {
+    /// One revolution [s] (infinite if the drum does not turn).
+    fn period(&self) -> f64 {
+        if self.turn != 0.0 {
+            std::f64::consts::TAU / self.turn.abs()
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
 fn drum_of(scene: &Scene) -> Option<Drum> {
     let g = scene.geometry.as_ref()?;
     if !matches!(g.shape, ShapeKind::Drum) || g.center.len() != scene.dim {
@@ -277,37 +288,60 @@ pub fn analyse(
     fields: &Path,
     entries: &[(f64, String)],
 ) -> Result<Option<DrumSummary>> {
-    let Some(drum) = drum_of(scene) else {
-        return Ok(None);
-    };
     let Some(&(t_last, _)) = entries.last() else {
         return Ok(None);
     };
-    let period = if drum.turn != 0.0 {
-        std::f64::consts::TAU / drum.turn.abs()
-    } else {
-        f64::INFINITY
+    let Some(t0) = window_start(scene, t_last) else {
+        return Ok(None);
     };
-    let t0 = if period <= t_last {
+    let mut window = Vec::new();
+    for (_, file) in entries.iter().filter(|(t, _)| *t >= t0) {
+        window.push(read_vti(&fields.join(file))?);
+    }
+    Ok(analyse_snapshots(scene, t_last, window))
+}
+
+/// Where the window of a drum's readouts starts if the last snapshot is at `t_last`: one
+/// revolution before it, or at `t_last / 2` if the run is shorter than a revolution. `None`
+/// if the scene is not a circular drum.
+pub fn window_start(scene: &Scene, t_last: f64) -> Option<f64> {
+    let period = drum_of(scene)?.period();
+    Some(if period <= t_last {
         t_last - period
     } else {
         t_last / 2.0
-    };
-    let window: Vec<&(f64, String)> = entries.iter().filter(|(t, _)| *t >= t0).collect();
+    })
+}
+
+/// Snapshots before this time lie outside the window of every `t_last >= t` (a caller that
+/// keeps snapshots as a run goes may drop them): one revolution before `t` once a revolution
+/// has passed (until then the window may still start at 0), `t / 2` for a drum that does
+/// not turn.
+pub fn needed_from(scene: &Scene, t: f64) -> Option<f64> {
+    let period = drum_of(scene)?.period();
+    Some(if period.is_infinite() {
+        t / 2.0
+    } else if t >= period {
+        t - period
+    } else {
+        0.0
+    })
+}
+
+/// [`analyse`] of snapshots in memory: those of the window ([`window_start`]) in time order,
+/// the last at `t_last` (`sieve converge` keeps them instead of writing files).
+pub fn analyse_snapshots(scene: &Scene, t_last: f64, window: Vec<Vti>) -> Option<DrumSummary> {
+    let drum = drum_of(scene)?;
+    let t0 = window_start(scene, t_last)?;
     let mut grid = None;
     let mut fields_in = Vec::with_capacity(window.len());
-    for (_, file) in &window {
-        let Some(v) = axial_mean(read_vti(&fields.join(file))?) else {
-            return Ok(None);
-        };
+    for v in window {
+        let v = axial_mean(v)?;
         let g = *grid.get_or_insert_with(|| LabGrid::of(&v));
-        let Some(f) = lab_field(&v, g, &drum) else {
-            return Ok(None);
-        };
-        fields_in.push(f);
+        fields_in.push(lab_field(&v, g, &drum)?);
     }
     let (Some(grid), Some(last)) = (grid, fields_in.last()) else {
-        return Ok(None);
+        return None;
     };
     let n = grid.len();
     // Time averages per lab cell over the snapshots where grains were there.
@@ -335,9 +369,7 @@ pub fn analyse(
             r <= drum.radius - 2.0 * hmax
         })
         .min_by(|&a, &b| speed[a].total_cmp(&speed[b]));
-    let Some(centre) = centre else {
-        return Ok(None);
-    };
+    let centre = centre?;
     let centre_xz = grid.center(centre);
     // Angle of repose: mean over the window of the fitted surface slopes.
     let slopes: Vec<f64> = fields_in
@@ -380,7 +412,7 @@ pub fn analyse(
         f64::NAN
     });
     let width = (drum.radius / 10.0).max(hmax);
-    Ok(Some(DrumSummary {
+    Some(DrumSummary {
         window: [t0, t_last],
         samples,
         circulation_centre: [centre_xz[0] - drum.axis[0], centre_xz[1] - drum.axis[1]],
@@ -390,7 +422,7 @@ pub fn analyse(
         flowing_layer_thickness: thickness,
         radial_about_centre: radial(grid, last, centre_xz, width, drum.radius),
         radial_about_axis: radial(grid, last, drum.axis, width, drum.radius),
-    }))
+    })
 }
 
 /// `radial.csv`: both radial profiles, one row per ring.

@@ -1,7 +1,8 @@
 //! `sieve converge` on the devices: the scene's readouts (Psi at `t_end`, a silo's discharge
 //! rate and fines fractions, the flow's largest speed and temperature) on every level, each
 //! the value `sieve run` of that grid reports, with the grid error of the three finest
-//! (`sieve::grid_error`); cut-cell scenes (drums) compare readouts only.
+//! (`sieve::grid_error`); cut-cell scenes (drums) compare readouts only, the drum's own
+//! (angle of repose, flowing layer, fines core) among them.
 
 use crate::common::run_in;
 use sieve::grid_error::{estimate, Behaviour};
@@ -184,6 +185,27 @@ fn drums_on_cut_cells_compare_readouts_only() {
         let run = json(&d.path().join(&run_dir).join("summary.json"));
         let psi = values(&study, "psi_final");
         assert_eq!(psi[mid], Some(at(&run, "psi_final")), "{scene}");
+        // the drum's readouts, measured from snapshots kept in memory, are the run's
+        // (measured from its files)
+        let drum = [
+            "drum.angle_of_repose_deg",
+            "drum.flowing_layer_thickness",
+            "drum.centre_phihat",
+            "drum.centre_speed",
+        ];
+        for name in drum {
+            let in_run = name
+                .split('.')
+                .fold(&run, |v, k| &v[k])
+                .as_f64()
+                .filter(|v| v.is_finite());
+            if scene == "tumbler" {
+                assert!(in_run.is_some(), "{name}: {run}");
+            }
+            if let Some(v) = in_run {
+                assert_eq!(values(&study, name)[mid], Some(v), "{scene} {name}");
+            }
+        }
         assert!(psi.iter().all(|p| p.is_some_and(|p| p > 0.0 && p <= 1.0)));
         let est = &study["readouts"][0]["estimate"]["behaviour"];
         if psi.len() < 3 {
@@ -196,4 +218,25 @@ fn drums_on_cut_cells_compare_readouts_only() {
             assert_eq!(est, "converging", "{scene}: {study}");
         }
     }
+}
+
+/// A level too coarse for the scene is bad input: exit 2 before anything runs, one line that
+/// names the key, the allowed range and the level, and no directory.
+#[test]
+fn a_level_too_coarse_for_the_drum_is_named() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "converge", "tumbler", "--levels", "2,34", "--quiet", "--out", "c",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("scenes/tumbler.toml: geometry.radius = 0.05 is out of range: allowed radius >= 2 cells")
+            && err.trim_end().ends_with("(on level 2, 2x2 cells)"),
+        "{err}"
+    );
+    assert!(!d.path().join("c").exists());
 }

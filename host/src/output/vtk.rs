@@ -338,8 +338,14 @@ pub fn read_vti(path: &Path) -> Result<Vti> {
         return read_pvti(path);
     }
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let bad =
-        |why: &str| Error::failure(format!("{}: not a sieve .vti file: {why}", path.display()));
+    vti_from_bytes(&bytes, &path.display().to_string())
+}
+
+/// The bytes of a `.vti` of [`vti_bytes`] read back (what [`read_vti`] reads from a file);
+/// `name` names them in errors.
+pub fn vti_from_bytes(bytes: &[u8], name: &str) -> Result<Vti> {
+    use crate::error::Error;
+    let bad = |why: &str| Error::failure(format!("{name}: not a sieve .vti file: {why}"));
     let marker = b"<AppendedData encoding=\"raw\">";
     let at = bytes
         .windows(marker.len())
