@@ -181,6 +181,9 @@ fn readouts(
             ("drum.centre_speed", d.centre_speed),
         ]);
     }
+    // a value the level does not have (no steady window yet, no surface to fit) is NaN in
+    // the summary: left out here, `-` in the table
+    r.retain(|(_, v)| v.is_finite());
     r
 }
 

@@ -240,3 +240,30 @@ fn a_level_too_coarse_for_the_drum_is_named() {
     );
     assert!(!d.path().join("c").exists());
 }
+
+/// A readout a level does not have yet (the hopper's steady window before a tenth has left:
+/// its fines fraction is NaN in summary.json) is left out, never written as NaN, and the
+/// hopper (cut cells with an outlet) reports the outlet's readouts.
+#[test]
+fn a_readout_a_level_lacks_is_left_out() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "converge", "hopper", "--levels", "60,120", "--t-end", "0.2", "--quiet", "--out", "c",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let csv = std::fs::read_to_string(d.path().join("c/readouts.csv")).unwrap();
+    assert!(
+        csv.split([',', '\n'])
+            .all(|c| !c.eq_ignore_ascii_case("nan")),
+        "{csv}"
+    );
+    let study = json(&d.path().join("c/converge.json"));
+    assert!(values(&study, "flow.outlet.out")
+        .iter()
+        .all(|v| v.is_some_and(|v| v > 0.0)));
+    // no level has it: no row at all
+    assert!(!csv.contains("flow.outlet.steady_fines_fraction"), "{csv}");
+}
