@@ -1,8 +1,8 @@
 //! `sieve converge`: runs a scene on a sequence of grids and tabulates the errors of phihat at
 //! `t_end` (L1, L2, Linf) with observed orders and wall times, a work-precision table, and the
-//! scene's readouts (Psi at `t_end`; a silo's discharge rate and fines fractions; the flow's
-//! largest speed and temperature) on every grid with their grid error from the three finest
-//! ([`crate::grid_error`]).
+//! scene's readouts (Psi at `t_end`; the flow's largest speed and temperature; a silo's
+//! discharge rate and fines fractions; a drum's angle of repose, flowing layer and fines core)
+//! on every grid with their grid error from the three finest ([`crate::grid_error`]).
 //!
 //! A level `L` is the number of cells along the vertical (last) axis; the other axes keep the
 //! scene's cell aspect (`cells_a = L * cells_a / cells_last`). The reference is the exact
@@ -105,6 +105,9 @@ struct DrumWindow<'a> {
     scene: &'a Scene,
     volume: Option<Vec<f64>>,
     kept: Vec<(f64, crate::output::vtk::Vti)>,
+    /// Output times of the run, for `[output] vtk_every` (a run measures only the snapshots
+    /// it writes).
+    outputs: usize,
 }
 
 impl<'a> DrumWindow<'a> {
@@ -113,15 +116,19 @@ impl<'a> DrumWindow<'a> {
             scene,
             volume,
             kept: Vec::new(),
+            outputs: crate::data::output_times(scene.t_end, scene.output_interval).len(),
         }
     }
 
-    /// Keeps the snapshot at output time `t` (drums only), dropping those no later window
-    /// needs.
-    fn keep(&mut self, t: f64, mut snap: Snapshot) -> Result<()> {
+    /// Keeps the snapshot of output `k` at time `t` if a run writes it (drums only),
+    /// dropping those no later window needs.
+    fn keep(&mut self, k: usize, t: f64, mut snap: Snapshot) -> Result<()> {
         let Some(from) = crate::drum::needed_from(self.scene, t) else {
             return Ok(());
         };
+        if !self.scene.output.writes(k, self.outputs) {
+            return Ok(());
+        }
         self.kept.retain(|(tk, _)| *tk >= from);
         snap.volume = self.volume.clone();
         let bytes = crate::output::vtk::vti_bytes(self.scene, &snap);
@@ -222,8 +229,8 @@ impl SolverJob for ConvergeJob<'_> {
         let bar = crate::progress::Progress::hidden();
         let mut drum = DrumWindow::new(self.scene, geo.map(crate::embedded::volumes));
         // Same output stops as `sieve run`, so a level reproduces the run of that grid.
-        let stats = time_loop(s, self.scene, &bar, geo, |_, t, s| {
-            drum.keep(t, Snapshot::of(s, self.scene))
+        let stats = time_loop(s, self.scene, &bar, geo, |k, t, s| {
+            drum.keep(k, t, Snapshot::of(s, self.scene))
         })?;
         Ok(level_run(s, &stats, None, drum))
     }
@@ -251,10 +258,10 @@ impl crate::run::FlowJob for ConvergeJob<'_> {
                 self.fields,
                 geo.as_deref(),
                 &bar,
-                |_, t, s, f| {
+                |k, t, s, f| {
                     let mut snap = Snapshot::of(s, self.scene);
                     snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
-                    drum.keep(t, snap)
+                    drum.keep(k, t, snap)
                 },
             )?;
             Ok(level_run(s, &cs.stats, Some(&cs.summary), drum))

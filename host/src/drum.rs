@@ -1,5 +1,6 @@
 //! What a process engineer reads off a rotating drum (issue 8; model.md 7.5), measured from
-//! the run's own VTK snapshots after the run (so a resumed run measures the same):
+//! the run's own VTK snapshots after the run (so a resumed run measures the same; `sieve
+//! converge` measures the same snapshots kept in memory):
 //!
 //! * the **circulation centre**: the point of the dense bed with the lowest time-averaged lab
 //!   speed (the eye of the bed's recirculation), over the last revolution;
