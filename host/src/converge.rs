@@ -278,7 +278,18 @@ fn cells_for(level: usize, base: &[usize], label: &str) -> Result<Vec<usize>> {
     let last = *base.last().unwrap_or(&1);
     base.iter()
         .map(|&b| {
-            if !(level * b).is_multiple_of(last) {
+            // a hostile level must not overflow (a panic with overflow checks, a wrong
+            // aspect without); no axis holds more cells than `grid.cells` allows anyway
+            let max = crate::scene::validate::MAX_AXIS_CELLS;
+            let Some(product) = level.checked_mul(b).filter(|_| level <= max) else {
+                return Err(Error::range(
+                    label,
+                    "--levels",
+                    level,
+                    &format!("integer 1..={max} (cells along the vertical axis)"),
+                ));
+            };
+            if !product.is_multiple_of(last) {
                 Err(Error::at(
                     label,
                     "--levels",
@@ -288,7 +299,7 @@ fn cells_for(level: usize, base: &[usize], label: &str) -> Result<Vec<usize>> {
                     ),
                 ))
             } else {
-                Ok(level * b / last)
+                Ok(product / last)
             }
         })
         .collect()
@@ -417,11 +428,12 @@ pub fn converge(spec: &str, sets: &[String], opts: &ConvergeOptions) -> Result<(
     let finest = grids.last().cloned().unwrap_or_default();
     if !exact {
         if levels.len() < 2 {
-            return Err(Error::at(
-                &base.label,
-                "--levels",
-                "without an exact solution the finest level is the reference: give at least 2 levels",
-            ));
+            let why = if fields_compared {
+                "without an exact solution the finest level is the reference: give at least 2 levels"
+            } else {
+                "a study compares levels: give at least 2 levels (3 for an order of convergence)"
+            };
+            return Err(Error::at(&base.label, "--levels", why));
         }
         for (l, g) in levels.iter().zip(&grids) {
             if fields_compared && g.iter().zip(&finest).any(|(c, f)| f % c != 0) {

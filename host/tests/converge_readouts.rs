@@ -273,3 +273,34 @@ fn a_readout_a_level_lacks_is_left_out() {
     // no level has it: no row at all
     assert!(!csv.contains("flow.outlet.steady_fines_fraction"), "{csv}");
 }
+
+/// Hostile levels: one too large for any grid (u64::MAX once overflowed `level * cells`, a
+/// panic with overflow checks and a wrong aspect without) and a single level of a cut-cell
+/// scene are refused before anything runs, one line each.
+#[test]
+fn hostile_levels_are_refused_in_one_line() {
+    let d = tempfile::tempdir().unwrap();
+    for (levels, says) in [
+        (
+            "18446744073709551615,17",
+            "scenes/tumbler.toml: --levels = 18446744073709551615 is out of range: allowed integer 1..=65536",
+        ),
+        (
+            "65537,17",
+            "scenes/tumbler.toml: --levels = 65537 is out of range: allowed integer 1..=65536",
+        ),
+        (
+            "17",
+            "scenes/tumbler.toml: --levels: a study compares levels: give at least 2 levels",
+        ),
+    ] {
+        let (code, err) = run_in(
+            d.path(),
+            &["converge", "tumbler", "--levels", levels, "--quiet", "--out", "c"],
+        );
+        assert_eq!(code, 2, "{levels}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(err.contains(says), "{levels}: {err}");
+        assert!(!d.path().join("c").exists());
+    }
+}
