@@ -120,9 +120,9 @@ impl<'a> DrumWindow<'a> {
         }
     }
 
-    /// Keeps the snapshot of output `k` at time `t` if a run writes it (drums only),
-    /// dropping those no later window needs.
-    fn keep(&mut self, k: usize, t: f64, mut snap: Snapshot) -> Result<()> {
+    /// Keeps the snapshot of output `k` at time `t` if a run writes it (drums only; `snap`
+    /// is taken only then), dropping those no later window needs.
+    fn keep(&mut self, k: usize, t: f64, snap: impl FnOnce() -> Snapshot) -> Result<()> {
         let Some(from) = crate::drum::needed_from(self.scene, t) else {
             return Ok(());
         };
@@ -130,6 +130,7 @@ impl<'a> DrumWindow<'a> {
             return Ok(());
         }
         self.kept.retain(|(tk, _)| *tk >= from);
+        let mut snap = snap();
         snap.volume = self.volume.clone();
         let bytes = crate::output::vtk::vti_bytes(self.scene, &snap);
         let vti = crate::output::vtk::vti_from_bytes(&bytes, "snapshot")?;
@@ -230,7 +231,7 @@ impl SolverJob for ConvergeJob<'_> {
         let mut drum = DrumWindow::new(self.scene, geo.map(crate::embedded::volumes));
         // Same output stops as `sieve run`, so a level reproduces the run of that grid.
         let stats = time_loop(s, self.scene, &bar, geo, |k, t, s| {
-            drum.keep(k, t, Snapshot::of(s, self.scene))
+            drum.keep(k, t, || Snapshot::of(s, self.scene))
         })?;
         Ok(level_run(s, &stats, None, drum))
     }
@@ -258,11 +259,8 @@ impl crate::run::FlowJob for ConvergeJob<'_> {
                 self.fields,
                 geo.as_deref(),
                 &bar,
-                |k, t, s, f| {
-                    let mut snap = Snapshot::of(s, self.scene);
-                    snap.p = Some((0..f.len()).map(|i| f.pressure(i).to_f64()).collect());
-                    drum.keep(k, t, snap)
-                },
+                // the drum readouts read c, phihat and u: the pressure is not taken
+                |k, t, s, _| drum.keep(k, t, || Snapshot::of(s, self.scene)),
             )?;
             Ok(level_run(s, &cs.stats, Some(&cs.summary), drum))
         } else {
