@@ -15,7 +15,7 @@
 
 use crate::data::{DrumSummary, FlowSummary, LoopStats, Snapshot};
 use crate::error::{Error, Result};
-use crate::grid_error::{self, Estimate};
+use crate::grid_error::{self, Behaviour, Estimate};
 use crate::output::{num, write_file, Staging};
 use crate::run::{load, time_loop, SolverJob};
 use crate::scene::{self, Fields, Scene};
@@ -615,13 +615,16 @@ fn readout_rows(levels: &[usize], runs: &[&LevelRun]) -> Vec<ReadoutRow> {
 }
 
 /// readouts.csv: one row per readout, its value on every level (columns `level_L`), then what
-/// the three finest say: `behaviour,order,extrapolated,error_finest,gci_finest`.
+/// the three finest say, `behaviour,order,extrapolated,error_finest,gci_finest`, and the
+/// check by the next-coarser three, `coarser_behaviour,coarser_order,asymptotic` (`yes`, `no`,
+/// empty: fewer than four levels, or no order to check).
 pub fn readouts_csv(study: &Study) -> String {
     let mut s = String::from("readout");
     for r in &study.levels {
         let _ = write!(s, ",level_{}", r.level);
     }
-    s.push_str(",behaviour,order,extrapolated,error_finest,gci_finest\n");
+    s.push_str(",behaviour,order,extrapolated,error_finest,gci_finest");
+    s.push_str(",coarser_behaviour,coarser_order,asymptotic\n");
     for r in &study.readouts {
         s.push_str(&r.name);
         for v in &r.values {
@@ -630,12 +633,15 @@ pub fn readouts_csv(study: &Study) -> String {
         let e = &r.estimate;
         let _ = writeln!(
             s,
-            ",{},{},{},{},{}",
+            ",{},{},{},{},{},{},{},{}",
             e.behaviour.name(),
             opt(e.order),
             opt(e.extrapolated),
             opt(e.error_finest),
-            opt(e.gci_finest)
+            opt(e.gci_finest),
+            e.coarser_behaviour.map_or("", Behaviour::name),
+            opt(e.coarser_order),
+            yes_no(e.asymptotic),
         );
     }
     s
@@ -666,6 +672,10 @@ fn draw_readouts(study: &Study, h: &[f64], path: &std::path::Path) -> Result<()>
                     }
                     (Some(p), None) => format!("{}, order {p:.2}", e.behaviour.name()),
                     _ => e.behaviour.name().into(),
+                } + if e.asymptotic == Some(false) {
+                    " (not shown asymptotic)"
+                } else {
+                    ""
                 },
             }
         })
@@ -701,6 +711,14 @@ fn draw(study: &Study, h: &[f64], path: &std::path::Path) -> Result<()> {
         &rows,
         order,
     )
+}
+
+fn yes_no(x: Option<bool>) -> &'static str {
+    match x {
+        Some(true) => "yes",
+        Some(false) => "no",
+        None => "",
+    }
 }
 
 fn opt(x: Option<f64>) -> String {
@@ -740,40 +758,70 @@ pub fn csv(study: &Study) -> String {
 /// The table printed on stdout.
 pub fn table(study: &Study) -> String {
     let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "# {} scheme={} error of {} against {}",
-        study.scene, study.scheme, study.quantity, study.reference
-    );
-    let _ = writeln!(
-        s,
-        "{:>7} {:>11} {:>11} {:>11} {:>11} {:>6} {:>6} {:>6} {:>8} {:>9}",
-        "level", "cells", "L1", "L2", "Linf", "p_L1", "p_L2", "p_Linf", "steps", "wall_s"
-    );
     let e = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.4e}"));
     let o = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.2}"));
-    for r in &study.levels {
+    let fields_compared = study
+        .levels
+        .iter()
+        .any(|r| r.l1.is_some() || r.l2.is_some() || r.linf.is_some());
+    if fields_compared {
         let _ = writeln!(
             s,
-            "{:>7} {:>11} {:>11} {:>11} {:>11} {:>6} {:>6} {:>6} {:>8} {:>9.4}",
-            r.level,
-            cells_text(&r.cells),
-            e(r.l1),
-            e(r.l2),
-            e(r.linf),
-            o(r.order_l1),
-            o(r.order_l2),
-            o(r.order_linf),
-            r.steps,
-            r.wall_seconds
+            "# {} scheme={} error of {} against {}",
+            study.scene, study.scheme, study.quantity, study.reference
         );
+        let _ = writeln!(
+            s,
+            "{:>7} {:>11} {:>11} {:>11} {:>11} {:>6} {:>6} {:>6} {:>8} {:>9}",
+            "level", "cells", "L1", "L2", "Linf", "p_L1", "p_L2", "p_Linf", "steps", "wall_s"
+        );
+        for r in &study.levels {
+            let _ = writeln!(
+                s,
+                "{:>7} {:>11} {:>11} {:>11} {:>11} {:>6} {:>6} {:>6} {:>8} {:>9.4}",
+                r.level,
+                cells_text(&r.cells),
+                e(r.l1),
+                e(r.l2),
+                e(r.linf),
+                o(r.order_l1),
+                o(r.order_l2),
+                o(r.order_linf),
+                r.steps,
+                r.wall_seconds
+            );
+        }
+    } else {
+        // no field is compared (cut cells): the levels, without columns of "-"
+        let _ = writeln!(
+            s,
+            "# {} scheme={} fields compared against {}",
+            study.scene, study.scheme, study.reference
+        );
+        let _ = writeln!(
+            s,
+            "{:>7} {:>11} {:>8} {:>9}",
+            "level", "cells", "steps", "wall_s"
+        );
+        for r in &study.levels {
+            let _ = writeln!(
+                s,
+                "{:>7} {:>11} {:>8} {:>9.4}",
+                r.level,
+                cells_text(&r.cells),
+                r.steps,
+                r.wall_seconds
+            );
+        }
     }
     if study.readouts.is_empty() {
         return s;
     }
     let _ = writeln!(
         s,
-        "# readouts per level; grid error from the three finest (Richardson, GCI of the finest)"
+        "# readouts per level; grid error from the three finest (Richardson, GCI of the finest); \
+         asymptotic: the next-coarser three converge at an order within {:.0} % (its order if not)",
+        100.0 * grid_error::ORDER_AGREEMENT
     );
     let _ = write!(s, "{:>34}", "readout");
     for r in &study.levels {
@@ -781,8 +829,8 @@ pub fn table(study: &Study) -> String {
     }
     let _ = writeln!(
         s,
-        " {:>13} {:>6} {:>12} {:>9}",
-        "behaviour", "order", "extrapolated", "GCI"
+        " {:>13} {:>6} {:>12} {:>9} {:>10}",
+        "behaviour", "order", "extrapolated", "GCI", "asymptotic"
     );
     for r in &study.readouts {
         let _ = write!(s, "{:>34}", r.name);
@@ -793,14 +841,88 @@ pub fn table(study: &Study) -> String {
         let gci = est
             .gci_finest
             .map_or_else(|| "-".into(), |g| format!("{:.2}%", 100.0 * g));
+        let asymptotic = match (est.asymptotic, est.coarser_order) {
+            (None, _) => "-".to_string(),
+            (Some(true), _) => "yes".into(),
+            (Some(false), Some(q)) => format!("no ({q:.2})"),
+            (Some(false), None) => format!(
+                "no ({})",
+                est.coarser_behaviour.map_or("-", Behaviour::name)
+            ),
+        };
         let _ = writeln!(
             s,
-            " {:>13} {:>6} {:>12} {:>9}",
+            " {:>13} {:>6} {:>12} {:>9} {:>10}",
             est.behaviour.name(),
             o(est.order),
             e(est.extrapolated),
-            gci
+            gci,
+            asymptotic
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn level(level: usize, l1: Option<f64>) -> LevelRow {
+        LevelRow {
+            level,
+            cells: vec![level, level],
+            l1,
+            l2: l1,
+            linf: l1,
+            order_l1: None,
+            order_l2: None,
+            order_linf: None,
+            steps: 10,
+            wall_seconds: 0.5,
+        }
+    }
+
+    /// A study without field errors (cut cells) prints its levels without columns of "-",
+    /// and a readout the next-coarser grids do not confirm says so with their order.
+    #[test]
+    fn the_table_of_a_readouts_only_study() {
+        let levels = [8usize, 12, 20, 32];
+        let psi = [0.306, 0.235, 0.127, 0.079];
+        let pairs: Vec<(usize, f64)> = levels.iter().copied().zip(psi).collect();
+        let study = Study {
+            scene: "drum".into(),
+            scheme: "modified".into(),
+            quantity: "phihat at t_end".into(),
+            reference: "none: cut cells".into(),
+            t_end: 0.5,
+            levels: levels.iter().map(|&l| level(l, None)).collect(),
+            readouts: vec![ReadoutRow {
+                name: "psi_final".into(),
+                values: psi.iter().map(|&p| Some(p)).collect(),
+                estimate: grid_error::estimate(&pairs),
+            }],
+        };
+        let t = table(&study);
+        let lines: Vec<&str> = t.lines().collect();
+        assert_eq!(
+            lines[1].split_whitespace().collect::<Vec<_>>(),
+            ["level", "cells", "steps", "wall_s"],
+            "{t}"
+        );
+        assert_eq!(
+            lines[2].split_whitespace().collect::<Vec<_>>(),
+            ["8", "8x8", "10", "0.5000"],
+            "{t}"
+        );
+        assert!(!t.contains(" - "), "{t}");
+        let row = lines.iter().find(|l| l.contains("psi_final")).unwrap();
+        assert!(
+            row.contains("converging") && row.ends_with("no (-0.41)"),
+            "{row}"
+        );
+        // with field errors, the error columns are back
+        let mut with = study.clone();
+        with.levels[0].l1 = Some(0.1);
+        assert!(table(&with).lines().nth(1).unwrap().contains("p_Linf"));
+    }
 }
