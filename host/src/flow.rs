@@ -18,7 +18,7 @@ use crate::data::{
 use crate::error::{Error, Result};
 use crate::scene::validate::{FlowModel, WallSlip};
 use crate::scene::{
-    solver_errors, Equations, Fields, FrameKind, PressureKind, Scene, SpinUp, StressKind,
+    solver_errors, Equations, Fields, Fill, FrameKind, PressureKind, Scene, SpinUp, StressKind,
 };
 use sieve_core::closure::Packing;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
@@ -181,10 +181,12 @@ fn diag_f64<R: Real>(d: &FlowDiagnostics<R>) -> FlowDiagnostics<f64> {
     }
 }
 
+/// The flow block of summary.json: the flow's own diagnostics and counters, the scene's
+/// flow model and how the bed was filled.
 fn summary_of<R: Real, const D: usize, const N: usize>(
     flow: &Flow<R, D, N>,
-    scene: &Scene,
     fm: &FlowModel,
+    fill: Fill,
     seconds: f64,
     to_steady: Option<u64>,
     clipped: f64,
@@ -195,7 +197,7 @@ fn summary_of<R: Real, const D: usize, const N: usize>(
         back_coupling: fm.back_coupling.name().into(),
         pressure: flow.config().pressure.name().into(),
         stress: flow.config().stress.name().into(),
-        fill: scene.fill.name().into(),
+        fill: fill.name().into(),
         flow_steps_to_steady: to_steady,
         flow_steps: flow.steps(),
         cg_iterations: flow.cg_iterations(),
@@ -264,8 +266,8 @@ pub fn spin_up<R: Real, const D: usize, const N: usize>(
     let steps = flow.steps();
     let summary = summary_of(
         flow,
-        scene,
         fm,
+        scene.fill,
         start.elapsed().as_secs_f64(),
         Some(steps),
         0.0,
@@ -585,7 +587,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
     stats.segregation_time = timer.time();
     stats.record_bounds(cpl.seg);
     let clipped = cpl.guarded_mass().to_f64();
-    let mut summary = summary_of(cpl.flow, scene, fm, flow_seconds, None, clipped);
+    let mut summary = summary_of(cpl.flow, fm, scene.fill, flow_seconds, None, clipped);
     summary.outlet = discharge.as_ref().map(|d| d.summary());
     Ok(CoupledStats {
         stats,
