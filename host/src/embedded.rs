@@ -3,10 +3,11 @@
 //! (solid cells hold no grains; merged groups start uniform), plus what the outputs need
 //! (open volume fractions, the geometry block of summary.json).
 //!
-//! Only the segregation solver runs on cut cells from the CLI today; validation refuses a flow
-//! with a geometry (the flow runs on cut cells, but the coupled driver does not yet hand them to
-//! the segregation step), and the commands that do not know cut cells (`converge`, `record`)
-//! refuse such scenes: never a silent fallback to the box.
+//! Which commands run cut cells: `sieve run` (prescribed scenes on the segregation solver,
+//! coupled scenes with the flow on the same cut cells, `crate::flow`) and `sieve converge`
+//! (readouts only: the open volumes differ between grids, `crate::converge`). `sieve record`
+//! refuses them ([`refuse`]): never a silent fallback to the box. A frozen flow with a
+//! geometry is refused by validation.
 
 use crate::data::GeometrySummary;
 use crate::error::{Error, Result};
