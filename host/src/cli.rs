@@ -634,6 +634,9 @@ fn run_command(a: &RunArgs) -> Result<()> {
                 f.t_max,
                 f.residual
             )?;
+            if let Some(o) = &f.outlet {
+                crate::outln!("{}", crate::silo::outlet_line(o, summary.cells.len()))?;
+            }
         }
     }
     Ok(())

@@ -178,6 +178,8 @@ fn readouts(
                 ("flow.outlet.stagnant_fraction", o.stagnant_fraction),
                 ("flow.outlet.band_phihat", o.band_phihat),
                 ("flow.outlet.core_phihat", o.core_phihat),
+                ("flow.outlet.off_spec_time", o.off_spec_time),
+                ("flow.outlet.on_spec_fraction", o.on_spec_fraction),
             ]);
         }
     }

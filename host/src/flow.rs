@@ -462,7 +462,9 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
         ..Default::default()
     };
     let mut flow_seconds = 0.0;
-    let mut discharge = crate::silo::has_outlets(scene).then(crate::silo::DischargeSeries::default);
+    let mut discharge = scene
+        .has_outlets()
+        .then(crate::silo::DischargeSeries::default);
     let (mut first, mut resumed) = (0, false);
     if let Some(ck) = ckpt.as_deref() {
         if let (Some(e), Some(p)) = (ck.resumed(), ck.progress(scene)?) {
@@ -588,7 +590,7 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
     stats.record_bounds(cpl.seg);
     let clipped = cpl.guarded_mass().to_f64();
     let mut summary = summary_of(cpl.flow, fm, scene.fill, flow_seconds, None, clipped);
-    summary.outlet = discharge.as_ref().map(|d| d.summary());
+    summary.outlet = discharge.as_ref().map(|d| d.summary_with(scene.fines_band));
     Ok(CoupledStats {
         stats,
         summary,

@@ -28,14 +28,6 @@ pub fn open<R: Real, const D: usize>(side: &mut FlowSide<R, D>, outlet: &Outlet)
     side.outlet = outlet.pressure;
 }
 
-/// True if a wall of the scene has an outlet.
-pub fn has_outlets(scene: &Scene) -> bool {
-    scene
-        .flow
-        .as_ref()
-        .is_some_and(|f| f.walls.iter().flatten().any(|w| w.outlet.is_some()))
-}
-
 /// The line a run with an outlet under the implicit pressure prints before it starts: its
 /// discharge rate is not converged in the time step, and nothing in the run's own numbers
 /// shows it (mass and bounds hold), so the user hears it before trusting a rate (docs/silo.md
@@ -45,13 +37,44 @@ pub fn has_outlets(scene: &Scene) -> bool {
 /// 9.358e-3 / 9.355e-3 / 9.354e-3 m^2/s at `flow.courant` 0.4 / 0.2 / 0.1).
 pub fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
     let flow = scene.flow.as_ref()?;
-    if !has_outlets(scene) || flow.pressure != crate::scene::PressureKind::Implicit {
+    if !scene.has_outlets() || flow.pressure != crate::scene::PressureKind::Implicit {
         return None;
     }
     Some(format!(
         "warning: {}: flow.pressure = implicit with an outlet: the discharge rate depends on the time step, and at large steps the orifice can drain on a slow branch at less than half the rate (docs/silo.md section 4)",
         scene.label
     ))
+}
+
+/// The line `sieve run` prints for a scene with an outlet: what left, the steady rate and
+/// fines fraction, and how much of the silo discharged on-spec.
+pub fn outlet_line(o: &DischargeSummary, dim: usize) -> String {
+    let pct = |x: f64| 100.0 * x / o.mass_initial.max(f64::MIN_POSITIVE);
+    let [lo, hi] = o.fines_band;
+    let spec = if o.off_spec_time.is_nan() {
+        format!(
+            "on-spec (fines fraction in [{lo:.3}, {hi:.3}]) throughout, {:.1} % of the grains",
+            100.0 * o.on_spec_fraction
+        )
+    } else {
+        format!(
+            "on-spec (fines fraction in [{lo:.3}, {hi:.3}]) for the first {:.1} % of the grains, off-spec from t = {} s",
+            100.0 * o.on_spec_fraction,
+            crate::text::approx(o.off_spec_time)
+        )
+    };
+    format!(
+        "outlet: {:.1} % of the grains out{}, steady rate {:.4e} {} with fines fraction {:.4}; {spec}",
+        pct(o.out),
+        if o.emptied { " (emptied)" } else { "" },
+        o.steady_rate,
+        match dim {
+            1 => "m/s",
+            2 => "m^2/s",
+            _ => "m^3/s",
+        },
+        o.steady_fines_fraction,
+    )
 }
 
 /// One row of `discharge.csv`, at an output time.
@@ -132,7 +155,26 @@ pub struct DischargeSummary {
     /// grains left), or more than half has left and the rate fell below 1e-3 of its peak
     /// (a flat floor keeps a resting heap beside the orifice: the stagnant corners).
     pub emptied: bool,
+    /// The band of the discharge's fines fraction that is on-spec: `run.fines_band`, or the
+    /// bed's initial fines fraction +- [`DEFAULT_BAND_HALF_WIDTH`] (within [0, 1]).
+    pub fines_band: [f64; 2],
+    /// The end of the first output interval whose discharge has a fines fraction outside the
+    /// band \[s\] (NaN: none until the end of the run). Intervals that discharge less than
+    /// [`TRICKLE`] of the largest interval's amount are not judged: a trickle's fraction is
+    /// not what the process receives.
+    pub off_spec_time: f64,
+    /// Share of the initial grains that left before that interval: how much of the silo
+    /// discharges on-spec (all that left by the end of the run if it never left the band,
+    /// a lower bound when the run ends before the silo is empty).
+    pub on_spec_fraction: f64,
 }
+
+/// Half width of the default on-spec band about the bed's initial fines fraction.
+pub const DEFAULT_BAND_HALF_WIDTH: f64 = 0.1;
+
+/// Share of the largest interval's discharge below which an interval is not judged on-spec
+/// or off-spec.
+pub const TRICKLE: f64 = 0.01;
 
 /// The discharge series of a coupled run.
 #[derive(Debug, Clone, Default)]
@@ -230,9 +272,22 @@ impl DischargeSeries {
         }
     }
 
-    /// The summary values.
+    /// The summary values with the default on-spec band.
     pub fn summary(&self) -> DischargeSummary {
+        self.summary_with(None)
+    }
+
+    /// The summary values; `band` = `run.fines_band` (None: the default band).
+    pub fn summary_with(&self, band: Option<[f64; 2]>) -> DischargeSummary {
         let [m0, s0] = self.initial;
+        let band = band.unwrap_or_else(|| {
+            let f0 = if m0 > 0.0 { s0 / m0 } else { 0.0 };
+            [
+                (f0 - DEFAULT_BAND_HALF_WIDTH).max(0.0),
+                (f0 + DEFAULT_BAND_HALF_WIDTH).min(1.0),
+            ]
+        });
+        let (off_spec_time, on_spec_out) = self.off_spec(band);
         let last = self.rows.last().copied();
         let start = self
             .rows
@@ -276,10 +331,35 @@ impl DischargeSeries {
                 .find(|r| r.fines_fraction.is_finite())
                 .map_or(f64::NAN, |r| r.fines_fraction),
             emptied: self.emptied,
+            fines_band: band,
+            off_spec_time,
+            on_spec_fraction: if m0 > 0.0 { on_spec_out / m0 } else { f64::NAN },
             stagnant_fraction: zones[0],
             band_phihat: zones[1],
             core_phihat: zones[2],
         }
+    }
+
+    /// The end time of the first judged interval whose fines fraction lies outside `band`
+    /// (NaN if none) and the grains out at its start (all out at the end if none).
+    fn off_spec(&self, [lo, hi]: [f64; 2]) -> (f64, f64) {
+        let largest = self
+            .rows
+            .windows(2)
+            .map(|w| w[1].out - w[0].out)
+            .fold(0.0f64, f64::max);
+        for w in self.rows.windows(2) {
+            let (a, b) = (&w[0], &w[1]);
+            let dq = b.out - a.out;
+            if !(dq > TRICKLE * largest) {
+                continue;
+            }
+            let f = (b.out_small - a.out_small) / dq;
+            if !(lo..=hi).contains(&f) {
+                return (b.t, a.out);
+            }
+        }
+        (f64::NAN, self.rows.last().map_or(0.0, |r| r.out))
     }
 
     /// `discharge.csv`.
@@ -424,4 +504,57 @@ pub fn read_csv(path: &Path) -> Result<Vec<DischargeRow>> {
         });
     }
     Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A row with `out` grains (of which `out_small` fines) gone from a bed of 1 (0.5 fines).
+    fn row(t: f64, out: f64, out_small: f64) -> DischargeRow {
+        DischargeRow {
+            t,
+            rate: 0.0,
+            rate_small: 0.0,
+            fines_fraction: f64::NAN,
+            mass: 1.0 - out,
+            mass_small: 0.5 - out_small,
+            out,
+            out_small,
+            surface: 0.0,
+            stagnant: f64::NAN,
+            band_phihat: f64::NAN,
+            core_phihat: f64::NAN,
+        }
+    }
+
+    /// The first judged interval outside the band ends the on-spec discharge; a trickle (less
+    /// than 1 % of the largest interval) is not judged; a run that never leaves the band is
+    /// on-spec for all it let out.
+    #[test]
+    fn on_spec_until_the_first_judged_interval_outside_the_band() {
+        // intervals: 0.2 at 0.5, 0.2 at 0.45, a trickle of 1e-3 at 0.9, 0.2 at 0.62
+        let rows = [
+            row(0.0, 0.0, 0.0),
+            row(1.0, 0.2, 0.1),
+            row(2.0, 0.4, 0.19),
+            row(3.0, 0.401, 0.1909),
+            row(4.0, 0.601, 0.3149),
+        ];
+        let s = DischargeSeries::from_rows(rows.to_vec());
+        let o = s.summary();
+        assert_eq!(o.fines_band, [0.4, 0.6]);
+        assert_eq!(o.off_spec_time, 4.0);
+        assert_eq!(o.on_spec_fraction, 0.401);
+        // a narrower band is left at the 0.45 interval, after 0.2 of the grains
+        let o = s.summary_with(Some([0.46, 0.55]));
+        assert_eq!((o.off_spec_time, o.on_spec_fraction), (2.0, 0.2));
+        // a wider one never: all that left, and no time
+        let o = s.summary_with(Some([0.3, 0.7]));
+        assert!(o.off_spec_time.is_nan());
+        assert_eq!(o.on_spec_fraction, 0.601);
+        // the trickle alone would be off-spec: judged when it is the largest interval
+        let s = DischargeSeries::from_rows(rows[2..4].to_vec());
+        assert_eq!(s.summary_with(Some([0.0, 0.5])).off_spec_time, 3.0);
+    }
 }

@@ -560,6 +560,9 @@ pub struct RunSpec {
     pub exact: Option<ExactKind>,
     /// Wall-clock seconds between checkpoints of `sieve run` (none: no checkpoints).
     pub checkpoint_interval: Option<f64>,
+    /// `[low, high]` of the discharge's fines fraction that is on-spec (scenes with an
+    /// outlet; none: the bed's initial fraction +- 0.1).
+    pub fines_band: Option<[f64; 2]>,
 }
 
 fn default_psi_threshold() -> f64 {

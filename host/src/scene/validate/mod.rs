@@ -221,6 +221,9 @@ pub struct Scene {
     /// Wall-clock seconds between checkpoints (`run.checkpoint_interval`; none: no
     /// checkpoints; docs/resume.md).
     pub checkpoint_interval: Option<f64>,
+    /// The on-spec band of the discharge's fines fraction (`run.fines_band`; scenes with an
+    /// outlet; none: the bed's initial fraction +- 0.1, docs/silo.md "On-spec discharge").
+    pub fines_band: Option<[f64; 2]>,
     /// Closed-form solution, if any.
     pub exact: Option<ExactKind>,
     /// The flow model, if the scene solves one.
@@ -359,6 +362,7 @@ impl Scene {
         );
         let output = output::check(&mut p, l, f.output.as_ref());
         let checkpoint_interval = run::check_checkpoint(&mut p, l, &f.run);
+        let fines_band = run::check_fines_band(&mut p, l, &f.run);
         p.finish()?;
         // Every section that gave None recorded a problem, so all are Some here.
         let (
@@ -414,6 +418,7 @@ impl Scene {
             output_interval,
             psi_threshold,
             checkpoint_interval,
+            fines_band,
             exact: f.run.exact,
             limits: limits::Limits::default(),
             output: output.unwrap_or_default(),
@@ -421,7 +426,22 @@ impl Scene {
         if scene.exact == Some(ExactKind::ColumnA) {
             scene.check_column_a()?;
         }
+        if scene.fines_band.is_some() && !scene.has_outlets() {
+            return Err(Error::at(
+                l,
+                "run.fines_band",
+                "the on-spec band of the discharge's fines fraction needs an outlet \
+                 (`outlet = { center, width }` on a side of `[boundary.flow]`): remove it",
+            ));
+        }
         Ok(scene)
+    }
+
+    /// True if a wall of the scene's flow has an outlet.
+    pub fn has_outlets(&self) -> bool {
+        self.flow
+            .as_ref()
+            .is_some_and(|f| f.walls.iter().flatten().any(|w| w.outlet.is_some()))
     }
 
     /// The flow's material in the core's form (`fm`: this scene's flow model).

@@ -63,6 +63,26 @@ pub(super) fn check(p: &mut Problems, l: &str, r: &RunSpec) -> Option<(f64, f64,
     Some((t_end?, interval?, psi_threshold?))
 }
 
+/// Validated `run.fines_band` (`0 <= low < high <= 1`); None if absent (or wrong: the
+/// problem is recorded).
+pub(super) fn check_fines_band(p: &mut Problems, l: &str, r: &RunSpec) -> Option<[f64; 2]> {
+    let [lo, hi] = r.fines_band?;
+    if lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi && hi <= 1.0 {
+        return Some([lo, hi]);
+    }
+    p.push(Error::at(
+        l,
+        "",
+        format!(
+            "run.fines_band = [{}, {}] is out of range: allowed [low, high] with \
+             0 <= low < high <= 1, the fines fraction of the discharge that is on-spec",
+            crate::text::approx(lo),
+            crate::text::approx(hi)
+        ),
+    ));
+    None
+}
+
 /// Longest allowed `run.checkpoint_interval` [s] (about 30 years).
 pub const MAX_CHECKPOINT_INTERVAL: f64 = 1e9;
 
