@@ -310,3 +310,47 @@ fn a_bad_fines_band_is_refused_in_one_line() {
     }
     assert!(!d.path().join("runs").exists());
 }
+
+/// `sieve record` of a coupled scene takes the scene's `run.fines_band` as the soft sensor's
+/// alarm band (the product's specification, the same band as the run's on-spec readout);
+/// without it the band is [0.4, 0.8], an alarm on the fines-rich end only.
+#[test]
+fn the_recorder_alarms_on_the_scenes_fines_band() {
+    let d = tempfile::tempdir().unwrap();
+    for (band, says) in [
+        (
+            Some("run.fines_band=[0.45,0.55]"),
+            "off_spec: band=[0.45, 0.55]",
+        ),
+        (None, "off_spec: band=[0.4, 0.8]"),
+    ] {
+        let rec = d.path().join("s.rec");
+        let rec = rec.to_str().unwrap();
+        let mut args = vec![
+            "record",
+            "silo",
+            "--set",
+            "grid.cells=[15,50]",
+            "--set",
+            "boundary.flow.z_low.outlet.width=0.04",
+            "--set",
+            "run.t_end=1",
+            "--rate",
+            "10",
+            "--estimator-grid",
+            "8x28",
+            "--sensor-grid",
+            "2x7",
+            "--out",
+            rec,
+        ];
+        if let Some(b) = band {
+            args.extend(["--set", b]);
+        }
+        let (code, _, err) = crate::common::run_full(d.path(), &args);
+        assert_eq!(code, 0, "{err}");
+        let (code, out, err) = crate::common::run_full(d.path(), &["replay", rec]);
+        assert_eq!(code, 0, "{err}");
+        assert!(out.lines().any(|l| l.starts_with(says)), "{out}");
+    }
+}

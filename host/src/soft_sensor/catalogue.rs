@@ -723,7 +723,9 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
         regions: Default::default(),
         outlet: None,
         psi_alarm: 0.3,
-        fines_band: [0.4, 0.8],
+        // the product's specification where the scene declares one (`run.fines_band`, the
+        // band of the run's on-spec readout), else an alarm on the fines-rich end only
+        fines_band: scene.fines_band.map_or([0.4, 0.8], |b| b.map(f32_)),
         fines_hysteresis: 0.01,
         alarm_persist: 3,
         openings: Default::default(),
