@@ -862,6 +862,23 @@ pub fn table(study: &Study) -> String {
             asymptotic
         );
     }
+    let unconfirmed: Vec<&str> = study
+        .readouts
+        .iter()
+        .filter(|r| r.estimate.asymptotic == Some(false))
+        .map(|r| r.name.as_str())
+        .collect();
+    if let ([.., a, b], false) = (study.levels.as_slice(), unconfirmed.is_empty()) {
+        // one more level at the finest ratio extends the check by one triple
+        let next = b.level * b.level / a.level.max(1);
+        let _ = writeln!(
+            s,
+            "# not shown asymptotic: {}; a level of {next} cells would show whether the finest \
+             three are (`--levels ...,{},{next}`)",
+            unconfirmed.join(", "),
+            b.level
+        );
+    }
     s
 }
 
@@ -921,6 +938,10 @@ mod tests {
         assert!(
             row.contains("converging") && row.ends_with("no (-0.41)"),
             "{row}"
+        );
+        assert!(
+            t.contains("# not shown asymptotic: psi_final; a level of 51 cells"),
+            "{t}"
         );
         // with field errors, the error columns are back
         let mut with = study.clone();
