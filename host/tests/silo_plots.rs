@@ -43,6 +43,31 @@ fn hopper_run_writes_the_discharge_plots_and_counts_fines_by_open_volume() {
     assert_eq!(code, 0, "{err}");
     assert!(is_png(&dir.join("plots/discharge.png")));
 
+    // the on-spec band's edges are drawn (flow.outlet.fines_band); a summary without a sane
+    // band (hostile values included) draws the fines fraction alone
+    let fines_png = dir.join("plots/outflow_fines.png");
+    let banded = std::fs::read(&fines_png).unwrap();
+    let sp = dir.join("summary.json");
+    let text = std::fs::read_to_string(&sp).unwrap();
+    let mut plain = None;
+    for bad in [
+        serde_json::json!(["x", 2.0]),
+        serde_json::json!([0.7, 0.2]),
+        serde_json::json!([0.4]),
+        serde_json::json!("0.4,0.6"),
+    ] {
+        let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v["flow"]["outlet"]["fines_band"] = bad.clone();
+        std::fs::write(&sp, v.to_string()).unwrap();
+        let (code, err) = run_in(d.path(), &["plot", "runs/hopper"]);
+        assert_eq!(code, 0, "{bad}: {err}");
+        let png = std::fs::read(&fines_png).unwrap();
+        assert!(is_png(&fines_png) && png != banded, "{bad}");
+        assert!(plain.as_ref().is_none_or(|p| *p == png), "{bad}");
+        plain = Some(png);
+    }
+    std::fs::write(&sp, &text).unwrap();
+
     // a damaged discharge.csv: refused in one line naming the file, the run's files kept
     let csv = dir.join("discharge.csv");
     let text = std::fs::read_to_string(&csv).unwrap();

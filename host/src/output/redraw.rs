@@ -299,7 +299,15 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
     let discharge = run.join("discharge.csv");
     if discharge.exists() {
         let rows = crate::silo::read_csv(&discharge)?;
-        written.extend(discharge_plots(&rows, plots, &name, dims)?);
+        // the on-spec band (docs/silo.md "On-spec discharge"), if the summary has a sane one
+        let b = &summary["flow"]["outlet"]["fines_band"];
+        let band = match (b[0].as_f64(), b[1].as_f64()) {
+            (Some(lo), Some(hi)) if (0.0..=1.0).contains(&lo) && lo < hi && hi <= 1.0 => {
+                Some([lo, hi])
+            }
+            _ => None,
+        };
+        written.extend(discharge_plots(&rows, plots, &name, dims, band)?);
     }
 
     let profiles = run.join("profiles.csv");
@@ -374,12 +382,14 @@ pub fn replot(dir: &Path) -> Result<(PathBuf, Vec<String>)> {
 /// (the fines fraction of what left in each output interval: the number a controller wants,
 /// issue 9). `dims` picks the unit (grain volume per unit depth in 2D). Rows before the
 /// first outflow have no fines fraction and are left out of that curve; a run where nothing
-/// has left yet draws only `discharge.png`. Returns the names of the files written.
+/// has left yet draws only `discharge.png`. `band`: the on-spec band of the fines fraction
+/// (`flow.outlet.fines_band`), drawn as its two edges. Returns the names of the files written.
 pub fn discharge_plots(
     rows: &[DischargeRow],
     dir: &Path,
     name: &str,
     dims: usize,
+    band: Option<[f64; 2]>,
 ) -> Result<Vec<String>> {
     let (q, m) = if dims == 3 {
         ("m^3", "m^3")
@@ -415,11 +425,19 @@ pub fn discharge_plots(
         ],
     )?;
     written.push("discharge.png".to_string());
-    let fines = [curve(
+    let mut fines = vec![curve(
         "fines fraction of the discharge",
         |r| r.fines_fraction,
         true,
     )];
+    if let (Some([lo, hi]), Some(first), Some(last)) = (band, rows.first(), rows.last()) {
+        for (edge, v) in [("low", lo), ("high", hi)] {
+            fines.push((
+                format!("on-spec band, {edge} edge ({v:.3})"),
+                vec![(first.t, v), (last.t, v)],
+            ));
+        }
+    }
     if !fines[0].1.is_empty() {
         plot::stacked_curves(
             &dir.join("outflow_fines.png"),
