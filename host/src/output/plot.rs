@@ -1152,15 +1152,77 @@ pub fn stacked_curves(path: &Path, title: &str, x_desc: &str, panels: &[Panel<'_
             .map_err(fail(path))?;
         labelled_lines(&mut chart, curves, |_| true, path)?;
         if curves.len() > 1 {
-            legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(fail(path))?;
+            let corner = quiet_corner(curves, (x0, x1), (y0, y1));
+            legend(&mut chart, corner).map_err(fail(path))?;
         }
     }
     root.present().map_err(fail(path))
 }
 
+/// The corner of a panel whose legend box covers the least of its lines: each segment is
+/// sampled at 16 points, and a corner's box is the outer 40 % of the width by the outer
+/// 35 % of the height. Ties keep the first of upper right, upper left, lower right, lower
+/// left. (A silo's outflow fraction ends high on the right, where a fixed upper-right legend
+/// hid its fines-rich tail.)
+fn quiet_corner(
+    curves: &[Curve],
+    (x0, x1): (f64, f64),
+    (y0, y1): (f64, f64),
+) -> SeriesLabelPosition {
+    let (w, h) = (x1 - x0, y1 - y0);
+    let corners = [
+        (SeriesLabelPosition::UpperRight, true, true),
+        (SeriesLabelPosition::UpperLeft, false, true),
+        (SeriesLabelPosition::LowerRight, true, false),
+        (SeriesLabelPosition::LowerLeft, false, false),
+    ];
+    let inside = |(x, y): (f64, f64), right: bool, upper: bool| {
+        let fx = (x - x0) / w;
+        let fy = (y - y0) / h;
+        (if right { fx >= 0.6 } else { fx <= 0.4 }) && (if upper { fy >= 0.65 } else { fy <= 0.35 })
+    };
+    let mut best = (SeriesLabelPosition::UpperRight, usize::MAX);
+    for (pos, right, upper) in corners {
+        let mut hits = 0;
+        for (_, pts) in curves {
+            for seg in pts.windows(2) {
+                let (a, b) = (seg[0], seg[1]);
+                for k in 0..16 {
+                    let t = k as f64 / 16.0;
+                    let p = (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1));
+                    hits += usize::from(inside(p, right, upper));
+                }
+            }
+            if let [only] = pts.as_slice() {
+                hits += usize::from(inside(*only, right, upper));
+            }
+        }
+        if hits < best.1 {
+            best = (pos, hits);
+        }
+    }
+    best.0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The legend goes where the lines are not: a curve ending high on the right (a silo's
+    /// fines-rich tail) moves it off the upper right; lines through every corner but one leave
+    /// that one; nothing in the way keeps the upper right.
+    #[test]
+    fn the_legend_takes_the_quietest_corner() {
+        let curve = |pts: &[(f64, f64)]| ("c".to_string(), pts.to_vec());
+        let pos = |curves: &[Curve]| format!("{:?}", quiet_corner(curves, (0.0, 1.0), (0.0, 1.0)));
+        let mid = curve(&[(0.0, 0.5), (1.0, 0.5)]);
+        assert_eq!(pos(std::slice::from_ref(&mid)), "UpperRight");
+        let tail = curve(&[(0.0, 0.5), (0.6, 0.5), (0.7, 0.95), (1.0, 0.9)]);
+        assert_eq!(pos(&[mid.clone(), tail]), "UpperLeft");
+        let diag = curve(&[(0.0, 0.0), (1.0, 1.0)]);
+        let anti = curve(&[(0.0, 1.0), (0.6, 0.4)]);
+        assert_eq!(pos(&[diag, anti]), "LowerRight");
+    }
 
     /// The animations' fixed palette keeps the colour map's colours, the background, the
     /// text and the empty-cell grey exactly, and puts any other value of the colour map within
