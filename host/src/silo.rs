@@ -63,17 +63,27 @@ pub fn outlet_line(o: &DischargeSummary, dim: usize) -> String {
             crate::text::approx(o.off_spec_time)
         )
     };
+    if !(o.out > 0.0) {
+        return format!("outlet: nothing has left yet; {spec}");
+    }
+    let unit = match dim {
+        1 => "m/s",
+        2 => "m^2/s",
+        _ => "m^3/s",
+    };
+    // a steady window needs outflow inside it: without one, say so rather than print NaN
+    let steady = if o.steady_fines_fraction.is_finite() {
+        format!(
+            "steady rate {:.4e} {unit} with fines fraction {:.4}",
+            o.steady_rate, o.steady_fines_fraction
+        )
+    } else {
+        "no steady window yet".to_string()
+    };
     format!(
-        "outlet: {:.1} % of the grains out{}, steady rate {:.4e} {} with fines fraction {:.4}; {spec}",
+        "outlet: {:.1} % of the grains out{}, {steady}; {spec}",
         pct(o.out),
         if o.emptied { " (emptied)" } else { "" },
-        o.steady_rate,
-        match dim {
-            1 => "m/s",
-            2 => "m^2/s",
-            _ => "m^3/s",
-        },
-        o.steady_fines_fraction,
     )
 }
 
@@ -553,6 +563,21 @@ mod tests {
         let o = s.summary_with(Some([0.3, 0.7]));
         assert!(o.off_spec_time.is_nan());
         assert_eq!(o.on_spec_fraction, 0.601);
+        // the line `sieve run` prints; the steady window runs from 10 % out (t = 1) to 50 %
+        // (t = 4): (0.601 - 0.2) / 3 with fines (0.3149 - 0.1) / 0.401
+        let o = s.summary();
+        assert_eq!(
+            outlet_line(&o, 2),
+            "outlet: 60.1 % of the grains out, steady rate 1.3367e-1 m^2/s with fines fraction \
+             0.5359; on-spec (fines fraction in [0.400, 0.600]) for the first 40.1 % of the \
+             grains, off-spec from t = 4 s"
+        );
+        let closed = DischargeSeries::from_rows(vec![row(0.0, 0.0, 0.0), row(1.0, 0.0, 0.0)]);
+        assert_eq!(
+            outlet_line(&closed.summary(), 3),
+            "outlet: nothing has left yet; on-spec (fines fraction in [0.400, 0.600]) \
+             throughout, 0.0 % of the grains"
+        );
         // the trickle alone would be off-spec: judged when it is the largest interval
         let s = DischargeSeries::from_rows(rows[2..4].to_vec());
         assert_eq!(s.summary_with(Some([0.0, 0.5])).off_spec_time, 3.0);
