@@ -52,8 +52,10 @@ pub fn outlet_line(o: &DischargeSummary, dim: usize) -> String {
     let pct = |x: f64| 100.0 * x / o.mass_initial.max(f64::MIN_POSITIVE);
     let [lo, hi] = o.fines_band;
     let spec = if o.off_spec_time.is_nan() {
+        // a run that ended before the silo emptied knows a lower bound only
         format!(
-            "on-spec (fines fraction in [{lo:.3}, {hi:.3}]) throughout, {:.1} % of the grains",
+            "on-spec (fines fraction in [{lo:.3}, {hi:.3}]) throughout{}, {:.1} % of the grains",
+            if o.emptied { "" } else { " so far" },
             100.0 * o.on_spec_fraction
         )
     } else {
@@ -576,7 +578,7 @@ mod tests {
         assert_eq!(
             outlet_line(&closed.summary(), 3),
             "outlet: nothing has left yet; on-spec (fines fraction in [0.400, 0.600]) \
-             throughout, 0.0 % of the grains"
+             throughout so far, 0.0 % of the grains"
         );
         // the trickle alone would be off-spec: judged when it is the largest interval
         let s = DischargeSeries::from_rows(rows[2..4].to_vec());
