@@ -181,6 +181,33 @@ pub struct DischargeSummary {
     pub on_spec_fraction: f64,
 }
 
+/// The first window of a discharge whose fines fraction lies outside `[lo, hi]`: `cum(k)` is
+/// `[grains, fines]` out by sample `k` of `n`, the window ending at `k` spans `window`
+/// samples (from `before` for the first ones), and windows that discharge nothing or less
+/// than [`TRICKLE`] of the largest window are not judged. Returns the index of the window's
+/// last sample. One rule for a run's on-spec readout (windows of one output interval from
+/// the first sample) and for the replay's truth (`crate::soft_sensor`, windows of
+/// `outflow_window` ticks from nothing).
+pub fn first_off_spec(
+    n: usize,
+    cum: impl Fn(usize) -> [f64; 2],
+    window: usize,
+    before: [f64; 2],
+    [lo, hi]: [f64; 2],
+) -> Option<usize> {
+    let w = window.max(1);
+    let diff = |k: usize| {
+        let [a, a_small] = cum(k);
+        let [b, b_small] = if k >= w { cum(k - w) } else { before };
+        [a - b, a_small - b_small]
+    };
+    let largest = (0..n).map(|k| diff(k)[0]).fold(0.0, f64::max);
+    (0..n).find(|&k| {
+        let [dq, ds] = diff(k);
+        dq > 0.0 && dq >= TRICKLE * largest && !(lo..=hi).contains(&(ds / dq))
+    })
+}
+
 /// Half width of the default on-spec band about the bed's initial fines fraction.
 pub const DEFAULT_BAND_HALF_WIDTH: f64 = 0.1;
 
@@ -354,24 +381,14 @@ impl DischargeSeries {
 
     /// The end time of the first judged interval whose fines fraction lies outside `band`
     /// (NaN if none) and the grains out at its start (all out at the end if none).
-    fn off_spec(&self, [lo, hi]: [f64; 2]) -> (f64, f64) {
-        let largest = self
-            .rows
-            .windows(2)
-            .map(|w| w[1].out - w[0].out)
-            .fold(0.0f64, f64::max);
-        for w in self.rows.windows(2) {
-            let (a, b) = (&w[0], &w[1]);
-            let dq = b.out - a.out;
-            if !(dq > TRICKLE * largest) {
-                continue;
-            }
-            let f = (b.out_small - a.out_small) / dq;
-            if !(lo..=hi).contains(&f) {
-                return (b.t, a.out);
-            }
+    fn off_spec(&self, band: [f64; 2]) -> (f64, f64) {
+        let cum = |k: usize| [self.rows[k].out, self.rows[k].out_small];
+        // the first sample starts the first interval: its own window is empty, never judged
+        let first = self.rows.first().map_or([0.0; 2], |r| [r.out, r.out_small]);
+        match first_off_spec(self.rows.len(), cum, 1, first, band) {
+            Some(k) => (self.rows[k].t, self.rows[k.saturating_sub(1)].out),
+            None => (f64::NAN, self.rows.last().map_or(0.0, |r| r.out)),
         }
-        (f64::NAN, self.rows.last().map_or(0.0, |r| r.out))
     }
 
     /// `discharge.csv`.

@@ -302,8 +302,8 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
         // the on-spec band (docs/silo.md "On-spec discharge"), if the summary has a sane one
         let b = &summary["flow"]["outlet"]["fines_band"];
         let band = match (b[0].as_f64(), b[1].as_f64()) {
-            (Some(lo), Some(hi)) if (0.0..=1.0).contains(&lo) && lo < hi && hi <= 1.0 => {
-                Some([lo, hi])
+            (Some(lo), Some(hi)) => {
+                Some([lo, hi]).filter(|&b| crate::scene::validate::fines_band_ok(b))
             }
             _ => None,
         };

@@ -142,24 +142,10 @@ fn off_spec(rows: &[ReplayRow], w: usize, band: [f32; 2]) -> Option<OffSpec> {
     if !(last.out_truth[0] > 0.0) {
         return None;
     }
-    let w = w.max(1);
-    let diff = |k: usize| -> [f64; 2] {
-        let a = rows[k].out_truth;
-        let b = if k >= w {
-            rows[k - w].out_truth
-        } else {
-            [0.0, 0.0]
-        };
-        [a[0] - b[0], a[1] - b[1]]
-    };
-    let largest = (0..rows.len()).map(|k| diff(k)[0]).fold(0.0, f64::max);
-    let (lo, hi) = (band[0] as f64, band[1] as f64);
-    let truth_leaves = (0..rows.len()).find_map(|k| {
-        let d = diff(k);
-        let f = d[1] / d[0];
-        (d[0] >= 0.01 * largest && d[0] > 0.0 && !(lo..=hi).contains(&f))
-            .then_some(rows[k].time as f64)
-    });
+    let band64 = [band[0] as f64, band[1] as f64];
+    let truth_leaves =
+        crate::silo::first_off_spec(rows.len(), |k| rows[k].out_truth, w, [0.0; 2], band64)
+            .map(|k| rows[k].time as f64);
     let alarm = rows
         .iter()
         .find(|r| r.alarms & (alarm::FINES_LOW | alarm::FINES_HIGH) != 0)

@@ -24,6 +24,7 @@ mod problems;
 mod run;
 
 pub use problems::Problems;
+pub use run::fines_band_ok;
 
 use super::expr::Expr;
 use super::{

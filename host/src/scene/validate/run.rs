@@ -63,11 +63,17 @@ pub(super) fn check(p: &mut Problems, l: &str, r: &RunSpec) -> Option<(f64, f64,
     Some((t_end?, interval?, psi_threshold?))
 }
 
+/// Whether `[low, high]` is a fines band a scene may declare: `0 <= low < high <= 1` (NaN
+/// fails). Also what `sieve plot` accepts from a summary.json.
+pub fn fines_band_ok([lo, hi]: [f64; 2]) -> bool {
+    0.0 <= lo && lo < hi && hi <= 1.0
+}
+
 /// Validated `run.fines_band` (`0 <= low < high <= 1`); None if absent (or wrong: the
 /// problem is recorded).
 pub(super) fn check_fines_band(p: &mut Problems, l: &str, r: &RunSpec) -> Option<[f64; 2]> {
     let [lo, hi] = r.fines_band?;
-    if lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi && hi <= 1.0 {
+    if fines_band_ok([lo, hi]) {
         return Some([lo, hi]);
     }
     p.push(Error::at(
