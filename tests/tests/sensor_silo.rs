@@ -13,7 +13,9 @@
 //! of what the truth discharges (its 2 x 7 sensor averages the orifice jet with the slow bed
 //! beside it) and its carried c drifts from the truth's by up to 0.26 (mean 0.064).
 
-use sieve::soft_sensor::{record_scene, replay_bytes, ReplayOptions, SceneRecordOptions};
+use sieve::soft_sensor::{
+    record_scene, replay_bytes, replay_bytes_with, ReplayOptions, SceneRecordOptions,
+};
 
 /// The short silo's recording (its checks below run once): `sieve record` of a coupled run is
 /// the slow part of these tests, so the replays here and in sensor_kinematic.rs share it.
@@ -61,6 +63,55 @@ fn record_coarse_silo() -> Vec<u8> {
         report.notes
     );
     bytes
+}
+
+/// The recorder's 1-2-1 pass: none across an outlet narrower than 3 sensor spacings (the
+/// 0.04 m orifice on 8 points across the 0.145 m silo spans 2.2), one across a 0.06 m orifice
+/// (3.3): docs/soft-sensor.md "Sensor grid, filter and gain on the silo".
+#[test]
+fn no_filter_pass_across_a_narrow_outlet() {
+    for (width, says) in [
+        ("0.04", Some("the outlet spans 2.2 sensor spacings")),
+        ("0.06", None),
+    ] {
+        let sets = [
+            "grid.cells=[15,50]".to_string(),
+            format!("boundary.flow.z_low.outlet.width={width}"),
+        ];
+        let (scene, fields) = sieve::scene::load("silo", &sets).expect("scene");
+        let opts = SceneRecordOptions {
+            estimator_cells: [16, 28],
+            sensor: [8, 14],
+            noise: 0.05,
+            seed: 1,
+            period: Some(0.05),
+            frames: Some(3),
+            cpu_hz: sieve::soft_sensor::DEFAULT_CPU_HZ,
+            cpu_share: 1.0,
+        };
+        let (bytes, report) = record_scene(&scene, &fields, &opts).expect("record");
+        let note = report.notes.iter().find(|n| n.contains("no 1-2-1 pass"));
+        match says {
+            Some(s) => assert!(note.is_some_and(|n| n.contains(s)), "{:?}", report.notes),
+            None => assert!(note.is_none(), "{:?}", report.notes),
+        }
+        // the recording carries the choice: its configuration has the pass or not, and
+        // replaying it with the other setting changes the estimate
+        let mut recorded = None;
+        let base = replay_bytes_with(&bytes, &ReplayOptions::default(), |c| {
+            recorded = Some(c.spatial_passes);
+            Ok(())
+        })
+        .expect("replay");
+        let passes = u8::from(says.is_none());
+        assert_eq!(recorded, Some(passes), "{width}");
+        let other = replay_bytes_with(&bytes, &ReplayOptions::default(), |c| {
+            c.spatial_passes = 1 - passes;
+            Ok(())
+        })
+        .expect("replay");
+        assert_ne!(other.final_state_hash, base.final_state_hash, "{width}");
+    }
 }
 
 #[test]
