@@ -556,22 +556,9 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
             )
             .map_err(fail)?;
     }
-    let (bytes, stream_bytes) = writer
-        .finish(
-            cfg,
-            &scene.name,
-            opts.noise,
-            opts.seed,
-            [nf[0] as u16, nf[1] as u16],
-        )
-        .map_err(fail)?;
+    let (bytes, record) = finish(writer, cfg, scene, opts, nf, frames, final_psi)?;
     let report = SceneRecordReport {
-        record: RecordReport {
-            frames,
-            stream_bytes,
-            file_bytes: bytes.len(),
-            final_truth_psi: final_psi,
-        },
+        record,
         period,
         truth_cells: nf,
         estimator_dt: dt,
@@ -637,6 +624,35 @@ fn bed_of(c: &[f64], nf: [usize; 2], extent: [f64; 2], notes: &mut Vec<String>) 
 /// start, a temporal smoothing of a few frames (the flow changes), and a substep budget that
 /// fits the fastest frame (the cap of 4 would hold back a discharge at 10 Hz). Default frame
 /// period: the scene's output interval.
+/// Closes a catalogue recording: the file's bytes (header with `cfg`, frames, truth) and
+/// what was written, for both kinds of truth (prescribed or frozen, coupled).
+fn finish(
+    writer: Writer,
+    cfg: SensorConfig<f32>,
+    scene: &Scene,
+    opts: &SceneRecordOptions,
+    truth_cells: [usize; 2],
+    frames: u32,
+    final_truth_psi: f64,
+) -> Result<(Vec<u8>, RecordReport)> {
+    let (bytes, stream_bytes) = writer
+        .finish(
+            cfg,
+            &scene.name,
+            opts.noise,
+            opts.seed,
+            [truth_cells[0] as u16, truth_cells[1] as u16],
+        )
+        .map_err(|e| Error::failure(format!("{}: {e}", scene.label)))?;
+    let record = RecordReport {
+        frames,
+        stream_bytes,
+        file_bytes: bytes.len(),
+        final_truth_psi,
+    };
+    Ok((bytes, record))
+}
+
 /// Outlets narrower than this many sensor spacings get no 1-2-1 pass: the filter averages
 /// three points, so it spreads a jet that fewer points see over the walls beside it.
 /// Measured on the full-size silo (docs/soft-sensor.md "Sensor grid, filter and gain on the
@@ -940,22 +956,9 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
             ));
         }
     }
-    let (bytes, stream_bytes) = writer
-        .finish(
-            cfg,
-            &scene.name,
-            opts.noise,
-            opts.seed,
-            [nf[0] as u16, nf[1] as u16],
-        )
-        .map_err(fail)?;
+    let (bytes, record) = finish(writer, cfg, scene, opts, nf, written.min(frames), final_psi)?;
     let report = SceneRecordReport {
-        record: RecordReport {
-            frames: written.min(frames),
-            stream_bytes,
-            file_bytes: bytes.len(),
-            final_truth_psi: final_psi,
-        },
+        record,
         period,
         truth_cells: nf,
         estimator_dt: dt,
