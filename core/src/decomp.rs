@@ -27,6 +27,10 @@
 //! - the time step is a minimum, and `C / max rate` is the minimum of `C / rate` over
 //!   subdomains exactly (correctly rounded division is monotone).
 //!
+//! On cut cells each subdomain steps on its slab of the global [`CutCells`]
+//! ([`load_cut_cells`]) with halos [`GROUP_REACH`] rows wider, so that merge groups across a
+//! cut update as in the global grid (docs/parallel.md "Cut cells on subdomains").
+//!
 //! Diagnostics: the sums of [`crate::diagnostics::diagnose`] run in cell order, so a driver
 //! that wants the serial bits gathers the state (what the host does at output times). A
 //! driver that cannot gather (many ranks) folds [`RowSums`]: one blocked partial
@@ -35,6 +39,7 @@
 
 use crate::boundary::{Boundaries, Boundary};
 use crate::diagnostics::mixing_entropy_density;
+use crate::geometry::{CutCells, GeometryError};
 use crate::grid::Grid;
 use crate::real::Real;
 use crate::segregation::{DirectionMode, Segregation, SetupError, TemperatureMode};
@@ -91,6 +96,17 @@ pub fn halo_width<R: Real, const D: usize, const N: usize>(s: &Segregation<R, D,
     } else {
         1
     }
+}
+
+/// Rows by which a merge group of cut cells ([`crate::geometry::CutCells`]) can reach past
+/// an owned cell along the split axis: an owned cell merged into a master in the next row,
+/// whose group takes in the row after it. A group's update sums its members' increments, so
+/// those members' fluxes (and the coefficients of the row beyond) must be the global ones.
+pub const GROUP_REACH: usize = 2;
+
+/// Halo rows a subdomain on cut cells needs: [`halo_width`] plus [`GROUP_REACH`].
+pub fn halo_width_cut<R: Real, const D: usize, const N: usize>(s: &Segregation<R, D, N>) -> usize {
+    halo_width(s) + GROUP_REACH
 }
 
 /// The largest number of parts `rows` rows split into with halos `halo` wide.
@@ -253,6 +269,20 @@ pub fn load_subdomain<R: Real, const D: usize, const N: usize, const M: usize>(
     local.set_clock(global.time(), global.steps());
     local.set_tracked_excess(global.tracked_excess());
     local.prepare_owned(sub.owned_cells())
+}
+
+/// The cut cells of subdomain `sub`: its rows, halos included, of the global `geo`
+/// ([`CutCells::load_slab`]). A split of a periodic last axis is refused (a merge group
+/// across the wrap would list its members in another order).
+pub fn load_cut_cells<R: Real, const D: usize, const N: usize, const M: usize>(
+    geo: &CutCells<R, D, N>,
+    sub: &Subdomain,
+    local: &mut CutCells<R, D, M>,
+) -> Result<(), GeometryError> {
+    if sub.periodic {
+        return Err(GeometryError::Dimension);
+    }
+    local.load_slab(geo, sub.rows[0] - sub.halo[0], sub.local_rows())
 }
 
 /// Copies the state arrays named in `only` (all of them if empty) of every local row from

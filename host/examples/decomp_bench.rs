@@ -91,7 +91,7 @@ fn bench(steps: u64) {
     );
     for threads in [1, 2, 3] {
         let mut s = global.clone();
-        let d = Driver::new(&s, threads).unwrap();
+        let d = Driver::new(&s, None, threads).unwrap();
         // chunks as the run loop takes them: 4e6 / cells steps per call
         let chunk = (4_000_000 / N).max(1) as u64;
         let c0 = cpu();

@@ -165,6 +165,15 @@ pub fn step<R: Real, const D: usize, const N: usize>(s: &mut Segregation<R, D, N
     step_at(level(), s, dt)
 }
 
+/// [`Segregation::step_embedded`] (cut cells) at this process's [`level`]: the same bits.
+pub fn step_embedded<R: Real, const D: usize, const N: usize>(
+    s: &mut Segregation<R, D, N>,
+    dt: R,
+    geo: &CutCells<R, D, N>,
+) {
+    crate::with_isa!(level(), |I| s.step_embedded_on::<I>(dt, geo))
+}
+
 /// A fork whose hot loops run compiled for `I`: how a coupled or flow step (its solves
 /// through [`Fork::hot`], its segregation stages through `Fork::Isa`) reaches the wider
 /// vector units. The level is a type, so one step is compiled once per level and the choice

@@ -16,6 +16,7 @@
 use crate::error::{Error, Result};
 use crate::scene::Scene;
 use sieve_core::decomp::{self, Side, Subdomain};
+use sieve_core::geometry::CutCells;
 use sieve_core::segregation::snap_slack;
 use sieve_core::{Real, Segregation};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -59,12 +60,17 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
         // a coupled scene's segregation rides on the flow: [`coupled_threads`]
         return (1, None);
     }
-    if scene.geometry.is_none() {
+    let wraps = scene
+        .boundaries
+        .last()
+        .is_some_and(|b| b[0] == sieve_core::Boundary::Periodic);
+    if scene.geometry.is_none() || !wraps {
         return (wanted, None);
     }
+    // a merge group across the wrap would list its members in another order on a subdomain
     let note = requested.map(|n| {
         format!(
-            "note: --threads {n}: cut-cell (geometry) scenes run on one thread (docs/parallel.md)"
+            "note: --threads {n}: cut-cell (geometry) scenes periodic along their last axis run on one thread (docs/parallel.md)"
         )
     });
     (1, note)
@@ -132,10 +138,16 @@ pub(crate) struct Chunk<R> {
     pub(crate) flushed: Vec<(u64, R)>,
 }
 
-/// Subdomains of a prepared box solver, stepped on threads.
+/// Subdomains of a prepared solver, stepped on threads: a box grid, or cut cells (each
+/// subdomain then steps on its slab of the global [`CutCells`], with halos
+/// [`decomp::GROUP_REACH`] rows wider).
 pub struct Driver<R: Real, const D: usize, const N: usize> {
     subs: Vec<Subdomain>,
     locals: Mutex<Vec<Box<Segregation<R, D, N>>>>,
+    /// The subdomains' cut cells (empty on a box grid).
+    geos: Vec<Box<CutCells<R, D, N>>>,
+    /// The global solver's stable step (fixed by its prepared state).
+    dt: R,
     /// The flush floor of the global configuration (the subdomains step with it off).
     floor: R,
     /// The state arrays copied in and out per chunk.
@@ -148,32 +160,52 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
     /// Splits the prepared `global` into `parts` subdomains along the last axis (fewer if
     /// the rows do not allow as many: [`decomp::max_parts`]). Must run on a thread with room
     /// for one solver on its stack (each subdomain is built there, then boxed).
-    pub fn new(global: &Segregation<R, D, N>, parts: usize) -> Result<Self> {
-        let halo = decomp::halo_width(global);
+    pub fn new(
+        global: &Segregation<R, D, N>,
+        geo: Option<&CutCells<R, D, N>>,
+        parts: usize,
+    ) -> Result<Self> {
+        let halo = match geo {
+            Some(_) => decomp::halo_width_cut(global),
+            None => decomp::halo_width(global),
+        };
         let rows = global.grid().cells()[D - 1];
         let parts = parts.min(decomp::max_parts(rows, halo)).max(1);
         let mut subs = Vec::with_capacity(parts);
         let mut locals = Vec::with_capacity(parts);
+        let mut geos = Vec::new();
         for k in 0..parts {
             let sub = Subdomain::new(global.grid(), global.boundaries(), parts, k, halo)
                 .map_err(|e| Error::failure(format!("cannot split the grid: {e:?}")))?;
             let mut local = Box::new(Segregation::<R, D, N>::zeroed());
             decomp::load_subdomain(global, &sub, &mut local)
                 .map_err(|e| Error::failure(format!("subdomain {k}: {e:?}")))?;
+            if let Some(g) = geo {
+                let mut cut = Box::new(CutCells::<R, D, N>::zeroed());
+                decomp::load_cut_cells(g, &sub, &mut cut)
+                    .map_err(|e| Error::failure(format!("subdomain {k}: cut cells: {e:?}")))?;
+                geos.push(cut);
+            }
             subs.push(sub);
             locals.push(local);
         }
         // The global step is the minimum over the subdomains (exact: model.md 5 and
         // core/src/decomp.rs); a difference is a bug, not bad input.
+        let stable = |s: &Segregation<R, D, N>, g: Option<&CutCells<R, D, N>>| match g {
+            Some(g) => s.stable_dt_embedded(g),
+            None => s.stable_dt(),
+        };
         let dt = locals
             .iter()
-            .map(|l| l.stable_dt())
+            .enumerate()
+            .map(|(k, l)| stable(l, geos.get(k).map(|g| g.as_ref())))
             .fold(R::MAX, |a, b| a.min(b));
-        if dt.to_bits_u64() != global.stable_dt().to_bits_u64() {
+        let global_dt = stable(global, geo);
+        if dt.to_bits_u64() != global_dt.to_bits_u64() {
             return Err(Error::failure(format!(
                 "subdomain time step {:e} differs from the global {:e}",
                 dt.to_f64(),
-                global.stable_dt().to_f64()
+                global_dt.to_f64()
             )));
         }
         let mail = subs
@@ -187,6 +219,8 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         Ok(Self {
             subs,
             locals: Mutex::new(locals),
+            geos,
+            dt: global_dt,
             floor: cfg.flush_below,
             fields: if cfg.compensated {
                 &["q", "carry"]
@@ -208,7 +242,8 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         if !target.is_finite() || max_steps == 0 || global.time() >= target {
             return 0;
         }
-        let dt = global.stable_dt();
+        // the prepared state's step (checked against the subdomains' minimum in `new`)
+        let dt = self.dt;
         let slack = snap_slack(target);
         let mut locals = self.locals.lock().expect("subdomains");
         let barrier = Barrier::new(self.subs.len());
@@ -267,21 +302,30 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         let mut excess = g.tracked_excess();
         let mut flushed = Vec::new();
         let mut taken = 0;
+        let geo = self.geos.get(sub.index).map(|g| g.as_ref());
+        let step = |l: &mut Segregation<R, D, N>, dt: R| match geo {
+            Some(g) => crate::isa::step_embedded(l, dt, g),
+            None => crate::isa::step(l, dt),
+        };
         // The control of Segregation::advance_to, step for step.
         while l.time() < target && taken < max_steps {
             let before = l.steps();
             let remaining = target - l.time();
             if remaining <= dt || remaining - dt <= slack {
-                crate::isa::step(l, remaining);
+                step(l, remaining);
                 l.set_clock(target, l.steps());
             } else {
-                crate::isa::step(l, dt);
+                step(l, dt);
             }
-            l.end_owned_step(self.floor, before, &mut excess, |_, v| {
+            let keep = |_, v| {
                 if v != R::ZERO {
                     flushed.push((before, v));
                 }
-            });
+            };
+            match geo {
+                Some(g) => l.end_owned_step_embedded(g, self.floor, before, &mut excess, keep),
+                None => l.end_owned_step(self.floor, before, &mut excess, keep),
+            }
             taken += 1;
             self.exchange(sub, l, (taken % 2) as usize, barrier);
         }
@@ -380,6 +424,7 @@ pub fn diagnose_on<R: Real, const D: usize, const N: usize>(
 /// a note goes to stderr when a requested split is not possible.
 pub fn driver_for<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
+    geo: Option<&CutCells<R, D, N>>,
     scene: &Scene,
     quiet: bool,
 ) -> Result<Option<Driver<R, D, N>>> {
@@ -391,7 +436,7 @@ pub fn driver_for<R: Real, const D: usize, const N: usize>(
     if threads <= 1 {
         return Ok(None);
     }
-    let d = Driver::new(s, threads)?;
+    let d = Driver::new(s, geo, threads)?;
     if d.parts() < threads && requested.is_some() && !quiet {
         eprintln!(
             "note: --threads {threads}: {} rows allow {} subdomains",

@@ -291,7 +291,7 @@ fn threaded_time_loop<R: Real, const D: usize, const N: usize>(
         };
         return time_loop_driven(s, scene, progress, geo, ckpt, ranks, on_output);
     }
-    let driver = crate::parallel::driver_for(s, scene, quiet)?;
+    let driver = crate::parallel::driver_for(s, geo, scene, quiet)?;
     let step = driver
         .as_ref()
         .map(|d| move |s: &mut _, t, n| d.advance(s, t, n));

@@ -12,6 +12,7 @@
 
 use crate::common::run_in;
 use sieve::parallel::Driver;
+use sieve_core::geometry::{CutCells, Primitive, Region};
 use sieve_core::segregation::SegregationConfig;
 use sieve_core::{
     state_hash, Boundaries, Boundary, DirectionMode, Grid, Phase, Scheme, Segregation,
@@ -89,15 +90,34 @@ fn first_difference<const D: usize>(
 /// Steps `serial` and a copy driven by `threads` threads one step at a time to `t_end`
 /// (the last step shortened, as in a run), comparing after every step. Returns the steps.
 fn same_bits<const D: usize>(serial: &Segregation<f64, D, N>, threads: usize, what: &str) -> usize {
+    same_bits_on(serial, None, threads, what)
+}
+
+/// [`same_bits`] on cut cells `geo` when given (the serial solver steps with
+/// `advance_to_embedded`, the driver's subdomains on their slabs of `geo`).
+fn same_bits_on<const D: usize>(
+    serial: &Segregation<f64, D, N>,
+    geo: Option<&CutCells<f64, D, N>>,
+    threads: usize,
+    what: &str,
+) -> usize {
+    let advance = |s: &mut Segregation<f64, D, N>, t: f64, n: u64| match geo {
+        Some(g) => s.advance_to_embedded(t, n, g),
+        None => s.advance_to(t, n),
+    };
+    let dt = match geo {
+        Some(g) => serial.stable_dt_embedded(g),
+        None => serial.stable_dt(),
+    };
     let mut a = serial.clone();
     let mut b = serial.clone();
-    let driver = Driver::new(&b, threads).unwrap();
+    let driver = Driver::new(&b, geo, threads).unwrap();
     assert_eq!(driver.parts(), threads, "{what}: split into fewer parts");
-    let t_end = 40.5 * a.stable_dt();
+    let t_end = 40.5 * dt;
     let mut step = 0;
     while a.time() < t_end {
         step += 1;
-        let na = a.advance_to(t_end, 1);
+        let na = advance(&mut a, t_end, 1);
         let nb = driver.advance(&mut b, t_end, 1);
         assert_eq!((na, nb), (1, 1));
         let same = state_hash(&a) == state_hash(&b)
@@ -108,11 +128,11 @@ fn same_bits<const D: usize>(serial: &Segregation<f64, D, N>, threads: usize, wh
     }
     // and in chunks of several steps (what the run loop asks for)
     let (mut c, mut d) = (serial.clone(), serial.clone());
-    let driver = Driver::new(&d, threads).unwrap();
-    let target = 7.25 * c.stable_dt();
-    c.advance_to(target, 5);
+    let driver = Driver::new(&d, geo, threads).unwrap();
+    let target = 7.25 * dt;
+    advance(&mut c, target, 5);
     driver.advance(&mut d, target, 5);
-    c.advance_to(t_end, u64::MAX);
+    advance(&mut c, t_end, u64::MAX);
     driver.advance(&mut d, t_end, u64::MAX);
     assert_eq!(state_hash(&c), state_hash(&a), "{what}: chunked serial");
     assert!(
@@ -218,7 +238,95 @@ fn three_d_same_bits_for_1_to_4_threads() {
         same_bits(&s, threads, &format!("3D, {threads} threads"));
     }
     // 11 rows allow 11 parts of halo 1; more are clamped
-    assert_eq!(Driver::new(&s, 64).unwrap().parts(), 11);
+    assert_eq!(Driver::new(&s, None, 64).unwrap().parts(), 11);
+}
+
+/// Merge groups of `geo` whose cells the split into `parts` parts puts in different
+/// subdomains (the case the cut-cell halo's [`sieve_core::decomp::GROUP_REACH`] is for).
+fn groups_across_cuts(geo: &CutCells<f64, 2, N>, parts: usize) -> usize {
+    let [nx, rows] = geo.grid().cells();
+    let part = |i: usize| {
+        let r = i / nx;
+        (0..parts)
+            .position(|k| sieve_core::decomp::owned_rows(rows, parts, k).contains(&r))
+            .unwrap()
+    };
+    (0..geo.len())
+        .filter(|&i| !geo.is_solid(i) && part(geo.master(i)) != part(i))
+        .count()
+}
+
+/// Cut cells on threads (docs/parallel.md): a drum in the 37 x 23 shear layer (x periodic,
+/// walls in y), placed for each split so that the sliver cells of its bottom lie in the last
+/// row of the first subdomain and merge (threshold 1/2) into the row above, across the cut;
+/// stepped by the serial embedded step and by the driver on 2 to 5 threads: the same bits
+/// after every step, with T and the direction from the velocity gradient (halo 2 + 2) and
+/// with given T along gravity (halo 1 + 2), flushes included. With a halo of the box step's
+/// width only, the bits differ (the test can fail).
+#[test]
+fn cut_cells_same_bits_on_threads() {
+    let h = 0.023 / 23.0;
+    let radius = 0.006;
+    for gradient in [true, false] {
+        let mut s = shear_2d(Boundary::Wall, Phase::Small, false);
+        if !gradient {
+            let mut cfg = *s.config();
+            cfg.direction = DirectionMode::Gravity;
+            cfg.temperature = TemperatureMode::Given;
+            let (grid, bc) = (*s.grid(), *s.boundaries());
+            let mut t = Solver::zeroed();
+            t.setup(grid, bc, cfg).unwrap();
+            fill(&mut t, |_, _| [0.0, 0.0]);
+            s = t;
+        }
+        let halo = sieve_core::decomp::halo_width_cut(&s);
+        assert_eq!(
+            halo,
+            sieve_core::decomp::GROUP_REACH + if gradient { 2 } else { 1 }
+        );
+        let most = sieve_core::decomp::max_parts(23, halo);
+        for threads in 2..=most.min(5) {
+            let cut = sieve_core::decomp::owned_rows(23, threads, 0).end;
+            let bottom = (cut - 1) as f64 * h + 0.63 * h;
+            let drum = Region::drum([0.0185, bottom + radius], radius);
+            // a channel one row and two slivers high: the slivers above and below merge into
+            // the middle row, whose groups then span three rows across the cut
+            let (lo, hi) = (
+                (cut - 1) as f64 * h + 0.7 * h,
+                (cut + 1) as f64 * h + 0.3 * h,
+            );
+            let channel = Region::new()
+                .intersect(Primitive::HalfSpace {
+                    point: [0.0, lo],
+                    normal: [0.0, -1.0],
+                })
+                .intersect(Primitive::HalfSpace {
+                    point: [0.0, hi],
+                    normal: [0.0, 1.0],
+                });
+            for (shape, region) in [("drum", &drum), ("channel", &channel)] {
+                let mut geo = CutCells::<f64, 2, N>::zeroed();
+                geo.build(s.grid(), region, [true, false], 0.5).unwrap();
+                let mut a = s.clone();
+                // (no inflow boundary here; the group means could put c below fill's inflow)
+                for i in 0..a.len() {
+                    a.set_inflow(i, 0.0);
+                }
+                a.prepare_embedded(&geo).unwrap();
+                let across = groups_across_cuts(&geo, threads);
+                assert!(across > 0, "{threads} parts: no group across a cut");
+                let what = format!(
+                "{shape}, gradient {gradient}, {threads} threads ({across} merged cells across cuts)"
+            );
+                same_bits_on(&a, Some(&geo), threads, &what);
+                if threads == 2 && shape == "drum" {
+                    let dt = a.stable_dt_embedded(&geo);
+                    a.advance_to_embedded(40.5 * dt, u64::MAX, &geo);
+                    assert!(a.flushed_tracked() > 0.0, "nothing was flushed");
+                }
+            }
+        }
+    }
 }
 
 #[test]
@@ -334,6 +442,14 @@ fn cli_threads_1_and_3_write_the_same_files() {
 }
 
 #[test]
+fn cli_threads_cut_cells() {
+    // a prescribed scene on cut cells: the drum's subdomains step on their slabs of the cut
+    // cells (96 rows: 32 / 32 / 32 per thread, the drum's walls cross every cut)
+    let s = same_outputs(&["drum-settling", "--grid", "48x96", "--t-end", "0.6"]);
+    assert!(s["segregation_time"].as_f64().unwrap() > 0.3, "{s}");
+}
+
+#[test]
 fn cli_threads_frozen_flow() {
     // the segregation part of a frozen-flow scene
     same_outputs(&["shear-cell", "--grid", "16x16", "--t-end", "2"]);
@@ -357,9 +473,24 @@ fn cli_threads_refusals_and_notes() {
         assert_eq!(err.trim_end().lines().count(), 1, "--threads {bad}: {err}");
         assert!(err.contains("--threads"), "--threads {bad}: {err}");
     }
-    // a scene the split does not take (cut cells) runs on one thread, with a one-line note
-    let note = one_note(d.path(), &["drum-settling", "--t-end", "0.1", "--out", "g"]);
-    assert!(note.contains("one thread"), "{note}");
+    // a scene the split does not take (cut cells periodic along the split axis) runs on one
+    // thread, with a one-line note
+    let note = one_note(
+        d.path(),
+        &[
+            "drum-settling",
+            "--set",
+            "boundary.z=[\"periodic\",\"periodic\"]",
+            "--t-end",
+            "0.1",
+            "--out",
+            "g",
+        ],
+    );
+    assert!(
+        note.contains("periodic along their last axis run on one thread"),
+        "{note}"
+    );
     // a coupled grid below 65,536 cells runs its solves on one thread, with a one-line note
     let note = one_note(
         d.path(),

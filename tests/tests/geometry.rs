@@ -681,3 +681,84 @@ fn tilted_plane_in_3d_is_exact_and_sphere_converges() {
     assert!(o > 1.6, "sphere order {o}");
     assert!(errs[2].0 < 5e-3 * exact);
 }
+
+/// A subdomain's slab of the cut cells (`CutCells::load_slab`, docs/parallel.md): every
+/// volume, aperture, wall quantity and group of its rows is the global one to the bit, with
+/// the masters renumbered; a group reaching past the slab keeps the members inside, a cell
+/// whose master lies outside becomes its own; the whole grid as a slab is the global
+/// geometry; a slab past the grid or across a periodic wrap is refused.
+#[test]
+fn slab_of_the_cut_cells_is_the_global_one_row_for_row() {
+    let mut g = boxed::<f64, 2, N2>();
+    build2(&mut g, 40, &Region::drum([0.500731, 0.500377], 0.3));
+    let mut local = boxed::<f64, 2, N2>();
+    let nx = 40;
+    let mut check = |first: usize, rows: usize| {
+        local.load_slab(&g, first, rows).unwrap();
+        assert_eq!(local.grid().cells(), [nx, rows]);
+        let off = first * nx;
+        let (mut renumbered, mut cut_off) = (0, 0);
+        for i in 0..local.len() {
+            let j = off + i;
+            let same = |a: f64, b: f64| a.to_bits() == b.to_bits();
+            assert!(same(local.volume(i), g.volume(j)), "cell {i}");
+            for a in 0..2 {
+                assert!(same(local.aperture(a, i), g.aperture(a, j)), "cell {i}");
+                assert!(
+                    same(local.aperture_low(a, i), g.aperture_low(a, j)),
+                    "cell {i}"
+                );
+                assert!(
+                    same(local.wall_vector(i)[a], g.wall_vector(j)[a]),
+                    "cell {i}"
+                );
+                assert!(same(local.open_centroid(i)[a], g.open_centroid(j)[a]));
+            }
+            assert!(same(local.wall_distance(i), g.wall_distance(j)));
+            let m = g.master(j);
+            if (off..off + local.len()).contains(&m) {
+                assert_eq!(local.master(i) + off, m, "cell {i}");
+                assert!(same(local.group_volume(i), g.group_volume(j)));
+                renumbered += usize::from(m != j);
+                // an inner row's group is the global one, member for member
+                let row = i / nx;
+                if row > 0 && row + 1 < rows {
+                    let (lm, ll) = local.group(i);
+                    let (gm, gl) = g.group(j);
+                    assert_eq!(ll, gl, "cell {i}");
+                    for k in 0..ll {
+                        assert_eq!(lm[k] + off, gm[k], "cell {i}");
+                    }
+                }
+            } else {
+                assert_eq!(local.master(i), i, "cell {i}: master outside, its own");
+                assert!(same(local.group_volume(i), g.volume(j)));
+                cut_off += 1;
+            }
+        }
+        (renumbered, cut_off)
+    };
+    // rows 9..22 hold the drum's sides; rows 0..9 end where the bottom cap's slivers
+    // (row 8) merge into row 9
+    assert!(check(9, 13).0 > 0, "no merged cell in the slab");
+    assert!(check(0, 9).1 > 0, "no group across the slab's edge");
+    // the whole grid
+    local.load_slab(&g, 0, nx).unwrap();
+    for i in 0..g.len() {
+        assert_eq!(local.master(i), g.master(i));
+        assert_eq!(local.group(i), g.group(i));
+        assert_eq!(local.group_volume(i).to_bits(), g.group_volume(i).to_bits());
+    }
+    // refused: past the last row, and part of a periodic axis
+    assert!(local.load_slab(&g, 30, 11).is_err());
+    let mut p = boxed::<f64, 2, N2>();
+    p.build(
+        &unit_grid(40),
+        &Region::drum([0.5, 0.5], 0.3),
+        [false, true],
+        0.5,
+    )
+    .unwrap();
+    assert!(local.load_slab(&p, 5, 10).is_err());
+    assert!(local.load_slab(&p, 0, 40).is_ok());
+}

@@ -692,6 +692,79 @@ impl<R: Real, const D: usize, const N: usize> CutCells<R, D, N> {
         (idx, len)
     }
 
+    /// The cut cells of a subdomain (docs/parallel.md, [`crate::decomp`]): rows
+    /// `first .. first + rows` of `global` along its last axis, copied cell by cell, so that
+    /// every aperture, volume and group is the global one to the bit. The last axis must not
+    /// wrap unless the slab is the whole grid (a group across the wrap would list its members
+    /// in another order). A group that reaches past the slab keeps the members inside; a cell
+    /// merged into a master outside it becomes a cell of its own. Both happen only in the
+    /// outermost rows, which a subdomain's halo makes wide enough that no owned cell sees them.
+    /// The low aperture of the first row is the high aperture of the global row below it.
+    pub fn load_slab<const M: usize>(
+        &mut self,
+        global: &CutCells<R, D, M>,
+        first: usize,
+        rows: usize,
+    ) -> Result<(), GeometryError> {
+        let last = D - 1;
+        let grid = global.grid.slab(first as i64, rows);
+        let n = grid.len();
+        if n > N {
+            return Err(GeometryError::Capacity {
+                cells: n,
+                capacity: N,
+            });
+        }
+        let whole = first == 0 && rows == global.grid.cells()[last];
+        if first + rows > global.grid.cells()[last] || (global.periodic[last] && !whole) {
+            return Err(GeometryError::Dimension);
+        }
+        let plane = n / rows.max(1);
+        let off = first * plane;
+        self.grid = grid;
+        self.periodic = global.periodic;
+        self.small = global.small;
+        self.stats = global.stats;
+        for i in 0..n {
+            let g = off + i;
+            self.vol[i] = global.vol[g];
+            for a in 0..D {
+                self.ap[a][i] = global.ap[a][g];
+                self.ap_box_low[a][i] = global.ap_box_low[a][g];
+                self.wall[a][i] = global.wall[a][g];
+                self.wall_point[a][i] = global.wall_point[a][g];
+                self.centroid[a][i] = global.centroid[a][g];
+            }
+            if i < plane && first > 0 {
+                // the low face of the first row is the high face of the row below it
+                self.ap_box_low[last][i] = global.ap[last][g - plane];
+            }
+            self.wall_area[i] = global.wall_area[g];
+            self.wall_dist[i] = global.wall_dist[g];
+            self.group_vol[i] = global.group_vol[g];
+            let m = global.master[g] as usize;
+            let mut merged = global.merged[g];
+            if (off..off + n).contains(&m) {
+                self.master[i] = (m - off) as u32;
+            } else {
+                self.master[i] = i as u32;
+                self.group_vol[i] = global.vol[g];
+            }
+            // members beyond the slab's first or last row stay outside
+            let row = i / plane;
+            if whole && self.periodic[last] {
+                // the whole wrapped axis: every member is inside
+            } else if row == 0 {
+                merged &= !(1 << (2 * last));
+            }
+            if row + 1 == rows && !(whole && self.periodic[last]) {
+                merged &= !(1 << (2 * last + 1));
+            }
+            self.merged[i] = merged;
+        }
+        Ok(())
+    }
+
     // ---------------------------------------------------------------- accessors
 
     /// The face neighbour of `i` across its low or high face along `a` (wrapping on periodic

@@ -177,6 +177,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         };
         // integer coordinates advanced like an odometer (no division per cell)
         let mut coords = [0usize; D];
+        // a subdomain's rate counts the groups whose master it owns
+        let owned = self.tally.0..self.tally.1;
         for m in 0..n {
             let here = coords;
             for a in 0..D {
@@ -186,7 +188,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 }
                 coords[a] = 0;
             }
-            if geo.is_solid(m) || geo.is_merged(m) {
+            if geo.is_solid(m) || geo.is_merged(m) || !owned.contains(&m) {
                 continue;
             }
             let mut sum = R::ZERO;
@@ -326,7 +328,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let (q, dq) = (&mut self.q[..n], &self.rhs[..n]);
         geo.apply_increment(q, dq);
         let (mut above, mut below) = (self.excess[0], self.excess[1]);
-        for i in 0..n {
+        // the bounds of a subdomain's owned cells only (its halo rows may overshoot)
+        for i in self.tally.0.min(n)..self.tally.1.min(n) {
             if !geo.is_solid(i) {
                 above = above.max(self.q[i] - self.c[i]);
                 below = below.max(-self.q[i]);
@@ -357,6 +360,49 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
         if any {
             geo.copy_from_masters(&mut self.q[..self.grid.len()]);
+        }
+    }
+
+    /// [`Self::end_owned_step`] on cut cells: the running bound maxima `excess` and the
+    /// flush of vanishing fractions (docs/model.md 5.6) per merge group, exactly as
+    /// [`Self::step_embedded`] does them after step number `steps_before`, for a subdomain
+    /// that steps with the flush off. Every group with a member among the owned cells is
+    /// flushed (its master is at most one row away, and the halo holds it to the bit), so
+    /// that an owned cell merged into a master across the cut changes as the global one
+    /// does; only the groups whose master is owned hand their content `q V_group` to
+    /// `flushed`, in cell order, as the global step adds them to its counter.
+    pub fn end_owned_step_embedded(
+        &mut self,
+        geo: &CutCells<R, D, N>,
+        floor: R,
+        steps_before: u64,
+        excess: &mut [R; 2],
+        mut flushed: impl FnMut(usize, R),
+    ) {
+        *excess = [excess[0].max(self.excess[0]), excess[1].max(self.excess[1])];
+        if floor <= R::ZERO || steps_before % super::step::FLUSH_EVERY != 0 {
+            return;
+        }
+        let n = self.grid.len();
+        let plane = n / self.grid.cells()[D - 1].max(1);
+        let owned = self.tally.0.min(n)..self.tally.1.min(n);
+        let near = owned.start.saturating_sub(plane)..(owned.end + plane).min(n);
+        let mut any = false;
+        for i in near {
+            if geo.is_solid(i) || geo.master(i) != i {
+                continue;
+            }
+            let v = self.q[i];
+            if v != R::ZERO && v.abs() < floor {
+                if owned.contains(&i) {
+                    flushed(i, v * geo.group_volume(i));
+                }
+                self.q[i] = R::ZERO;
+                any = true;
+            }
+        }
+        if any {
+            geo.copy_from_masters(&mut self.q[..n]);
         }
     }
 
