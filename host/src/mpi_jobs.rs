@@ -55,8 +55,14 @@ impl SolverJob for Follower<'_> {
         s: &mut Segregation<R, D, N>,
     ) -> Result<()> {
         crate::run::load(s, self.scene, self.fields)?;
+        // cut cells as rank 0 builds and prepares them (crate::run's RunJob)
+        let geo = crate::embedded::build(s, self.scene)?;
+        let geo = geo.as_deref();
+        if let Some(g) = geo {
+            crate::embedded::prepare(s, self.scene, g)?;
+        }
         self.restore(s)?;
-        serve(s, self.scene, None)
+        serve(s, geo, self.scene, None)
     }
 }
 
@@ -77,7 +83,7 @@ impl FlowJob for Follower<'_> {
         };
         crate::flow::hand_over_frozen(s, self.scene, self.fields, &frozen)?;
         self.restore(s)?;
-        serve(s, self.scene, Some(frozen.p))
+        serve(s, None, self.scene, Some(frozen.p))
     }
 }
 
@@ -114,9 +120,18 @@ impl SolverJob for Job<'_> {
         s: &mut Segregation<R, D, N>,
     ) -> Result<Check> {
         let (rank, ranks) = world().ok_or_else(|| Error::failure("not an MPI run"))?;
-        crate::run::load(s, self.scene, self.fields)?;
+        let prepared = |s: &mut Segregation<R, D, N>| -> Result<_> {
+            crate::run::load(s, self.scene, self.fields)?;
+            let geo = crate::embedded::build(s, self.scene)?;
+            if let Some(g) = geo.as_deref() {
+                crate::embedded::prepare(s, self.scene, g)?;
+            }
+            Ok(geo)
+        };
+        let geo = prepared(s)?;
+        let geo = geo.as_deref();
         if rank > 0 {
-            serve(s, self.scene, None)?;
+            serve(s, geo, self.scene, None)?;
             return Ok(Check {
                 ranks,
                 steps: 0,
@@ -125,11 +140,14 @@ impl SolverJob for Job<'_> {
             });
         }
         let t_end = R::from_f64(self.scene.t_end);
-        let driver = driver_for(s)?.ok_or_else(|| Error::failure("not rank 0"))?;
+        let driver = driver_for(s, geo)?.ok_or_else(|| Error::failure("not rank 0"))?;
         let steps = driver.advance(s, t_end, u64::MAX);
         let hash = state_hash(s);
-        crate::run::load(s, self.scene, self.fields)?;
-        s.advance_to(t_end, u64::MAX);
+        prepared(s)?;
+        match geo {
+            Some(g) => s.advance_to_embedded(t_end, u64::MAX, g),
+            None => s.advance_to(t_end, u64::MAX),
+        };
         Ok(Check {
             ranks,
             steps,

@@ -48,6 +48,7 @@ use crate::scene::{Equations, Scene};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use sieve_core::decomp::{self, Side, Subdomain};
+use sieve_core::geometry::CutCells;
 use sieve_core::segregation::snap_slack;
 use sieve_core::{Real, Segregation};
 use std::cell::{Cell, RefCell};
@@ -354,16 +355,21 @@ fn send_stop(code: i32) {
 // Scope
 
 /// Why a scene cannot run under mpirun, before anything is built (every rank finds the
-/// same): coupled-flow and cut-cell scenes (decision: refused, exit 2, rather than run on
-/// rank 0 while the other ranks wait) and more ranks than the rows allow. Checkpoints and
+/// same): coupled-flow scenes and cut-cell scenes periodic along their last axis (decision:
+/// refused, exit 2, rather than run on rank 0 while the other ranks wait) and more ranks
+/// than the rows allow (cut cells: halos [`decomp::GROUP_REACH`] rows wider). Checkpoints and
 /// `--resume` run (rank 0 writes the checkpoints from its global solver; every rank reads
 /// the checkpoint it resumes: `crate::mpi_jobs::follow`).
 pub fn check_scope(scene: &Scene) -> Result<()> {
     let Some((_, ranks)) = world() else {
         return Ok(());
     };
-    let why = if scene.geometry.is_some() {
-        Some("cut-cell (geometry) scenes")
+    let wraps = scene
+        .boundaries
+        .last()
+        .is_some_and(|b| b[0] == sieve_core::Boundary::Periodic);
+    let why = if scene.geometry.is_some() && wraps {
+        Some("cut-cell (geometry) scenes periodic along their last axis")
     } else if scene
         .flow
         .as_ref()
@@ -383,7 +389,12 @@ pub fn check_scope(scene: &Scene) -> Result<()> {
     let rows = scene.cells[scene.dim - 1];
     let gradient = matches!(scene.direction, Direction::Flow)
         || matches!(scene.temperature, Temperature::Shear { .. });
-    let halo = if gradient { 2 } else { 1 };
+    let halo = if gradient { 2 } else { 1 }
+        + if scene.geometry.is_some() {
+            decomp::GROUP_REACH
+        } else {
+            0
+        };
     let max = decomp::max_parts(rows, halo);
     if ranks > max {
         let axis = crate::scene::validate::axis_names(scene.dim)[scene.dim - 1];
@@ -413,10 +424,23 @@ fn copied(global_compensated: bool) -> &'static [&'static str] {
     }
 }
 
+/// The halo rows of a subdomain: the box step's, wider on cut cells (docs/parallel.md).
+fn halo_of<R: Real, const D: usize, const N: usize>(
+    s: &Segregation<R, D, N>,
+    geo: Option<&CutCells<R, D, N>>,
+) -> usize {
+    match geo {
+        Some(_) => decomp::halo_width_cut(s),
+        None => decomp::halo_width(s),
+    }
+}
+
 /// One rank's subdomain and its halo buffers.
 struct Local<R: Real, const D: usize, const N: usize> {
     sub: Subdomain,
     s: Box<Segregation<R, D, N>>,
+    /// The subdomain's slab of the cut cells (cut-cell scenes).
+    geo: Option<Box<CutCells<R, D, N>>>,
     /// The global step (the subdomain's own is larger: model.md 5, decomp.rs).
     dt: R,
     floor: R,
@@ -450,28 +474,47 @@ fn wait_politely<'a, S: mpi::request::Scope<'a>>(mut req: mpi::request::Request<
 impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
     /// Subdomain `rank` of `ranks` of the prepared `global`, checked against the global
     /// step.
-    fn new(global: &Segregation<R, D, N>, rank: usize, ranks: usize) -> Result<Self> {
-        let halo = decomp::halo_width(global);
+    fn new(
+        global: &Segregation<R, D, N>,
+        geo: Option<&CutCells<R, D, N>>,
+        rank: usize,
+        ranks: usize,
+    ) -> Result<Self> {
+        let halo = halo_of(global, geo);
         let sub = Subdomain::new(global.grid(), global.boundaries(), ranks, rank, halo)
             .map_err(|e| Error::failure(format!("{ranks} ranks cannot split the grid: {e:?}")))?;
         let mut s = Box::new(Segregation::<R, D, N>::zeroed());
         decomp::load_subdomain(global, &sub, &mut s)
             .map_err(|e| Error::failure(format!("rank {rank}: {e:?}")))?;
+        let local_geo = match geo {
+            Some(g) => {
+                let mut cut = Box::new(CutCells::<R, D, N>::zeroed());
+                decomp::load_cut_cells(g, &sub, &mut cut)
+                    .map_err(|e| Error::failure(format!("rank {rank}: cut cells: {e:?}")))?;
+                Some(cut)
+            }
+            None => None,
+        };
         // Every rank steps with the global step, which it computed itself (the same bits on
         // every rank). The subdomain's own step is over a subset of the cells, so it cannot
         // be smaller: a smaller one is a bug, not bad input (docs/parallel.md).
-        if s.stable_dt() < global.stable_dt() {
+        let (mine, dt) = match (geo, &local_geo) {
+            (Some(g), Some(l)) => (s.stable_dt_embedded(l), global.stable_dt_embedded(g)),
+            _ => (s.stable_dt(), global.stable_dt()),
+        };
+        if mine < dt {
             return Err(Error::failure(format!(
                 "rank {rank}: subdomain time step {:e} below the global {:e}",
-                s.stable_dt().to_f64(),
-                global.stable_dt().to_f64()
+                mine.to_f64(),
+                dt.to_f64()
             )));
         }
         let len = |side| sub.message_len(side, 1);
         Ok(Self {
             sub,
             s,
-            dt: global.stable_dt(),
+            geo: local_geo,
+            dt,
             floor: global.config().flush_below,
             excess: global.tracked_excess(),
             fields: copied(global.config().compensated),
@@ -490,18 +533,31 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
         while self.s.time() < target && taken < max_steps {
             let before = self.s.steps();
             let remaining = target - self.s.time();
+            let geo = self.geo.as_deref();
+            let step = |s: &mut Segregation<R, D, N>, dt: R| match geo {
+                Some(g) => crate::isa::step_embedded(s, dt, g),
+                None => crate::isa::step(s, dt),
+            };
             if remaining <= self.dt || remaining - self.dt <= slack {
-                crate::isa::step(&mut *self.s, remaining);
+                step(&mut self.s, remaining);
                 self.s.set_clock(target, self.s.steps());
             } else {
-                crate::isa::step(&mut *self.s, self.dt);
+                step(&mut self.s, self.dt);
             }
-            self.s
-                .end_owned_step(self.floor, before, &mut self.excess, |_, v| {
-                    if v != R::ZERO {
-                        flushed.push((before, v));
-                    }
-                });
+            let keep = |_, v| {
+                if v != R::ZERO {
+                    flushed.push((before, v));
+                }
+            };
+            match geo {
+                Some(g) => {
+                    self.s
+                        .end_owned_step_embedded(g, self.floor, before, &mut self.excess, keep)
+                }
+                None => self
+                    .s
+                    .end_owned_step(self.floor, before, &mut self.excess, keep),
+            }
             taken += 1;
             self.exchange();
         }
@@ -684,14 +740,15 @@ pub struct Driver<R: Real, const D: usize, const N: usize> {
 /// subdomain, then agrees with the followers ([`agree`]) and checks the time step.
 pub fn driver_for<R: Real, const D: usize, const N: usize>(
     s: &Segregation<R, D, N>,
+    geo: Option<&CutCells<R, D, N>>,
 ) -> Result<Option<Driver<R, D, N>>> {
     let Some((0, ranks)) = world() else {
         return Ok(None);
     };
-    let local = Local::new(s, 0, ranks);
+    let local = Local::new(s, geo, 0, ranks);
     agree(local.as_ref().err())?;
     let local = local?;
-    let halo = decomp::halo_width(s);
+    let halo = halo_of(s, geo);
     let subs = (0..ranks)
         .map(|r| Subdomain::new(s.grid(), s.boundaries(), ranks, r, halo))
         .collect::<Result<Vec<_>, _>>()
@@ -870,11 +927,13 @@ pub fn write_snapshot(
 /// pressure, written into the pieces).
 pub fn serve<R: Real, const D: usize, const N: usize>(
     global: &mut Segregation<R, D, N>,
+    geo: Option<&CutCells<R, D, N>>,
     scene: &Scene,
     p: Option<Vec<f64>>,
 ) -> Result<()> {
     let (rank, ranks) = world().ok_or_else(|| Error::failure("not an MPI run"))?;
-    let local = Local::new(global, rank, ranks);
+    let volume = geo.map(crate::embedded::volumes);
+    let local = Local::new(global, geo, rank, ranks);
     agree(local.as_ref().err())?;
     let mut local = local?;
     let world = comm();
@@ -900,6 +959,7 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
                 global.set_clock(local.s.time(), local.s.steps());
                 let mut snap = Snapshot::of(global, scene);
                 snap.p = p.clone();
+                snap.volume = volume.clone();
                 let status = match write_piece(Path::new(&dir), k, scene, &snap, rank, ranks) {
                     Ok(_) => Vec::new(),
                     Err(e) => encode(&e),

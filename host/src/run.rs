@@ -282,7 +282,7 @@ fn threaded_time_loop<R: Real, const D: usize, const N: usize>(
 ) -> Result<LoopStats> {
     // `mpirun -np K sieve run` (the `mpi` feature): rank 0 steps on the ranks instead
     #[cfg(feature = "mpi")]
-    if let Some(d) = crate::parallel_mpi::driver_for(s)? {
+    if let Some(d) = crate::parallel_mpi::driver_for(s, geo)? {
         let step = move |s: &mut _, t, n| d.advance(s, t, n);
         // the other ranks step with rank 0, but its diagnoses stay on one thread
         let ranks = Workers {
