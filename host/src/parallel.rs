@@ -138,6 +138,18 @@ pub(crate) struct Chunk<R> {
     pub(crate) flushed: Vec<(u64, R)>,
 }
 
+/// The halo rows of a subdomain of `s`: the box step's, [`decomp::GROUP_REACH`] wider on
+/// cut cells (docs/parallel.md "Cut cells on subdomains"); threads and ranks alike.
+pub(crate) fn halo_of<R: Real, const D: usize, const N: usize>(
+    s: &Segregation<R, D, N>,
+    geo: Option<&CutCells<R, D, N>>,
+) -> usize {
+    match geo {
+        Some(_) => decomp::halo_width_cut(s),
+        None => decomp::halo_width(s),
+    }
+}
+
 /// Subdomains of a prepared solver, stepped on threads: a box grid, or cut cells (each
 /// subdomain then steps on its slab of the global [`CutCells`], with halos
 /// [`decomp::GROUP_REACH`] rows wider).
@@ -165,10 +177,7 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         geo: Option<&CutCells<R, D, N>>,
         parts: usize,
     ) -> Result<Self> {
-        let halo = match geo {
-            Some(_) => decomp::halo_width_cut(global),
-            None => decomp::halo_width(global),
-        };
+        let halo = halo_of(global, geo);
         let rows = global.grid().cells()[D - 1];
         let parts = parts.min(decomp::max_parts(rows, halo)).max(1);
         let mut subs = Vec::with_capacity(parts);
@@ -303,29 +312,15 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         let mut flushed = Vec::new();
         let mut taken = 0;
         let geo = self.geos.get(sub.index).map(|g| g.as_ref());
-        let step = |l: &mut Segregation<R, D, N>, dt: R| match geo {
-            Some(g) => crate::isa::step_embedded(l, dt, g),
-            None => crate::isa::step(l, dt),
+        let pace = Pace {
+            target,
+            dt,
+            slack,
+            floor: self.floor,
         };
         // The control of Segregation::advance_to, step for step.
         while l.time() < target && taken < max_steps {
-            let before = l.steps();
-            let remaining = target - l.time();
-            if remaining <= dt || remaining - dt <= slack {
-                step(l, remaining);
-                l.set_clock(target, l.steps());
-            } else {
-                step(l, dt);
-            }
-            let keep = |_, v| {
-                if v != R::ZERO {
-                    flushed.push((before, v));
-                }
-            };
-            match geo {
-                Some(g) => l.end_owned_step_embedded(g, self.floor, before, &mut excess, keep),
-                None => l.end_owned_step(self.floor, before, &mut excess, keep),
-            }
+            step_owned(l, geo, pace, &mut excess, &mut flushed);
             taken += 1;
             self.exchange(sub, l, (taken % 2) as usize, barrier);
         }
@@ -366,6 +361,50 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
                 decomp::unpack(l, sub, side, EXCHANGED, &m);
             }
         }
+    }
+}
+
+/// How a subdomain steps towards `target`: the global step `dt`, shortened to land on
+/// `target` within `slack` (as `Segregation::advance_to`), and the global flush floor.
+#[derive(Clone, Copy)]
+pub(crate) struct Pace<R> {
+    pub(crate) target: R,
+    pub(crate) dt: R,
+    pub(crate) slack: R,
+    pub(crate) floor: R,
+}
+
+/// One step of a subdomain, on threads and ranks alike: the box or (on its slab of cut
+/// cells `geo`) the embedded step, then the flush and bound maxima of its owned cells; each
+/// flushed value goes to `flushed` with the step number before the step, the order in which
+/// the driver adds them up.
+pub(crate) fn step_owned<R: Real, const D: usize, const N: usize>(
+    l: &mut Segregation<R, D, N>,
+    geo: Option<&CutCells<R, D, N>>,
+    pace: Pace<R>,
+    excess: &mut [R; 2],
+    flushed: &mut Vec<(u64, R)>,
+) {
+    let step = |l: &mut Segregation<R, D, N>, dt: R| match geo {
+        Some(g) => crate::isa::step_embedded(l, dt, g),
+        None => crate::isa::step(l, dt),
+    };
+    let before = l.steps();
+    let remaining = pace.target - l.time();
+    if remaining <= pace.dt || remaining - pace.dt <= pace.slack {
+        step(l, remaining);
+        l.set_clock(pace.target, l.steps());
+    } else {
+        step(l, pace.dt);
+    }
+    let keep = |_, v| {
+        if v != R::ZERO {
+            flushed.push((before, v));
+        }
+    };
+    match geo {
+        Some(g) => l.end_owned_step_embedded(g, pace.floor, before, excess, keep),
+        None => l.end_owned_step(pace.floor, before, excess, keep),
     }
 }
 

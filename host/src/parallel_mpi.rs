@@ -42,7 +42,7 @@
 
 use crate::data::Snapshot;
 use crate::error::{Error, Result};
-use crate::parallel::Chunk;
+use crate::parallel::{halo_of, step_owned, Chunk, Pace};
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Equations, Scene};
 use mpi::topology::SimpleCommunicator;
@@ -424,17 +424,6 @@ fn copied(global_compensated: bool) -> &'static [&'static str] {
     }
 }
 
-/// The halo rows of a subdomain: the box step's, wider on cut cells (docs/parallel.md).
-fn halo_of<R: Real, const D: usize, const N: usize>(
-    s: &Segregation<R, D, N>,
-    geo: Option<&CutCells<R, D, N>>,
-) -> usize {
-    match geo {
-        Some(_) => decomp::halo_width_cut(s),
-        None => decomp::halo_width(s),
-    }
-}
-
 /// One rank's subdomain and its halo buffers.
 struct Local<R: Real, const D: usize, const N: usize> {
     sub: Subdomain,
@@ -530,34 +519,15 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
         let slack = snap_slack(target);
         let mut flushed = Vec::new();
         let mut taken = 0;
+        let pace = Pace {
+            target,
+            dt: self.dt,
+            slack,
+            floor: self.floor,
+        };
         while self.s.time() < target && taken < max_steps {
-            let before = self.s.steps();
-            let remaining = target - self.s.time();
             let geo = self.geo.as_deref();
-            let step = |s: &mut Segregation<R, D, N>, dt: R| match geo {
-                Some(g) => crate::isa::step_embedded(s, dt, g),
-                None => crate::isa::step(s, dt),
-            };
-            if remaining <= self.dt || remaining - self.dt <= slack {
-                step(&mut self.s, remaining);
-                self.s.set_clock(target, self.s.steps());
-            } else {
-                step(&mut self.s, self.dt);
-            }
-            let keep = |_, v| {
-                if v != R::ZERO {
-                    flushed.push((before, v));
-                }
-            };
-            match geo {
-                Some(g) => {
-                    self.s
-                        .end_owned_step_embedded(g, self.floor, before, &mut self.excess, keep)
-                }
-                None => self
-                    .s
-                    .end_owned_step(self.floor, before, &mut self.excess, keep),
-            }
+            step_owned(&mut self.s, geo, pace, &mut self.excess, &mut flushed);
             taken += 1;
             self.exchange();
         }
