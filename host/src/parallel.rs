@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::scene::Scene;
 use sieve_core::decomp::{self, Side, Subdomain};
 use sieve_core::geometry::CutCells;
-use sieve_core::segregation::snap_slack;
+use sieve_core::segregation::{lands_on_target, snap_slack};
 use sieve_core::{Real, Segregation};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Barrier, Mutex};
@@ -391,7 +391,7 @@ pub(crate) fn step_owned<R: Real, const D: usize, const N: usize>(
     };
     let before = l.steps();
     let remaining = pace.target - l.time();
-    if remaining <= pace.dt || remaining - pace.dt <= pace.slack {
+    if lands_on_target(remaining, pace.dt, pace.slack) {
         step(l, remaining);
         l.set_clock(pace.target, l.steps());
     } else {

@@ -299,7 +299,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let mut taken = 0;
         while self.time < t_end && taken < max_steps {
             let remaining = t_end - self.time;
-            if remaining <= dt || remaining - dt <= slack {
+            if super::lands_on_target(remaining, dt, slack) {
                 self.step_embedded_on::<I>(remaining, geo);
                 self.time = t_end;
             } else {

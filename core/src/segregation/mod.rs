@@ -1397,3 +1397,11 @@ fn cell_coefficients<R: Real, const D: usize, const N: usize, const FLOW: bool>(
 pub fn snap_slack<R: Real>(t_end: R) -> R {
     R::from_f64(64.0) * R::EPSILON * t_end.abs()
 }
+
+/// Whether the step from `remaining` before the target lands on it: the whole remainder
+/// when it is at most `dt`, or within `slack` ([`snap_slack`]) above it. The one rule of
+/// every stepper that stops on an output time (serial, embedded, a subdomain's).
+#[inline]
+pub fn lands_on_target<R: Real>(remaining: R, dt: R, slack: R) -> bool {
+    remaining <= dt || remaining - dt <= slack
+}

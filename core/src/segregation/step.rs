@@ -309,7 +309,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let mut taken = 0;
         while self.time < t_end && taken < max_steps {
             let remaining = t_end - self.time;
-            if remaining <= dt || remaining - dt <= slack {
+            if super::lands_on_target(remaining, dt, slack) {
                 self.step_on::<I>(remaining);
                 self.time = t_end;
             } else {
