@@ -24,6 +24,25 @@ pub fn coarse_silo() -> &'static [u8] {
     RECORDING.get_or_init(record_coarse_silo)
 }
 
+/// The recording options of these tests: 5 % noise, seed 1, a 168 MHz Cortex-M4F's budget.
+fn silo_options(
+    estimator_cells: [u16; 2],
+    sensor: [u8; 2],
+    period: f64,
+    frames: Option<u32>,
+) -> SceneRecordOptions {
+    SceneRecordOptions {
+        estimator_cells,
+        sensor,
+        noise: 0.05,
+        seed: 1,
+        period: Some(period),
+        frames,
+        cpu_hz: sieve::soft_sensor::DEFAULT_CPU_HZ,
+        cpu_share: 1.0,
+    }
+}
+
 fn record_coarse_silo() -> Vec<u8> {
     let sets: Vec<String> = [
         "grid.cells=[15,50]",
@@ -34,16 +53,7 @@ fn record_coarse_silo() -> Vec<u8> {
     .map(|s| s.to_string())
     .collect();
     let (scene, fields) = sieve::scene::load("silo", &sets).expect("scene");
-    let opts = SceneRecordOptions {
-        estimator_cells: [8, 28],
-        sensor: [2, 7],
-        noise: 0.05,
-        seed: 1,
-        period: Some(0.1),
-        frames: None,
-        cpu_hz: sieve::soft_sensor::DEFAULT_CPU_HZ,
-        cpu_share: 1.0,
-    };
+    let opts = silo_options([8, 28], [2, 7], 0.1, None);
     let (bytes, report) = record_scene(&scene, &fields, &opts).expect("record");
     assert_eq!(report.record.frames, 15);
     // The budget is a 168 MHz Cortex-M4F's at 10 Hz (it affords far more substeps than the
@@ -79,16 +89,7 @@ fn no_filter_pass_across_a_narrow_outlet() {
             format!("boundary.flow.z_low.outlet.width={width}"),
         ];
         let (scene, fields) = sieve::scene::load("silo", &sets).expect("scene");
-        let opts = SceneRecordOptions {
-            estimator_cells: [16, 28],
-            sensor: [8, 14],
-            noise: 0.05,
-            seed: 1,
-            period: Some(0.05),
-            frames: Some(3),
-            cpu_hz: sieve::soft_sensor::DEFAULT_CPU_HZ,
-            cpu_share: 1.0,
-        };
+        let opts = silo_options([16, 28], [8, 14], 0.05, Some(3));
         let (bytes, report) = record_scene(&scene, &fields, &opts).expect("record");
         let note = report.notes.iter().find(|n| n.contains("no 1-2-1 pass"));
         match says {
