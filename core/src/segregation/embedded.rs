@@ -48,6 +48,7 @@ use crate::fork::Call;
 use crate::geometry::CutCells;
 use crate::hot::{Baseline, Isa};
 use crate::real::Real;
+use core::ops::Range;
 
 /// A face flux weighted by its open fraction: the one place where the aperture enters the
 /// segregation step. A closed face gives `0 * flux = 0` (the flux of a validated state is
@@ -346,20 +347,42 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         if floor <= R::ZERO || self.steps % super::step::FLUSH_EVERY != 0 {
             return;
         }
+        let all = 0..self.grid.len();
+        // same additions in the same order as a running `self.flushed += ...`
+        let mut total = self.flushed;
+        self.flush_groups_in(geo, floor, all.clone(), all, |_, x| total += x);
+        self.flushed = total;
+    }
+
+    /// Zeroes every group whose master lies in `masters` and whose content is a nonzero
+    /// below `floor`, handing `q V_group` of those whose master lies in `counted` to
+    /// `flushed` in cell order; then copies masters to their members. One loop for the
+    /// serial flush (all cells) and a subdomain's (its owned rows and one row beside).
+    fn flush_groups_in(
+        &mut self,
+        geo: &CutCells<R, D, N>,
+        floor: R,
+        masters: Range<usize>,
+        counted: Range<usize>,
+        mut flushed: impl FnMut(usize, R),
+    ) {
         let mut any = false;
-        for i in 0..self.grid.len() {
+        for i in masters {
             if geo.is_solid(i) || geo.master(i) != i {
                 continue;
             }
             let v = self.q[i];
             if v != R::ZERO && v.abs() < floor {
-                self.flushed += v * geo.group_volume(i);
+                if counted.contains(&i) {
+                    flushed(i, v * geo.group_volume(i));
+                }
                 self.q[i] = R::ZERO;
                 any = true;
             }
         }
         if any {
-            geo.copy_from_masters(&mut self.q[..self.grid.len()]);
+            let n = self.grid.len();
+            geo.copy_from_masters(&mut self.q[..n]);
         }
     }
 
@@ -377,7 +400,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         floor: R,
         steps_before: u64,
         excess: &mut [R; 2],
-        mut flushed: impl FnMut(usize, R),
+        flushed: impl FnMut(usize, R),
     ) {
         *excess = [excess[0].max(self.excess[0]), excess[1].max(self.excess[1])];
         if floor <= R::ZERO || steps_before % super::step::FLUSH_EVERY != 0 {
@@ -387,23 +410,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let plane = n / self.grid.cells()[D - 1].max(1);
         let owned = self.tally.0.min(n)..self.tally.1.min(n);
         let near = owned.start.saturating_sub(plane)..(owned.end + plane).min(n);
-        let mut any = false;
-        for i in near {
-            if geo.is_solid(i) || geo.master(i) != i {
-                continue;
-            }
-            let v = self.q[i];
-            if v != R::ZERO && v.abs() < floor {
-                if owned.contains(&i) {
-                    flushed(i, v * geo.group_volume(i));
-                }
-                self.q[i] = R::ZERO;
-                any = true;
-            }
-        }
-        if any {
-            geo.copy_from_masters(&mut self.q[..n]);
-        }
+        self.flush_groups_in(geo, floor, near, owned, flushed);
     }
 
     /// The content increments along `axis`, in the box step's order per cell (minus the
