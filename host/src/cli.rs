@@ -1071,6 +1071,9 @@ fn record_catalogue(
     }
     let (sc, fields) = scene::load(&a.scene, &sets)?;
     crate::embedded::refuse(&sc, "sieve record")?;
+    for w in crate::silo::outlet_caveats(&sc) {
+        eprintln!("{w}");
+    }
     let opts = soft_sensor::SceneRecordOptions {
         estimator_cells,
         sensor,

@@ -822,7 +822,7 @@ pub fn run_scene_with(
     let start = Instant::now();
     // Run guard (issue 10): the output must fit the limit and the disk before anything runs.
     crate::estimate::check_output(scene, &opts.out)?;
-    if let Some(w) = crate::silo::outlet_rate_caveat(scene) {
+    for w in crate::silo::outlet_caveats(scene) {
         eprintln!("{w}");
     }
     let staging = Staging::new(&opts.out)?;

@@ -35,7 +35,7 @@ pub fn open<R: Real, const D: usize>(side: &mut FlowSide<R, D>, outlet: &Outlet)
 /// rate (-57 % at Courant 0.4 on 5 mm cells). The explicit pressure needs no line since
 /// 2026-12-04: its rate is the same at every Courant number to 4e-4 (5 mm cells, W = 0.04 m:
 /// 9.358e-3 / 9.355e-3 / 9.354e-3 m^2/s at `flow.courant` 0.4 / 0.2 / 0.1).
-pub fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
+fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
     let flow = scene.flow.as_ref()?;
     if !scene.has_outlets() || flow.pressure != crate::scene::PressureKind::Implicit {
         return None;
@@ -44,6 +44,81 @@ pub fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
         "warning: {}: flow.pressure = implicit with an outlet: the discharge rate depends on the time step, and at large steps the orifice can drain on a slow branch at less than half the rate (docs/silo.md section 4)",
         scene.label
     ))
+}
+
+/// An opening fewer cells wide than this drains at a rate set by the grid: measured on the
+/// silo (W = 0.04 m, docs/silo.md section 4), 4 cells across drain 12 % below the finest
+/// grid's rate and 8 cells within 2 %; below about 3 the orifice is one or two faces, each
+/// shared with the wall beside it.
+pub const MIN_OUTLET_CELLS: f64 = 3.0;
+
+/// Orifices narrower than about this many grain diameters arch over and jam at random
+/// times in experiments (2D: To, Lai & Pak 2001; 3D: Zuriguel et al. 2005, jamming becomes
+/// certain below about 5 diameters). The continuum model has no arches and never jams.
+pub const JAM_DIAMETERS: f64 = 5.0;
+
+/// The narrowest opening of a scene: `(width [m], solver axis)`, over every outlet's widths
+/// and the hopper's orifice (its outlet in `[geometry]`).
+fn narrowest_opening(scene: &Scene) -> Option<(f64, usize)> {
+    let mut widths: Vec<(f64, usize)> = Vec::new();
+    for side in scene.flow.iter().flat_map(|f| f.walls.iter().flatten()) {
+        if let Some(o) = &side.outlet {
+            widths.extend(
+                (0..scene.dim)
+                    .filter(|&b| o.upper[b] > o.lower[b])
+                    .map(|b| (o.upper[b] - o.lower[b], b)),
+            );
+        }
+    }
+    if let Some(g) = &scene.geometry {
+        if g.shape == crate::scene::validate::geometry::ShapeKind::Hopper {
+            widths.push((2.0 * g.outlet.1, 0));
+        }
+    }
+    widths.into_iter().min_by(|a, b| a.0.total_cmp(&b.0))
+}
+
+/// The lines a run of a scene with an outlet prints before it starts, when its discharge
+/// cannot be trusted as the process's: an orifice narrower than [`MIN_OUTLET_CELLS`] cells
+/// (the rate is the grid's), one narrower than [`JAM_DIAMETERS`] grains
+/// (`material.grain_diameter`: real grains would jam), and the implicit pressure's caveat
+/// (`outlet_rate_caveat`). The run goes on: each is a judgement the user may overrule.
+pub fn outlet_caveats(scene: &Scene) -> Vec<String> {
+    let mut lines = Vec::new();
+    if let Some((w, b)) = narrowest_opening(scene) {
+        let (l, axis) = (
+            &scene.label,
+            crate::scene::validate::axis_names(scene.dim)[b],
+        );
+        let length = scene.upper[b] - scene.lower[b];
+        let h = length / scene.cells[b] as f64;
+        if w < MIN_OUTLET_CELLS * h {
+            lines.push(format!(
+                "warning: {l}: the outlet is {:.2} cells wide ({} on {} cells along {axis}): below {MIN_OUTLET_CELLS} cells it barely opens, its discharge rate is set by the grid, not by the grains (docs/silo.md \"Narrow orifices\"); refine the grid to at least {} cells along {axis}",
+                w / h,
+                mm(w),
+                mm(h),
+                (length * MIN_OUTLET_CELLS / w).ceil(),
+            ));
+        }
+        if let Some(d) = scene.grain_diameter {
+            if w < JAM_DIAMETERS * d {
+                lines.push(format!(
+                    "warning: {l}: the outlet is {:.1} grain diameters wide ({}, material.grain_diameter = {}): real grains arch over and jam orifices narrower than about {JAM_DIAMETERS} diameters; the model never jams, so its discharge is what would flow if no arch formed (docs/silo.md \"Narrow orifices\")",
+                    w / d,
+                    mm(w),
+                    mm(d),
+                ));
+            }
+        }
+    }
+    lines.extend(outlet_rate_caveat(scene));
+    lines
+}
+
+/// A length in mm to two decimals at most, as an orifice is quoted (`10 mm`, `9.67 mm`).
+fn mm(x: f64) -> String {
+    format!("{} mm", (x * 1e5).round() / 100.0)
 }
 
 /// The line `sieve run` prints for a scene with an outlet: what left, the steady rate and

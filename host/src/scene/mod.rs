@@ -284,6 +284,9 @@ pub struct MaterialSpec {
     pub t0: Option<f64>,
     /// Random loose packing of one grain size (flow).
     pub phi_rlp: Option<f64>,
+    /// Grain diameter d \[m\], Beverloo's `d` (model.md 7.6): no equation uses it; a scene
+    /// with an outlet warns when the orifice is narrower than a few diameters.
+    pub grain_diameter: Option<f64>,
 }
 
 fn default_phi_rcp() -> f64 {

@@ -1,5 +1,5 @@
 //! `[numerics]` and `[material]`: Courant number in (0, 1) (model.md 5), s0 >= 0, remixing
-//! diffusivity >= 0, 0 < phi_rcp <= 1 (model.md 2, 3).
+//! diffusivity >= 0, 0 < phi_rcp <= 1 (model.md 2, 3), grain diameter > 0.
 
 use super::{finite, Problems};
 use crate::error::Error;
@@ -18,6 +18,21 @@ pub(super) fn courant(p: &mut Problems, l: &str, n: &NumericsSpec) -> Option<f64
         return None;
     }
     Some(courant)
+}
+
+/// Checks `material.grain_diameter` (optional): a finite length > 0.
+pub(super) fn grain_diameter(p: &mut Problems, l: &str, m: &MaterialSpec) -> Option<f64> {
+    let d = m.grain_diameter?;
+    if !(d.is_finite() && d > 0.0) {
+        p.push(Error::range(
+            l,
+            "material.grain_diameter",
+            d,
+            "a grain diameter > 0 [m]",
+        ));
+        return None;
+    }
+    Some(d)
 }
 
 /// Validated segregation material: `(s0, diffusion, phi_rcp)`.

@@ -193,6 +193,8 @@ pub struct Scene {
     pub diffusion: f64,
     /// Upper bound of c.
     pub phi_rcp: f64,
+    /// Grain diameter \[m\] (`material.grain_diameter`; only for the narrow-orifice warning).
+    pub grain_diameter: Option<f64>,
     /// Gravity (solver axis order).
     pub gravity: Vec<f64>,
     /// Segregation direction.
@@ -323,6 +325,7 @@ impl Scene {
         let grid = dim.and_then(|d| grid::check(&mut p, l, &f.grid, d));
         let courant = material::courant(&mut p, l, &f.numerics);
         let mat = material::check(&mut p, l, &f.material);
+        let grain_diameter = material::grain_diameter(&mut p, l, &f.material);
         let physics = dim.and_then(|d| physics::check(&mut p, l, &f, d, has_flow));
         let bounds = dim.and_then(|d| boundary::check(&mut p, l, &f.boundary, d));
         let temperature = physics.as_ref().map(|ph| ph.temperature);
@@ -405,6 +408,7 @@ impl Scene {
             s0,
             diffusion,
             phi_rcp,
+            grain_diameter,
             gravity: physics.gravity,
             direction: physics.direction,
             temperature: physics.temperature,
