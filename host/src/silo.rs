@@ -676,4 +676,36 @@ mod tests {
         let s = DischargeSeries::from_rows(rows[2..4].to_vec());
         assert_eq!(s.summary_with(Some([0.0, 0.5])).off_spec_time, 3.0);
     }
+
+    /// The narrowest opening decides: the hopper's orifice (in `[geometry]`; its floor outlet
+    /// spans the whole floor), and a 3D slot's depth as well as its width.
+    #[test]
+    fn caveats_read_the_narrowest_opening_of_every_kind() {
+        let caveats = |name: &str, sets: &[&str]| {
+            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            let (sc, _) = crate::scene::load(name, &sets).unwrap();
+            outlet_caveats(&sc)
+        };
+        // the defaults: the hopper's 0.04 m on 9.67 mm cells (4.1 cells, 12 d), the 3D slot
+        // 6 x 4 cells
+        assert!(caveats("hopper", &[]).is_empty());
+        assert!(caveats("silo-3d", &[]).is_empty());
+        let w = caveats("hopper", &["geometry.outlet_width=0.02"]);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("2.07 cells wide (20 mm on 9.67 mm cells along x)"),
+            "{w:?}"
+        );
+        let w = caveats(
+            "silo-3d",
+            &["boundary.flow.z_low.outlet.width=[0.06,0.012]"],
+        );
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(
+            w[0].contains("1.20 cells wide (12 mm on 10 mm cells along y)")
+                && w[0].contains("at least 10 cells along y")
+                && w[1].contains("3.6 grain diameters"),
+            "{w:?}"
+        );
+    }
 }
