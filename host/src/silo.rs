@@ -46,59 +46,76 @@ fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
     ))
 }
 
-/// An opening fewer cells wide than this drains at a rate set by the grid: measured on the
-/// silo (W = 0.04 m, docs/silo.md section 4), 4 cells across drain 12 % below the finest
-/// grid's rate and 8 cells within 2 %; below about 3 the orifice is one or two faces, each
-/// shared with the wall beside it.
-pub const MIN_OUTLET_CELLS: f64 = 3.0;
+/// An opening fewer cells wide than this barely opens, at a rate the grid sets
+/// (docs/silo.md "Narrow orifices", measured on the silo scenes): an orifice with edges along
+/// one axis (2D, or a 3D slot from wall to wall) opens between 2 and 3 cells (three grids), one
+/// with edges all round (a square in 3D) between 3 and 5 cells (two grids).
+pub fn min_outlet_cells(edged_axes: usize) -> f64 {
+    if edged_axes >= 2 {
+        5.0
+    } else {
+        3.0
+    }
+}
 
 /// Orifices narrower than about this many grain diameters arch over and jam at random
-/// times in experiments (2D: To, Lai & Pak 2001; 3D: Zuriguel et al. 2005, jamming becomes
-/// certain below about 5 diameters). The continuum model has no arches and never jams.
+/// times in experiments (2D hoppers: To, Lai & Pak 2001; 3D silos: Zuriguel et al. 2005, the
+/// mean flow between jams grows without bound as the orifice nears about 5 diameters). The
+/// continuum model has no arches and never jams.
 pub const JAM_DIAMETERS: f64 = 5.0;
 
-/// The narrowest opening of a scene: `(width [m], solver axis)`, over every outlet's widths
-/// and the hopper's orifice (its outlet in `[geometry]`).
-fn narrowest_opening(scene: &Scene) -> Option<(f64, usize)> {
-    let mut widths: Vec<(f64, usize)> = Vec::new();
+/// The narrowest opening of a scene: `(width [m], solver axis, how many axes the opening
+/// has edges along)`, over the widths of every outlet along the axes where it has edges (a
+/// slot from wall to wall has none across the silo's depth, the hopper's floor outlet none at
+/// all) and the hopper's orifice (its outlet in `[geometry]`).
+fn narrowest_opening(scene: &Scene) -> Option<(f64, usize, usize)> {
+    let tol = |b: usize| 1e-9 * (scene.upper[b] - scene.lower[b]);
+    let mut widths: Vec<(f64, usize, usize)> = Vec::new();
     for side in scene.flow.iter().flat_map(|f| f.walls.iter().flatten()) {
         if let Some(o) = &side.outlet {
-            widths.extend(
-                (0..scene.dim)
-                    .filter(|&b| o.upper[b] > o.lower[b])
-                    .map(|b| (o.upper[b] - o.lower[b], b)),
-            );
+            let edged: Vec<usize> = (0..scene.dim)
+                .filter(|&b| {
+                    o.upper[b] > o.lower[b]
+                        && (o.lower[b] > scene.lower[b] + tol(b)
+                            || o.upper[b] < scene.upper[b] - tol(b))
+                })
+                .collect();
+            let n = edged.len();
+            widths.extend(edged.into_iter().map(|b| (o.upper[b] - o.lower[b], b, n)));
         }
     }
     if let Some(g) = &scene.geometry {
         if g.shape == crate::scene::validate::geometry::ShapeKind::Hopper {
-            widths.push((2.0 * g.outlet.1, 0));
+            widths.push((2.0 * g.outlet.1, 0, 1));
         }
     }
     widths.into_iter().min_by(|a, b| a.0.total_cmp(&b.0))
 }
 
 /// The lines a run of a scene with an outlet prints before it starts, when its discharge
-/// cannot be trusted as the process's: an orifice narrower than [`MIN_OUTLET_CELLS`] cells
+/// cannot be trusted as the process's: an orifice narrower than [`min_outlet_cells`] cells
 /// (the rate is the grid's), one narrower than [`JAM_DIAMETERS`] grains
 /// (`material.grain_diameter`: real grains would jam), and the implicit pressure's caveat
 /// (`outlet_rate_caveat`). The run goes on: each is a judgement the user may overrule.
 pub fn outlet_caveats(scene: &Scene) -> Vec<String> {
     let mut lines = Vec::new();
-    if let Some((w, b)) = narrowest_opening(scene) {
+    if let Some((w, b, edged_axes)) = narrowest_opening(scene) {
         let (l, axis) = (
             &scene.label,
             crate::scene::validate::axis_names(scene.dim)[b],
         );
         let length = scene.upper[b] - scene.lower[b];
         let h = length / scene.cells[b] as f64;
-        if w < MIN_OUTLET_CELLS * h {
+        let least = min_outlet_cells(edged_axes);
+        // (a width of exactly `least` cells, give or take the round-off of its edges, passes)
+        if w < least * h * (1.0 - 1e-9) {
             lines.push(format!(
-                "warning: {l}: the outlet is {:.2} cells wide ({} on {} cells along {axis}): below {MIN_OUTLET_CELLS} cells it barely opens, its discharge rate is set by the grid, not by the grains (docs/silo.md \"Narrow orifices\"); refine the grid to at least {} cells along {axis}",
+                "warning: {l}: the outlet is {:.2} cells wide ({} on {} cells along {axis}): below {least} cells{} it barely opens, its discharge rate is set by the grid, not by the grains (docs/silo.md \"Narrow orifices\"); refine the grid to at least {} cells along {axis}",
                 w / h,
                 mm(w),
                 mm(h),
-                (length * MIN_OUTLET_CELLS / w).ceil(),
+                if edged_axes >= 2 { " (an orifice with edges all round)" } else { "" },
+                (length * least / w * (1.0 - 1e-9)).ceil(),
             ));
         }
         if let Some(d) = scene.grain_diameter {
@@ -687,9 +704,28 @@ mod tests {
             outlet_caveats(&sc)
         };
         // the defaults: the hopper's 0.04 m on 9.67 mm cells (4.1 cells, 12 d), the 3D slot
-        // 6 x 4 cells
+        // 6.2 cells across and from wall to wall along y (no edges there: not 4 cells)
         assert!(caveats("hopper", &[]).is_empty());
         assert!(caveats("silo-3d", &[]).is_empty());
+        // a slot of 4.1 cells has edges along x alone: resolved as in 2D
+        let slot = ["boundary.flow.z_low.outlet.width=[0.04,0.04]"];
+        assert!(caveats("silo-3d", &slot).is_empty());
+        // a square orifice of 4.1 cells is narrow in 3D (it opens between 3 and 5)
+        let w = caveats(
+            "silo-3d",
+            &[
+                "boundary.flow.z_low.outlet.width=[0.04,0.04]",
+                "boundary.flow.z_low.outlet.center=[0.0725,0.0725]",
+                "grid.upper=[0.145,0.145,0.5]",
+                "grid.cells=[15,15,50]",
+            ],
+        );
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("4.14 cells wide (40 mm on 9.67 mm cells along")
+                && w[0].contains("at least 19 cells along"),
+            "{w:?}"
+        );
         let w = caveats("hopper", &["geometry.outlet_width=0.02"]);
         assert_eq!(w.len(), 1, "{w:?}");
         assert!(
@@ -703,7 +739,8 @@ mod tests {
         assert_eq!(w.len(), 2, "{w:?}");
         assert!(
             w[0].contains("1.20 cells wide (12 mm on 10 mm cells along y)")
-                && w[0].contains("at least 10 cells along y")
+                && w[0].contains("below 5 cells (an orifice with edges all round)")
+                && w[0].contains("at least 17 cells along y")
                 && w[1].contains("3.6 grain diameters"),
             "{w:?}"
         );
