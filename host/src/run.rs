@@ -822,7 +822,9 @@ pub fn run_scene_with(
     let start = Instant::now();
     // Run guard (issue 10): the output must fit the limit and the disk before anything runs.
     crate::estimate::check_output(scene, &opts.out)?;
-    for w in crate::silo::outlet_caveats(scene) {
+    // said now, before the run, and kept in summary.json
+    let caveats = crate::silo::outlet_caveats(scene);
+    for w in &caveats {
         eprintln!("{w}");
     }
     let staging = Staging::new(&opts.out)?;
@@ -898,6 +900,12 @@ pub fn run_scene_with(
         segregation_time_exact: ex.segregation_time(scene.psi_threshold),
     });
     let stop = stats.stop.as_ref();
+    let bounds = crate::estimate::bounds_warning(
+        scene,
+        stats.overshoot_max(),
+        stats.undershoot_max(),
+        out.worst,
+    );
     let summary = summary::Summary {
         status: stop.map_or("complete", |s| s.status()).into(),
         stopped: stop.map(summary::Stopped::of),
@@ -962,14 +970,10 @@ pub fn run_scene_with(
             },
         }),
         drum,
+        warnings: caveats.into_iter().chain(bounds.clone()).collect(),
     };
     summary.write(&staging.path().join("summary.json"))?;
-    if let Some(w) = crate::estimate::bounds_warning(
-        scene,
-        summary.overshoot_max,
-        summary.undershoot_max,
-        out.worst,
-    ) {
+    if let Some(w) = bounds {
         eprintln!("{w}");
     }
     // The pictures come from the files just written, as `sieve plot DIR` draws them.

@@ -356,6 +356,8 @@ fn broken_bounds_are_reported_in_one_line() {
     );
     assert!(err.contains("in the cell at z = "), "{err}");
     assert!(err.contains("--scheme modified"), "{err}");
+    // summary.json keeps the line, as printed
+    assert_eq!(s["warnings"], serde_json::json!([err.trim_end()]));
     let (code, _, err) = run_full(
         d.path(),
         &[

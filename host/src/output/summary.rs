@@ -167,6 +167,11 @@ pub struct Summary {
     /// for 2D circular drums.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub drum: Option<crate::data::DrumSummary>,
+    /// The warning lines the run printed (before it started: narrow orifices, the implicit
+    /// pressure with an outlet; at the end: broken bounds), as printed, so that a run read
+    /// later, or one of a sweep, still says what it was warned of (absent when none).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 impl Summary {
