@@ -224,6 +224,8 @@ struct Outcome {
     code: i32,
     seconds: f64,
     first_error: String,
+    /// Warning lines the run printed (they stay in its log and its summary's `warnings`).
+    warnings: usize,
 }
 
 /// Runs combination `index` as `sieve run` in a child process; its stderr goes to
@@ -260,6 +262,7 @@ fn run_one(opts: &SweepOptions, index: usize) -> Result<Outcome> {
         code: status.code().unwrap_or(-1),
         seconds: start.elapsed().as_secs_f64(),
         first_error: text.lines().next().unwrap_or("").to_string(),
+        warnings: text.lines().filter(|l| l.starts_with("warning:")).count(),
     })
 }
 
@@ -319,6 +322,12 @@ fn report_line(opts: &SweepOptions, index: usize, (k, n): (usize, usize), r: &Re
         .collect();
     let kv = kv.join(" ");
     let line = match r {
+        Ok(o) if o.code == 0 && o.warnings > 0 => format!(
+            "sweep: [{k}/{n}] run-{index:04} ({kv}) done in {:.1} s with {} warning{} (run-{index:04}.log, summary.json)",
+            o.seconds,
+            o.warnings,
+            if o.warnings == 1 { "" } else { "s" }
+        ),
         Ok(o) if o.code == 0 => format!(
             "sweep: [{k}/{n}] run-{index:04} ({kv}) done in {:.1} s",
             o.seconds

@@ -218,3 +218,49 @@ fn a_sweep_that_cannot_succeed_says_so_before_it_starts() {
         );
     }
 }
+
+/// A run that printed warnings (here a silo orifice too narrow for its grid and its grains,
+/// docs/silo.md "Narrow orifices") is done, and the sweep says how many warnings and where
+/// they are; the table carries them in the `warnings` column of its summary.
+#[test]
+fn a_sweep_says_which_runs_were_warned() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, _, err) = run(sieve(d.path()).args([
+        "sweep",
+        "silo",
+        "--set",
+        "boundary.flow.z_low.outlet.width=0.012,0.04",
+        "--set",
+        "grid.cells=[15,50]",
+        "--set",
+        "run.t_end=0.005",
+        "--jobs",
+        "1",
+        "--out",
+        "sw",
+    ]));
+    assert_eq!(code, 0, "{err}");
+    let line = |i: usize| {
+        err.lines()
+            .find(|l| l.contains(&format!("run-000{i} (")))
+            .unwrap_or_else(|| panic!("no line for run {i}: {err}"))
+    };
+    assert!(
+        line(0).contains("done in")
+            && line(0).contains("with 2 warnings (run-0000.log, summary.json)"),
+        "{err}"
+    );
+    assert!(
+        line(1).contains("done in") && !line(1).contains("warning"),
+        "{err}"
+    );
+    let rows = table(&d.path().join("sw"));
+    let warned = rows[0]["summary"]["warnings"].as_str().unwrap_or("");
+    assert!(
+        warned.contains("cells wide") && warned.contains("grain diameters"),
+        "{rows:?}"
+    );
+    assert!(rows[1]["summary"].get("warnings").is_none(), "{rows:?}");
+    assert!(d.path().join("sw/run-0000.log").is_file());
+    assert!(!d.path().join("sw/run-0001.log").exists());
+}
