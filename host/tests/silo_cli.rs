@@ -202,13 +202,16 @@ fn narrow_orifice_warns_in_cells_and_in_grain_diameters() {
         "{err}"
     );
     // a diameter that is no length: exit 2, one line naming the key and the range
-    let (code, err) = run_coarse_silo(d.path(), "0.005", &["material.grain_diameter=-0.001"]);
-    assert_eq!(code, 2, "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "{err}");
-    assert!(
-        err.contains("material.grain_diameter") && err.contains("> 0"),
-        "{err}"
-    );
+    for bad in ["-0.001", "1e308"] {
+        let set = format!("material.grain_diameter={bad}");
+        let (code, err) = run_coarse_silo(d.path(), "0.005", &[&set]);
+        assert_eq!(code, 2, "{err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(
+            err.contains("material.grain_diameter") && err.contains("0 < d <= 1 [m]"),
+            "{err}"
+        );
+    }
 }
 
 /// The implicit pressure with an outlet gives a rate that depends on the step, with a slow

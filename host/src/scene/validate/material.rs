@@ -1,5 +1,5 @@
 //! `[numerics]` and `[material]`: Courant number in (0, 1) (model.md 5), s0 >= 0, remixing
-//! diffusivity >= 0, 0 < phi_rcp <= 1 (model.md 2, 3), grain diameter > 0.
+//! diffusivity >= 0, 0 < phi_rcp <= 1 (model.md 2, 3), grain diameter in (0, 1] m.
 
 use super::{finite, Problems};
 use crate::error::Error;
@@ -20,15 +20,16 @@ pub(super) fn courant(p: &mut Problems, l: &str, n: &NumericsSpec) -> Option<f64
     Some(courant)
 }
 
-/// Checks `material.grain_diameter` (optional): a finite length > 0.
+/// Checks `material.grain_diameter` (optional): a length in (0, 1] m (a boulder of a
+/// metre is no grain of a granular flow; the bound keeps the warnings' numbers finite).
 pub(super) fn grain_diameter(p: &mut Problems, l: &str, m: &MaterialSpec) -> Option<f64> {
     let d = m.grain_diameter?;
-    if !(d.is_finite() && d > 0.0) {
+    if !(d > 0.0 && d <= 1.0) {
         p.push(Error::range(
             l,
             "material.grain_diameter",
             d,
-            "a grain diameter > 0 [m]",
+            "a grain diameter 0 < d <= 1 [m]",
         ));
         return None;
     }
