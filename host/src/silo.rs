@@ -46,10 +46,11 @@ fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
     ))
 }
 
-/// An opening fewer cells wide than this barely opens, at a rate the grid sets
-/// (docs/silo.md "Narrow orifices", measured on the silo scenes): an orifice with edges along
-/// one axis (2D, or a 3D slot from wall to wall) opens between 2 and 3 cells (three grids), one
-/// with edges all round (a square in 3D) between 3 and 5 cells (two grids).
+/// An opening fewer cells wide than this drains at a rate the grid sets (docs/silo.md
+/// "Narrow orifices", measured on the silo scenes): an orifice in a flat floor with edges
+/// along one axis (2D, or a 3D slot from wall to wall) opens between 2 and 3 cells (three
+/// grids), one with edges all round (a square in 3D) between 3 and 5 cells (two grids). The
+/// hopper's orifice, fed by its walls, drains below 3 cells too, at rates far from converged.
 pub fn min_outlet_cells(edged_axes: usize) -> f64 {
     if edged_axes >= 2 {
         5.0
@@ -110,7 +111,7 @@ pub fn outlet_caveats(scene: &Scene) -> Vec<String> {
         // (a width of exactly `least` cells, give or take the round-off of its edges, passes)
         if w < least * h * (1.0 - 1e-9) {
             lines.push(format!(
-                "warning: {l}: the outlet is {:.2} cells wide ({} on {} cells along {axis}): below {least} cells{} it barely opens, its discharge rate is set by the grid, not by the grains (docs/silo.md \"Narrow orifices\"); refine the grid to at least {} cells along {axis}",
+                "warning: {l}: the outlet is {:.2} cells wide ({} on {} cells along {axis}): below {least} cells{} the grid, not the grains, sets its discharge rate (an orifice in a flat floor barely opens; docs/silo.md \"Narrow orifices\"); refine the grid to at least {} cells along {axis}",
                 w / h,
                 mm(w),
                 mm(h),
