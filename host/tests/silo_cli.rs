@@ -201,7 +201,9 @@ fn narrow_orifice_warns_in_cells_and_in_grain_diameters() {
         w[0].contains("the outlet is 3.0 grain diameters wide"),
         "{err}"
     );
-    // a diameter that is no length: exit 2, one line naming the key and the range
+    // a diameter that is no length: exit 2, one line naming the key and the range, and the
+    // run already in that directory untouched
+    let kept = std::fs::read(d.path().join("runs/silo/summary.json")).unwrap();
     for bad in ["-0.001", "1e308"] {
         let set = format!("material.grain_diameter={bad}");
         let (code, err) = run_coarse_silo(d.path(), "0.005", &[&set]);
@@ -211,7 +213,13 @@ fn narrow_orifice_warns_in_cells_and_in_grain_diameters() {
             err.contains("material.grain_diameter") && err.contains("0 < d <= 1 [m]"),
             "{err}"
         );
+        assert_eq!(
+            std::fs::read(d.path().join("runs/silo/summary.json")).unwrap(),
+            kept
+        );
     }
+    let entries: Vec<_> = std::fs::read_dir(d.path().join("runs")).unwrap().collect();
+    assert_eq!(entries.len(), 1, "a refused run wrote {entries:?}");
 }
 
 /// The implicit pressure with an outlet gives a rate that depends on the step, with a slow
