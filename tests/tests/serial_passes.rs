@@ -262,8 +262,10 @@ fn diagnose_fields_has_the_cut_cell_bits() {
     assert_eq!(d, f);
     assert_eq!(d.psi.to_bits(), f.psi.to_bits());
     let floor = psi_floor(&phi, &c, Some(geo.volumes()), vac, vol);
-    // random phihat: Psi 0.7151, the floor 0.6598 (0.923 of it)
-    assert!((d.psi - 0.7151).abs() < 1e-4, "psi {}", d.psi);
+    // random phihat: Psi 0.7272, the floor 0.6745 (0.928 of it); the disc touches four grid
+    // lines, and the 8 cells beside the touching points are round-off slivers built solid
+    // (before they were open, took draws, and Psi was 0.7151)
+    assert!((d.psi - 0.7272).abs() < 1e-4, "psi {}", d.psi);
     assert!(
         floor <= d.psi && floor > 0.92 * d.psi,
         "floor {floor}, psi {}",

@@ -10,5 +10,7 @@
 pub mod cut;
 pub mod shape;
 
-pub use cut::{CutCells, GeometryError, GeometryStats, DEFAULT_SMALL, WALL_DISTANCE_FLOOR};
+pub use cut::{
+    sliver_fraction, CutCells, GeometryError, GeometryStats, DEFAULT_SMALL, WALL_DISTANCE_FLOOR,
+};
 pub use shape::{Convex, Op, Plane, Primitive, Region, RegionFull};
