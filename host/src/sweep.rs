@@ -257,13 +257,28 @@ fn run_one(opts: &SweepOptions, index: usize) -> Result<Outcome> {
     if status.success() && text.is_empty() {
         let _ = std::fs::remove_file(&log_path);
     }
+    // The summary keeps every warning line; the log's first 4 KB may not (a run that wrote
+    // no summary is counted from its log).
+    let warnings = summary_warnings(&dir.join("summary.json"))
+        .unwrap_or_else(|| text.lines().filter(|l| l.starts_with("warning:")).count());
     Ok(Outcome {
         index,
         code: status.code().unwrap_or(-1),
         seconds: start.elapsed().as_secs_f64(),
         first_error: text.lines().next().unwrap_or("").to_string(),
-        warnings: text.lines().filter(|l| l.starts_with("warning:")).count(),
+        warnings,
     })
+}
+
+/// How many lines the summary at `path` lists under `warnings` (0 when it has none); `None`
+/// when there is no readable summary.
+fn summary_warnings(path: &Path) -> Option<usize> {
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()?;
+    Some(
+        v.get("warnings")
+            .and_then(Value::as_array)
+            .map_or(0, Vec::len),
+    )
 }
 
 /// Runs the sweep (or one task of it) and, when every combination ran, writes the table.
