@@ -14,7 +14,7 @@ use serde::Serialize;
 use sieve_core::boundary::{Opening, Openings};
 use sieve_core::flow::coupled::Coupled;
 use sieve_core::flow::FlowSide;
-use sieve_core::geometry::CutCells;
+use sieve_core::geometry::{CutCells, Region};
 use sieve_core::Real;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -66,28 +66,73 @@ pub fn min_outlet_cells(edged_axes: usize) -> f64 {
 pub const JAM_DIAMETERS: f64 = 5.0;
 
 /// The narrowest opening of a scene: `(width [m], solver axis, how many axes the opening
-/// has edges along)`, over the widths of every outlet along the axes where it has edges (a
-/// slot from wall to wall has none across the silo's depth, the hopper's floor outlet none at
-/// all) and the hopper's orifice (its outlet in `[geometry]`).
+/// has edges along)`, over the open widths of every outlet along the axes where it has edges
+/// (a slot from wall to wall has none across the silo's depth).
 fn narrowest_opening(scene: &Scene) -> Option<(f64, usize, usize)> {
+    match scene.dim {
+        2 => narrowest_opening_in::<2>(scene),
+        3 => narrowest_opening_in::<3>(scene),
+        _ => None,
+    }
+}
+
+/// [`narrowest_opening`] in `D` dimensions. An outlet is open where its box meets the open
+/// region of the scene's cut-cell walls (a hopper's floor outlet spans the floor; its wedges
+/// leave the orifice channel): along each tangential axis `b` the width is the longest open
+/// run on lines along `b` through the outlet (one per cell row across it in 3D), located as
+/// the cut cells locate the walls; the opening has edges along `b` where that run ends inside
+/// the box side.
+fn narrowest_opening_in<const D: usize>(scene: &Scene) -> Option<(f64, usize, usize)> {
+    let region = scene
+        .geometry
+        .as_ref()
+        .map_or_else(Region::<f64, D>::new, |g| g.region::<f64, D>());
+    let h = |b: usize| (scene.upper[b] - scene.lower[b]) / scene.cells[b] as f64;
     let tol = |b: usize| 1e-9 * (scene.upper[b] - scene.lower[b]);
     let mut widths: Vec<(f64, usize, usize)> = Vec::new();
-    for side in scene.flow.iter().flat_map(|f| f.walls.iter().flatten()) {
-        if let Some(o) = &side.outlet {
-            let edged: Vec<usize> = (0..scene.dim)
-                .filter(|&b| {
-                    o.upper[b] > o.lower[b]
-                        && (o.lower[b] > scene.lower[b] + tol(b)
-                            || o.upper[b] < scene.upper[b] - tol(b))
-                })
-                .collect();
+    let walls = scene.flow.iter().flat_map(|f| f.walls.iter().enumerate());
+    for (a, sides) in walls {
+        for (high, side) in sides.iter().enumerate() {
+            let Some(o) = &side.outlet else { continue };
+            let face = if high == 1 {
+                scene.upper[a]
+            } else {
+                scene.lower[a]
+            };
+            let mut edged = Vec::new();
+            for b in (0..D).filter(|&b| b != a && o.upper[b] > o.lower[b]) {
+                // lines along b at the cell-row centres of the outlet across the third axis
+                let rows: Vec<f64> = match (0..D).find(|&c| c != a && c != b) {
+                    None => vec![0.0],
+                    Some(c) => {
+                        let n = ((o.upper[c] - o.lower[c]) / h(c)).round().max(1.0) as usize;
+                        let d = (o.upper[c] - o.lower[c]) / n as f64;
+                        (0..n).map(|k| o.lower[c] + (k as f64 + 0.5) * d).collect()
+                    }
+                };
+                let pieces = ((o.upper[b] - o.lower[b]) / h(b)).ceil().max(1.0) as usize;
+                let mut best = (0.0, 0.0);
+                for &y in &rows {
+                    let mut x0 = [0.0; D];
+                    x0[a] = face;
+                    x0[b] = o.lower[b];
+                    if let Some(c) = (0..D).find(|&c| c != a && c != b) {
+                        x0[c] = y;
+                    }
+                    let run = region.longest_open_run(x0, b, o.upper[b] - o.lower[b], pieces);
+                    if run.1 > best.1 {
+                        best = run;
+                    }
+                }
+                let (start, width) = (o.lower[b] + best.0, best.1);
+                if width > 0.0
+                    && (start > scene.lower[b] + tol(b) || start + width < scene.upper[b] - tol(b))
+                {
+                    edged.push((width, b));
+                }
+            }
             let n = edged.len();
-            widths.extend(edged.into_iter().map(|b| (o.upper[b] - o.lower[b], b, n)));
-        }
-    }
-    if let Some(g) = &scene.geometry {
-        if g.shape == crate::scene::validate::geometry::ShapeKind::Hopper {
-            widths.push((2.0 * g.outlet.1, 0, 1));
+            widths.extend(edged.into_iter().map(|(w, b)| (w, b, n)));
         }
     }
     widths.into_iter().min_by(|a, b| a.0.total_cmp(&b.0))
@@ -733,6 +778,30 @@ mod tests {
             w[0].contains("2.07 cells wide (20 mm on 9.67 mm cells along x)"),
             "{w:?}"
         );
+        // the width is where the outlet meets the open region, not a number of the shape:
+        // a floor outlet of 20 mm under the 40 mm channel is 20 mm wide (2.07 cells), one
+        // of 145 mm moved right by 30 mm still opens the whole channel (4.14 cells: none),
+        // one of 30 mm centred on the channel's right wall (x = 0.0925 m) opens 15 mm of it
+        let floor = |c: f64, w: f64| {
+            caveats(
+                "hopper",
+                &[&format!(
+                    "boundary.flow.z_low.outlet={{center={c},width={w}}}"
+                )],
+            )
+        };
+        let w = floor(0.0725, 0.02);
+        assert!(
+            w.len() == 1 && w[0].contains("2.07 cells wide (20 mm"),
+            "{w:?}"
+        );
+        assert!(floor(0.0775, 0.135).is_empty());
+        let w = floor(0.0925, 0.03);
+        assert!(
+            w.len() == 2 && w[0].contains("1.55 cells wide (15 mm"),
+            "{w:?}"
+        );
+        assert!(w[1].contains("4.5 grain diameters wide (15 mm"), "{w:?}");
         let w = caveats(
             "silo-3d",
             &["boundary.flow.z_low.outlet.width=[0.06,0.012]"],

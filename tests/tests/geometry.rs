@@ -804,3 +804,46 @@ fn a_wall_on_a_grid_line_leaves_no_round_off_sliver() {
     assert!((st.min_volume - 1e-6).abs() < 1e-9, "{st:?}");
     assert!(g.is_merged(19 + n * 7) && g.group_volume(19 + n * 7) > 1.0);
 }
+
+#[test]
+fn longest_open_run_locates_walls_as_the_cut_cells_do() {
+    // open left of x = 0.3: the run [0, 0.3] on [0, 1] in 10 pieces, to round-off
+    let half = |x: f64| {
+        Region::new().intersect(Primitive::HalfSpace {
+            point: [x, 0.0],
+            normal: [1.0, 0.0],
+        })
+    };
+    let (s, w) = half(0.3).longest_open_run([0.0, 0.5], 0, 1.0, 10);
+    assert!(s == 0.0 && (w - 0.3).abs() < 1e-15, "{s} {w}");
+    // a wall on a piece boundary (x = 0.4 on 10 pieces) and one inside a piece
+    let (_, w) = half(0.4).longest_open_run([0.0, 0.5], 0, 1.0, 10);
+    assert!((w - 0.4).abs() < 1e-15, "{w}");
+    // the hopper's floor: the channel between x = 0.0525 and 0.0925 m, on 58 and 15 pieces
+    let hopper = Region::hopper(0.0, 0.145, 0.0725, 0.01, 0.02, 30f64.to_radians());
+    for pieces in [15, 58] {
+        let (s, w) = hopper.longest_open_run([0.0, 0.0], 0, 0.145, pieces);
+        assert!(
+            (s - 0.0525).abs() < 1e-15 && (w - 0.04).abs() < 1e-15,
+            "{s} {w}"
+        );
+        // above the orifice the wedges narrow with height: 0.04 + 2 z tan 30 at z - 0.01
+        let (_, w) = hopper.longest_open_run([0.0, 0.05], 0, 0.145, pieces);
+        let want = 0.04 + 2.0 * 0.04 * 30f64.to_radians().tan();
+        assert!((w - want).abs() < 1e-14, "{w} {want}");
+    }
+    // the longest of two runs, and a solid segment
+    let two = half(0.2).union(Primitive::HalfSpace {
+        point: [0.65, 0.0],
+        normal: [-1.0, 0.0],
+    });
+    let (s, w) = two.longest_open_run([0.0, 0.5], 0, 1.0, 7);
+    assert!(
+        (s - 0.65).abs() < 1e-15 && (w - 0.35).abs() < 1e-15,
+        "{s} {w}"
+    );
+    assert_eq!(
+        half(-0.1).longest_open_run([0.0, 0.5], 0, 1.0, 5),
+        (0.0, 0.0)
+    );
+}

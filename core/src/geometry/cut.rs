@@ -56,7 +56,7 @@
 //! round-off (a wall on a grid line; [`sliver_fraction`]) is solid from the start and is
 //! counted there too.
 
-use super::shape::Region;
+use super::shape::{root, Region};
 use crate::grid::Grid;
 use crate::real::Real;
 
@@ -1040,43 +1040,4 @@ pub fn sliver_fraction<R: Real, const D: usize>(grid: &Grid<R, D>) -> R {
         span = span.max(far / h[a]);
     }
     R::from_usize(4) * R::EPSILON * span
-}
-
-/// Root of `f` on `[0, 1]` with `f(0) = f0`, `f(1) = f1` on opposite sides of zero ("open"
-/// meaning `<= 0`): Illinois regula falsi, exact in one step for a linear `f` (a half-space),
-/// superlinear otherwise; stops when the estimate no longer moves.
-fn root<R: Real>(f: impl Fn(R) -> R, f0: R, f1: R) -> R {
-    let (mut a, mut fa, mut b, mut fb) = (R::ZERO, f0, R::ONE, f1);
-    let mut side = 0i8;
-    let mut t = (a * fb - b * fa) / (fb - fa);
-    for _ in 0..100 {
-        if !(t > a && t < b) {
-            t = (a + b) * R::HALF;
-        }
-        let ft = f(t);
-        if ft == R::ZERO {
-            return t;
-        }
-        if (ft <= R::ZERO) == (fa <= R::ZERO) {
-            a = t;
-            fa = ft;
-            if side == -1 {
-                fb *= R::HALF;
-            }
-            side = -1;
-        } else {
-            b = t;
-            fb = ft;
-            if side == 1 {
-                fa *= R::HALF;
-            }
-            side = 1;
-        }
-        let next = (a * fb - b * fa) / (fb - fa);
-        if !(b - a > R::EPSILON) || next == t {
-            return if next > a && next < b { next } else { t };
-        }
-        t = next;
-    }
-    t
 }

@@ -283,6 +283,57 @@ impl<R: Real, const D: usize> Region<R, D> {
         self.distance(x) <= R::ZERO
     }
 
+    /// The longest open run on the segment from `x0` along axis `b` over `length >= 0`,
+    /// as `(offset of its start from x0, its length)`; `(0, 0)` when the segment is solid.
+    /// The segment is cut into `pieces` equal pieces (one per grid cell: a wall crosses each
+    /// at most once, where it is located exactly as [`super::CutCells`] locates it on a cell
+    /// edge). Measures the open width of an outlet under cut-cell walls (a hopper's orifice).
+    pub fn longest_open_run(&self, x0: [R; D], b: usize, length: R, pieces: usize) -> (R, R) {
+        let pieces = pieces.max(1);
+        let step = length / R::from_usize(pieces);
+        let at = |t: R| {
+            let mut x = x0;
+            x[b] = x0[b] + t;
+            self.distance(x)
+        };
+        let (mut best, mut start, mut run) = ((R::ZERO, R::ZERO), R::ZERO, R::ZERO);
+        let mut d0 = at(R::ZERO);
+        for k in 0..pieces {
+            let s0 = R::from_usize(k) * step;
+            let d1 = at(R::from_usize(k + 1) * step);
+            let (o0, o1) = (d0 <= R::ZERO, d1 <= R::ZERO);
+            let cross = || {
+                if d0 == R::ZERO {
+                    R::ZERO
+                } else {
+                    root(|t| at(s0 + t * step), d0, d1) * step
+                }
+            };
+            if o0 && o1 {
+                if run == R::ZERO {
+                    start = s0;
+                }
+                run += step;
+            } else if o0 {
+                if run == R::ZERO {
+                    start = s0;
+                }
+                run += cross();
+            } else if o1 {
+                let t = cross();
+                (start, run) = (s0 + t, step - t);
+            }
+            if run > best.1 {
+                best = (start, run);
+            }
+            if !o1 {
+                run = R::ZERO;
+            }
+            d0 = d1;
+        }
+        best
+    }
+
     // ---- builders (the vertical is the last axis, the horizontal axis 0, as in the scenes) ----
 
     /// A circular drum: a disc in 2D; in 3D an infinite cylinder along y (axis 1), the drum
@@ -415,4 +466,43 @@ impl<R: Real, const D: usize> Region<R, D> {
             .subtract(Primitive::Convex(Convex::new(&left).expect("two planes")))
             .subtract(Primitive::Convex(Convex::new(&right).expect("two planes")))
     }
+}
+
+/// Root of `f` on `[0, 1]` with `f(0) = f0`, `f(1) = f1` on opposite sides of zero ("open"
+/// meaning `<= 0`): Illinois regula falsi, exact in one step for a linear `f` (a half-space),
+/// superlinear otherwise; stops when the estimate no longer moves.
+pub(crate) fn root<R: Real>(f: impl Fn(R) -> R, f0: R, f1: R) -> R {
+    let (mut a, mut fa, mut b, mut fb) = (R::ZERO, f0, R::ONE, f1);
+    let mut side = 0i8;
+    let mut t = (a * fb - b * fa) / (fb - fa);
+    for _ in 0..100 {
+        if !(t > a && t < b) {
+            t = (a + b) * R::HALF;
+        }
+        let ft = f(t);
+        if ft == R::ZERO {
+            return t;
+        }
+        if (ft <= R::ZERO) == (fa <= R::ZERO) {
+            a = t;
+            fa = ft;
+            if side == -1 {
+                fb *= R::HALF;
+            }
+            side = -1;
+        } else {
+            b = t;
+            fb = ft;
+            if side == 1 {
+                fa *= R::HALF;
+            }
+            side = 1;
+        }
+        let next = (a * fb - b * fa) / (fb - fa);
+        if !(b - a > R::EPSILON) || next == t {
+            return if next > a && next < b { next } else { t };
+        }
+        t = next;
+    }
+    t
 }
