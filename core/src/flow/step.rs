@@ -1134,6 +1134,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         };
         let periodic = self.periodic();
         let emb = self.walls.on;
+        if emb {
+            // A merge group is one cell: its members' heating heats the group (model.md 5.4,
+            // "Heating of a merge group"). Booked in a member, the work of a whole wall
+            // fragment went into a strip that may hold 1e-9 of a cell: beside the hopper's
+            // orifice channel such strips ran hot, choked the orifice (2.5x too slow) or ran
+            // away (docs/silo.md section 7).
+            self.walls.gather_to_masters(n, &mut self.inflow);
+        }
         for i in 0..n {
             let cd = self.c[i].max(vac);
             self.diag[i] = cd / dt + self.c[i] * self.eps[i];

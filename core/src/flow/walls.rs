@@ -199,10 +199,29 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
         }
     }
 
+    /// Members' values added to their master's (in cell order) and zeroed: a source booked per
+    /// cell becomes the group's.
+    pub fn gather_to_masters(&self, n: usize, q: &mut [R]) {
+        if self.add_members_to_masters(n, q) {
+            for i in 0..n {
+                if self.master[i] as usize != i {
+                    q[i] = R::ZERO;
+                }
+            }
+        }
+    }
+
     /// Members' values summed into their master (in cell order), then copied back.
     pub fn group_sum(&self, n: usize, q: &mut [R]) {
+        if self.add_members_to_masters(n, q) {
+            self.copy_to_members(n, q);
+        }
+    }
+
+    /// Adds each member's value to its master's, in cell order; false without merging.
+    fn add_members_to_masters(&self, n: usize, q: &mut [R]) -> bool {
         if !self.merged {
-            return;
+            return false;
         }
         for i in 0..n {
             let m = self.master[i] as usize;
@@ -210,7 +229,7 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
                 q[m] += q[i];
             }
         }
-        self.copy_to_members(n, q);
+        true
     }
 
     /// `V` for the mass terms of the implicit systems: a solid cell counts as a full empty
