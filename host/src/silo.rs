@@ -50,7 +50,8 @@ fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
 /// "Narrow orifices", measured on the silo scenes): an orifice in a flat floor with edges
 /// along one axis (2D, or a 3D slot from wall to wall) opens between 2 and 3 cells (three
 /// grids), one with edges all round (a square in 3D) between 3 and 5 cells (two grids). The
-/// hopper's orifice, fed by its walls, drains below 3 cells too, at rates far from converged.
+/// hopper's orifice, fed by its walls, drains below 3 cells too, at a rate that on 1 cell is
+/// 2.3 times its rate on 2 and 4 cells.
 pub fn min_outlet_cells(edged_axes: usize) -> f64 {
     if edged_axes >= 2 {
         5.0
@@ -101,23 +102,21 @@ fn narrowest_opening_in<const D: usize>(scene: &Scene) -> Option<(f64, usize, us
             };
             let mut edged = Vec::new();
             for b in (0..D).filter(|&b| b != a && o.upper[b] > o.lower[b]) {
-                // lines along b at the cell-row centres of the outlet across the third axis
-                let rows: Vec<f64> = match (0..D).find(|&c| c != a && c != b) {
-                    None => vec![0.0],
-                    Some(c) => {
-                        let n = ((o.upper[c] - o.lower[c]) / h(c)).round().max(1.0) as usize;
-                        let d = (o.upper[c] - o.lower[c]) / n as f64;
-                        (0..n).map(|k| o.lower[c] + (k as f64 + 0.5) * d).collect()
-                    }
-                };
+                // lines along b: one in 2D, in 3D one per cell row of the outlet across the
+                // third axis c, at the rows' centres
+                let across = (0..D).find(|&c| c != a && c != b);
+                let rows = across.map_or(1, |c| {
+                    ((o.upper[c] - o.lower[c]) / h(c)).round().max(1.0) as usize
+                });
                 let pieces = ((o.upper[b] - o.lower[b]) / h(b)).ceil().max(1.0) as usize;
                 let mut best = (0.0, 0.0);
-                for &y in &rows {
+                for k in 0..rows {
                     let mut x0 = [0.0; D];
                     x0[a] = face;
                     x0[b] = o.lower[b];
-                    if let Some(c) = (0..D).find(|&c| c != a && c != b) {
-                        x0[c] = y;
+                    if let Some(c) = across {
+                        let row = (o.upper[c] - o.lower[c]) / rows as f64;
+                        x0[c] = o.lower[c] + (k as f64 + 0.5) * row;
                     }
                     let run = region.longest_open_run(x0, b, o.upper[b] - o.lower[b], pieces);
                     if run.1 > best.1 {
