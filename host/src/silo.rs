@@ -51,7 +51,7 @@ fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
 /// along one axis (2D, or a 3D slot from wall to wall) opens between 2 and 3 cells (three
 /// grids), one with edges all round (a square in 3D) between 3 and 5 cells (two grids). The
 /// hopper's orifice, fed by its walls, drains below 3 cells too, at a rate that on 1 cell is
-/// 2.3 times its rate on 2 and 4 cells.
+/// 2.5 and 2.3 times its rate on 2 and 4 cells (docs/silo.md section 3).
 pub fn min_outlet_cells(edged_axes: usize) -> f64 {
     if edged_axes >= 2 {
         5.0

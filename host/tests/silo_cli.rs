@@ -151,6 +151,23 @@ fn orifice_wider_than_the_floor_is_rejected() {
     );
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("boundary.flow.z_low.outlet.width"), "{err}");
+    // A width below round-off of the floor's coordinates would be an opening of zero extent
+    // that drains nothing: refused before the run, in one line naming the key and the bound.
+    let (code, err) = run_in(
+        d.path(),
+        &[
+            "run",
+            "silo",
+            "--set",
+            "boundary.flow.z_low.outlet.width=1e-300",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("boundary.flow.z_low.outlet.width") && err.contains("round-off"),
+        "{err}"
+    );
 }
 
 /// An orifice narrower than 3 cells drains at a rate the grid sets, and one narrower than

@@ -153,8 +153,16 @@ pub fn validate(
     for (k, &b) in tangential.iter().enumerate() {
         let (c, w) = (centre[k], width[k]);
         let (lo, hi) = (c - 0.5 * w, c + 0.5 * w);
-        if !(w.is_finite() && w > 0.0) {
-            return Err(Error::range(l, &format!("{key}.width"), w, "width > 0 [m]"));
+        // An opening narrower than round-off of the side's coordinates would be a box of zero
+        // extent: accepted, it would drain nothing and say nothing.
+        let round_off = 16.0 * f64::EPSILON * lower[b].abs().max(upper[b].abs());
+        if !(w.is_finite() && w > round_off) {
+            return Err(Error::range(
+                l,
+                &format!("{key}.width"),
+                w,
+                &format!("width > {round_off:.1e} [m] (round-off of the side's coordinates)"),
+            ));
         }
         if !(c.is_finite() && lo >= lower[b] - 1e-12 && hi <= upper[b] + 1e-12) {
             return Err(Error::range(
