@@ -528,7 +528,19 @@ fn draw_psi(opts: &SweepOptions, rows: &Rows) -> Result<()> {
     let mut curves = Vec::with_capacity(done.len());
     for &i in &done {
         let dir = run_dir(&opts.out, i);
-        let series = crate::output::redraw::read_series(&dir.join("series.csv"))?;
+        let path = dir.join("series.csv");
+        let series = crate::output::redraw::read_series(&path)?;
+        // A time no run reaches (a damaged file) would leave no axis to draw on: name the file.
+        if let Some(r) = series
+            .iter()
+            .find(|r| !(r.t.is_finite() && r.t.abs() <= 1e150))
+        {
+            return Err(Error::failure(format!(
+                "{}: t = {:e} is not a time of a run; sweep_psi.png not drawn",
+                path.display(),
+                r.t
+            )));
+        }
         if let Some(t) = rows[i]
             .1
             .as_ref()
@@ -590,6 +602,14 @@ fn draw(opts: &SweepOptions, rows: &Rows) -> Result<()> {
                 .and_then(|r| r.get(&opts.plot))
                 .and_then(Value::as_f64);
             if let Some(y) = y.filter(|y| y.is_finite()) {
+                // A value past any physical one (a damaged summary) leaves no axis to draw on.
+                if y.abs() > 1e150 {
+                    return Err(Error::failure(format!(
+                        "{}: {} = {y:e} is out of the plottable range; sweep.png not drawn (sweep.csv and sweep.json are written)",
+                        run_dir(&opts.out, index).join("summary.json").display(),
+                        opts.plot
+                    )));
+                }
                 pts.push((x, y));
             }
         }

@@ -264,3 +264,96 @@ fn a_sweep_says_which_runs_were_warned() {
     assert!(d.path().join("sw/run-0000.log").is_file());
     assert!(!d.path().join("sw/run-0001.log").exists());
 }
+
+/// A 2-run sweep of the exact column, built once for the property below.
+fn fuzz_sweep() -> &'static Path {
+    static DIR: std::sync::OnceLock<tempfile::TempDir> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let d = tempfile::tempdir().unwrap();
+        let (code, _, err) = run(sieve(d.path()).args([
+            "sweep",
+            "column-a",
+            "--quiet",
+            "--out",
+            "sw",
+            "--set",
+            "grid.cells=[40]",
+            "--set",
+            "material.s0=0.5,2",
+            "--set",
+            "run.t_end=0.2",
+        ]));
+        assert_eq!(code, 0, "{err}");
+        d
+    })
+    .path()
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config {
+        cases: std::env::var("SIEVE_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(1000),
+        ..proptest::test_runner::Config::default()
+    })]
+
+    /// `sieve sweep --collect` reads every run's summary.json and series.csv, which a user or
+    /// a crashed disk may have damaged: bytes flipped, cut, inserted, or a number rewritten to
+    /// a hostile value. Never a panic; an error is one line naming the damaged file; the
+    /// run directories are left as they were.
+    #[test]
+    fn collect_never_panics_on_damaged_run_files(which in 0usize..3, at in proptest::num::usize::ANY,
+                                                 how in 0u8..4, byte in proptest::num::u8::ANY,
+                                                 number in proptest::sample::select(vec!["nan", "1e308", "-1e308", "-1", "0", "1e-320", "18446744073709551616", "\"x\"", "[]", "{}", "null", "true"])) {
+        let root = fuzz_sweep();
+        let out = root.join("sw");
+        let files = [
+            out.join("run-0000/summary.json"),
+            out.join("run-0001/summary.json"),
+            out.join("run-0000/series.csv"),
+        ];
+        let f = &files[which];
+        let orig = std::fs::read(f).expect("read");
+        let mut b = orig.clone();
+        let n = b.len().max(1);
+        match how {
+            0 => { if !b.is_empty() { b[at % n] ^= byte | 1; } }
+            1 => b.truncate(at % n),
+            2 => { b.splice(at % (b.len() + 1)..at % (b.len() + 1), number.bytes()); }
+            _ => {
+                // Rewrite the number around a position.
+                let i = at % n;
+                let is_num = |c: u8| c.is_ascii_digit() || c == b'.' || c == b'e' || c == b'-';
+                let s = (0..=i.min(b.len().saturating_sub(1))).rev().take_while(|&j| b.get(j).is_some_and(|&c| is_num(c))).last();
+                if let Some(s) = s {
+                    let e = (s..b.len()).find(|&j| !is_num(b[j])).unwrap_or(b.len());
+                    b.splice(s..e, number.bytes());
+                }
+            }
+        }
+        std::fs::write(f, &b).expect("write");
+        let before: Vec<Vec<u8>> = files.iter().map(|p| std::fs::read(p).expect("read")).collect();
+        let opts = sieve::sweep::SweepOptions {
+            scene: "column-a".into(),
+            axes: vec![sieve::sweep::Axis { key: "material.s0".into(), values: vec!["0.5".into(), "2".into()] }],
+            fixed: vec!["grid.cells=[40]".into(), "run.t_end=0.2".into()],
+            out: out.clone(),
+            jobs: 1,
+            task: None,
+            plot: "psi_final".into(),
+            quiet: true,
+        };
+        let r = std::panic::catch_unwind(|| sieve::sweep::collect(&opts));
+        let after: Vec<Vec<u8>> = files.iter().map(|p| std::fs::read(p).expect("read")).collect();
+        std::fs::write(f, &orig).expect("restore");
+        proptest::prop_assert!(before == after, "collect changed a run's files");
+        match r {
+            Err(_) => proptest::prop_assert!(false, "panic on {} ({how}, {at}, {byte}, {number})", f.display()),
+            Ok(Err(e)) => {
+                let e = e.to_string();
+                proptest::prop_assert_eq!(e.lines().count(), 1, "{}", e);
+                let name = f.file_name().unwrap().to_string_lossy().into_owned();
+                proptest::prop_assert!(e.contains(&name), "{} does not name {}", e, name);
+            }
+            Ok(Ok(_)) => {}
+        }
+    }
+}

@@ -145,7 +145,9 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
     };
     let clamp_y = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
         let r = y_pair(v);
-        v.iter().map(|&(t, y)| (t, near_axis(y, r))).collect()
+        v.iter()
+            .map(|&(t, y)| (near_axis(t, (0.0, t_max)), near_axis(y, r)))
+            .collect()
     };
     check_axes(
         path,
@@ -171,14 +173,17 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
             .draw()
             .map_err(fail(path))?;
         c.draw_series(LineSeries::new(
-            series.iter().map(|r| (r.t, near_axis(r.psi, (0.0, 1.05)))),
+            series
+                .iter()
+                .map(|r| (near_axis(r.t, (0.0, t_max)), near_axis(r.psi, (0.0, 1.05)))),
             PALETTE[0].stroke_width(2),
         ))
         .map_err(fail(path))?
         .label("Psi")
         .legend(swatch(PALETTE[0].stroke_width(2)));
+        let level = near_axis(threshold, (0.0, 1.05));
         c.draw_series(LineSeries::new(
-            vec![(0.0, threshold), (t_max, threshold)],
+            vec![(0.0, level), (t_max, level)],
             PALETTE[1].stroke_width(1),
         ))
         .map_err(fail(path))?
@@ -994,6 +999,18 @@ pub fn time_curves(path: &Path, title: &str, curves: &[Curve], threshold: f64) -
         .flat_map(|(_, v)| v.iter().map(|p| p.0))
         .fold(f64::MIN_POSITIVE, f64::max);
     check_axes(path, &[(0.0, t_max)])?;
+    // Points far off the axes (a damaged series.csv) are drawn at the edge, as in `psi`.
+    let axes = ((0.0, t_max), (0.0, 1.05));
+    let near: Vec<Curve> = curves
+        .iter()
+        .map(|(label, v)| {
+            let v = v
+                .iter()
+                .map(|&(t, y)| (near_axis(t, axes.0), near_axis(y, axes.1)))
+                .collect();
+            (label.clone(), v)
+        })
+        .collect();
     let mut chart = ChartBuilder::on(&root)
         .caption(title, (FONT_NAME, 22))
         .margin(15)
@@ -1009,10 +1026,11 @@ pub fn time_curves(path: &Path, title: &str, curves: &[Curve], threshold: f64) -
         .axis_desc_style((FONT_NAME, 17))
         .draw()
         .map_err(fail(path))?;
-    labelled_lines(&mut chart, curves, |_| true, path)?;
+    labelled_lines(&mut chart, &near, |_| true, path)?;
+    let level = near_axis(threshold, axes.1);
     chart
         .draw_series(LineSeries::new(
-            vec![(0.0, threshold), (t_max, threshold)],
+            vec![(0.0, level), (t_max, level)],
             RED.stroke_width(1),
         ))
         .map_err(fail(path))?
