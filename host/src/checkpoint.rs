@@ -1206,6 +1206,9 @@ pub fn put_frozen(e: &mut Entries, fr: &Frozen) {
     e.put("frozen.back_coupling", Value::Text(s.back_coupling.clone()));
     e.put("frozen.pressure", Value::Text(s.pressure.clone()));
     e.put("frozen.stress", Value::Text(s.stress.clone()));
+    if let Some(m) = &s.merged_walls {
+        e.put("frozen.merged_walls", Value::Text(m.clone()));
+    }
     e.put("frozen.fill", Value::Text(s.fill.clone()));
     e.put(
         "frozen.flow_steps_to_steady",
@@ -1270,6 +1273,7 @@ pub fn frozen(e: &Entries, n: usize, dim: usize) -> Result<Frozen> {
             pressure: e.text("frozen.pressure").unwrap_or("explicit").into(),
             // (checkpoints written before the stress choice: the spec's)
             stress: e.text("frozen.stress").unwrap_or("spec").into(),
+            merged_walls: e.text("frozen.merged_walls").ok().map(str::to_string),
             // (checkpoints written before the settled fill: as given)
             fill: e.text("frozen.fill").unwrap_or("given").into(),
             flow_steps_to_steady: steady,

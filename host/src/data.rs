@@ -323,6 +323,10 @@ pub struct FlowSummary {
     pub pressure: String,
     /// The flow's viscous stress: "spec" or "objective" (`flow.stress`, model.md 2.6).
     pub stress: String,
+    /// With cut cells: which cell of a merge group took a merged cell's wall term,
+    /// "member" or "master" (`flow.merged_walls`, model.md 5.4); absent without.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub merged_walls: Option<String>,
     /// How the bed was filled: "given" or "settled" (`initial.fill`, model.md 5.8).
     pub fill: String,
     /// Flow steps to the steady state (frozen-flow; null when coupled).

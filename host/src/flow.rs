@@ -18,13 +18,14 @@ use crate::data::{
 use crate::error::{Error, Result};
 use crate::scene::validate::{FlowModel, WallSlip};
 use crate::scene::{
-    solver_errors, Equations, Fields, Fill, FrameKind, PressureKind, Scene, SpinUp, StressKind,
+    solver_errors, Equations, Fields, Fill, FrameKind, MergedWallsKind, PressureKind, Scene,
+    SpinUp, StressKind,
 };
 use sieve_core::closure::Packing;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{
-    CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, PressureMode, Slip,
-    Stress,
+    CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, MergedWalls,
+    PressureMode, Slip, Stress,
 };
 use sieve_core::fork::Serial;
 use sieve_core::frame::{Frame, Rotation};
@@ -81,6 +82,10 @@ fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<
     cfg.stress = match fm.stress {
         StressKind::Spec => Stress::Spec,
         StressKind::Objective => Stress::Objective,
+    };
+    cfg.merged_walls = match fm.merged_walls {
+        MergedWallsKind::Member => MergedWalls::Member,
+        MergedWallsKind::Master => MergedWalls::Master,
     };
     // A rotating frame (docs/frames.md): the grid turns with the container; validation
     // allows it with a coupled flow only and checks the centre, axis and rate.
@@ -197,6 +202,9 @@ fn summary_of<R: Real, const D: usize, const N: usize>(
         back_coupling: fm.back_coupling.name().into(),
         pressure: flow.config().pressure.name().into(),
         stress: flow.config().stress.name().into(),
+        merged_walls: flow
+            .has_geometry()
+            .then(|| fm.merged_walls.name().to_string()),
         fill: fill.name().into(),
         flow_steps_to_steady: to_steady,
         flow_steps: flow.steps(),

@@ -149,3 +149,54 @@ fn hopper_whose_channel_walls_lie_on_or_near_grid_lines_runs_on() {
         "{off} {on_the_line}"
     );
 }
+
+/// `flow.merged_walls = "master"` (model.md 5.4, "The wall term of a merged cell"): a strip's
+/// wall fragment acts on its master at the master's distance, so a wall 1e-4 of a cell off a
+/// grid line holds the flow as the wall on the line does (the member rule's step: 3 %, above),
+/// and the rate falls to about the grid-converged value (docs/silo.md section 7: 1.40e-2 m^2/s
+/// over [0.25, 0.3] s on these cells, 1.40e-2 the finest grids' limit).
+#[test]
+fn hopper_with_walls_on_their_masters_is_continuous_across_the_grid_line() {
+    let d = tempfile::tempdir().unwrap();
+    let rate = |out: &str, width: f64| {
+        let w = format!("geometry.outlet_width={width}");
+        let args = [
+            "run",
+            "hopper",
+            "--grid",
+            "58x200",
+            "--t-end",
+            "0.35",
+            "--quiet",
+            "--set",
+            "flow.merged_walls=\"master\"",
+            "--set",
+            &w,
+            "--out",
+            out,
+        ];
+        let (code, err) = run_in(d.path(), &args);
+        assert_eq!(code, 0, "{err}");
+        let s: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(d.path().join(out).join("summary.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(s["flow"]["merged_walls"], "master");
+        assert_eq!(s["overshoot_max"], 0.0);
+        assert_eq!(s["undershoot_max"], 0.0);
+        let o = &s["flow"]["outlet"];
+        assert!(o["mass_error"].as_f64().unwrap() < 1e-12, "{o}");
+        assert!(o["mass_small_error"].as_f64().unwrap() < 1e-12, "{o}");
+        o["steady_rate"].as_f64().unwrap_or(f64::NAN)
+    };
+    let on_the_line = rate("on", 0.04);
+    let off = rate("off", 0.04 + 2.0 * 1e-4 * 0.0025);
+    assert!(
+        (off / on_the_line - 1.0).abs() < 2e-3,
+        "{off} {on_the_line}"
+    );
+    assert!(
+        on_the_line > 1.3e-2 && on_the_line < 1.48e-2,
+        "{on_the_line}"
+    );
+}

@@ -83,7 +83,7 @@ mod walls;
 
 pub use objective::Stress;
 pub use pressure::PressureMode;
-pub use walls::CutWall;
+pub use walls::{CutWall, MergedWalls};
 
 use crate::boundary::{check_periodic_pairs, Boundary, Openings};
 use crate::closure::{self, Material};
@@ -259,6 +259,10 @@ pub struct FlowConfig<R, const D: usize> {
     /// Where the velocity solves of stage 3 start (model.md 5.3, "Initial guess"): the
     /// answer is the same to the solver's tolerance, the iterations are not.
     pub guess: VelocityGuess,
+    /// Which cell of a merge group takes the wall term of a merged cut cell's wall fragment
+    /// in the viscous and temperature stages (model.md 5.4, "The wall term of a merged
+    /// cell"; [`MergedWalls`]).
+    pub merged_walls: MergedWalls,
 }
 
 /// The initial guess of the viscous stage's conjugate-gradient solves (model.md 5.3).
@@ -298,6 +302,7 @@ impl<R: Real, const D: usize> FlowConfig<R, D> {
             pressure: PressureMode::Explicit,
             stress: Stress::Spec,
             guess: VelocityGuess::Extrapolated,
+            merged_walls: MergedWalls::Member,
         }
     }
 }
@@ -531,6 +536,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 pressure: PressureMode::Explicit,
                 stress: Stress::Spec,
                 guess: VelocityGuess::Extrapolated,
+                merged_walls: MergedWalls::Member,
             },
             c: z,
             m: zd,

@@ -899,10 +899,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             for i in 0..n {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
-                    let (ub, e) = self.wall_law(i);
+                    let (row, kw, ub, e) = self.wall_term(i);
                     let k = kw * e;
-                    self.diag[i] += k;
-                    self.rhs[i] += k * ub[comp];
+                    self.diag[row] += k;
+                    self.rhs[row] += k * ub[comp];
                 }
             }
         }
@@ -1077,13 +1077,13 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             for i in 0..n {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
-                    let (ub, e) = self.wall_law(i);
+                    let (row, kw, ub, e) = self.wall_term(i);
                     let mut du2 = R::ZERO;
                     for (comp, b) in ub.iter().enumerate() {
-                        let d = *b - self.u[comp][i];
+                        let d = *b - self.u[comp][row];
                         du2 += d * d;
                     }
-                    self.inflow[i] += kw * e * du2;
+                    self.inflow[row] += kw * e * du2;
                 }
             }
         }

@@ -38,7 +38,7 @@
 //! master's state. Faces inside a group carry no mass. The implicit stages (no stability
 //! limit) solve on the cells, and a member keeps its own solution for the rest of the step
 //! (its wall flux and heating); the next transport update takes the group's state from the
-//! master again. Averaging the group after each implicit solve (content-conservative) was
+//! master again. Which row takes a member's wall term there is [`MergedWalls`]' choice. Averaging the group after each implicit solve (content-conservative) was
 //! tried and dropped: the mean of a linear field over a group is not its value at the
 //! master's centre, which breaks the exactness above and tripled the rigid-rotation error of
 //! the drum (1.3e-2 against 4.4e-3 on 32 x 32, tests/tests/flow_drum.rs). With a moving wall
@@ -55,6 +55,23 @@ use super::{Flow, Slip};
 use crate::geometry::CutCells;
 use crate::grid::Grid;
 use crate::real::Real;
+
+/// Which cell of a merge group takes the wall term of a merged cut cell (model.md 5.4, "The
+/// wall term of a merged cell"). Why a choice: a member a sliver of a cell thick, pinned to
+/// the wall by its own term, holds its master back through their shared face as a wall a
+/// whole cell away would; with the wall exactly on the grid line the sliver is solid and the
+/// master's own face is the wall, half a cell away. On the hopper the rate steps by 3 % between
+/// the two (docs/silo.md section 7).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum MergedWalls {
+    /// Each cell takes its own fragment's term (the rule until 2026-12-05).
+    #[default]
+    Member,
+    /// A member's fragment acts on its master, at the master's distance to the fragment's
+    /// plane, for resting walls under the model's stress; a moving wall and the objective
+    /// stress keep [`Self::Member`] (their per-cell terms are exact on the rigid rotation).
+    Master,
+}
 
 /// What the cut wall does: its tangential law and its (rigid) motion.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -116,6 +133,8 @@ pub(super) struct Walls<R: Real, const D: usize, const N: usize> {
     pub wall_d: [R; N],
     /// Unit wall normal (open -> solid).
     pub normal: [[R; N]; D],
+    /// Offset `n . x` of the wall fragment's plane (any point `x` of it).
+    pub plane: [R; N],
 }
 
 impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
@@ -137,6 +156,7 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
             ap_lo: [z; D],
             wall_k: z,
             wall_d: z,
+            plane: z,
             normal: [z; D],
         }
     }
@@ -387,7 +407,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 an[a] = (w.ap_lo[a][i] - w.ap_hi[a][i]) * (cell / h[a]);
                 area2 += an[a] * an[a];
             }
-            let (area, nrm, d) = if staircase {
+            let (area, nrm, d, plane) = if staircase {
                 let area = area2.sqrt();
                 let mut nrm = [R::ZERO; D];
                 let mut d = R::ZERO;
@@ -398,20 +418,33 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         d = d.max(R::HALF * h[a] * nrm[a].abs());
                     }
                 }
-                (area, nrm, d)
+                // the plane through x_c + d n
+                let xc = grid.center(i);
+                let mut plane = d;
+                for a in 0..D {
+                    plane += nrm[a] * xc[a];
+                }
+                (area, nrm, d, plane)
             } else {
                 let nrm = cut.wall_normal(i);
-                (cut.wall_area(i), nrm, cut.wall_distance(i))
+                let pt = cut.wall_point(i);
+                let mut plane = R::ZERO;
+                for a in 0..D {
+                    plane += nrm[a] * pt[a];
+                }
+                (cut.wall_area(i), nrm, cut.wall_distance(i), plane)
             };
             if area > R::ZERO && w.vol[i] > R::ZERO && d > R::ZERO {
                 w.wall_k[i] = area / (d * cell);
                 w.wall_d[i] = d;
+                w.plane[i] = plane;
                 for a in 0..D {
                     w.normal[a][i] = nrm[a];
                 }
             } else {
                 w.wall_k[i] = R::ZERO;
                 w.wall_d[i] = R::ZERO;
+                w.plane[i] = R::ZERO;
                 for a in 0..D {
                     w.normal[a][i] = R::ZERO;
                 }
@@ -489,16 +522,49 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// step (it is implicit), and equals the no-slip term where the two branches meet
     /// (`eta |t| / d = p tan(phi_w)`), as the box wall's explicit `Face::Stress` does not need to.
     pub(super) fn wall_law(&self, i: usize) -> ([R; D], R) {
+        self.wall_law_on(i, i, self.walls.wall_d[i])
+    }
+
+    /// The wall term of cell `i`'s fragment as the implicit stages book it: `(row, k, u_B,
+    /// e)`, the term `k e (u_B - u_row)` in the row of cell `row`. That is `i` itself with its
+    /// own `A / (d |C|)`, or under [`MergedWalls::Master`] a member's master, with the same
+    /// area at the master's distance `d_M` to the fragment's plane (`k = A / (d_M |C|)`) and
+    /// the wall law evaluated there (a friction wall's stress stays `p tan(phi_w)`).
+    pub(super) fn wall_term(&self, i: usize) -> (usize, R, [R; D], R) {
+        let w = &self.walls;
+        let m = w.master[i] as usize;
+        if m != i
+            && self.cfg.merged_walls == MergedWalls::Master
+            && self.cfg.stress == super::Stress::Spec
+            && w.wall.omega == R::ZERO
+        {
+            let xm = self.grid.center(m);
+            let mut dm = w.plane[i];
+            for a in 0..D {
+                dm -= xm[a] * w.normal[a][i];
+            }
+            // a master on the wall's far side (not met in practice) keeps the member's term
+            if dm > w.wall_d[i] {
+                let (ub, e) = self.wall_law_on(i, m, dm);
+                return (m, w.wall_k[i] * w.wall_d[i] / dm, ub, e);
+            }
+        }
+        let (ub, e) = self.wall_law(i);
+        (i, w.wall_k[i], ub, e)
+    }
+
+    /// [`Self::wall_law`] of cell `i`'s fragment acting on cell `row` at distance `d`.
+    fn wall_law_on(&self, i: usize, row: usize, d: R) -> ([R; D], R) {
         let w = &self.walls;
         let uw = w.wall_velocity(&self.grid, i);
-        let eta = self.eta[i];
+        let eta = self.eta[row];
         if w.wall.slip == Slip::NoSlip {
             return (uw, eta);
         }
         let mut rel = [R::ZERO; D];
         let mut rn = R::ZERO;
         for a in 0..D {
-            rel[a] = self.u_prev[a][i] - uw[a];
+            rel[a] = self.u_prev[a][row] - uw[a];
             rn += rel[a] * w.normal[a][i];
         }
         let mut t2 = R::ZERO;
@@ -509,7 +575,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         match w.wall.slip {
             Slip::Friction(tan) => {
                 let t = t2.sqrt();
-                let limit = self.p[i] * tan * w.wall_d[i];
+                let limit = self.p[row] * tan * d;
                 // stick unless the no-slip stress eta t / d exceeds p tan(phi_w)
                 let e = if limit >= eta * t { eta } else { limit / t };
                 (uw, e)

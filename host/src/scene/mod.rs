@@ -444,6 +444,31 @@ pub struct FlowSpec {
     /// grad u^T)`, equal in simple shear, zero in a rigid rotation (model.md 2.6,
     /// docs/frames.md).
     pub stress: Option<StressKind>,
+    /// "member" (default): each merged cut cell takes its own wall fragment's term;
+    /// "master": a member's fragment acts on its master (model.md 5.4, docs/silo.md
+    /// section 7).
+    pub merged_walls: Option<MergedWallsKind>,
+}
+
+/// Which cell of a merge group takes a merged cut cell's wall term (model.md 5.4).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MergedWallsKind {
+    /// The member's own row.
+    #[default]
+    Member,
+    /// The master's row, at the master's distance to the fragment.
+    Master,
+}
+
+impl MergedWallsKind {
+    /// The name in a scene file and in summary.json.
+    pub fn name(self) -> &'static str {
+        match self {
+            MergedWallsKind::Member => "member",
+            MergedWallsKind::Master => "master",
+        }
+    }
 }
 
 /// The viscous stress of the flow (model.md 2, 2.6).

@@ -351,5 +351,6 @@ pub(super) fn check(
         spin_up: fs.spin_up.unwrap_or_default(),
         pressure: fs.pressure.unwrap_or_default(),
         stress: fs.stress.unwrap_or_default(),
+        merged_walls: fs.merged_walls.unwrap_or_default(),
     })
 }

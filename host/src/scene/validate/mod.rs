@@ -28,8 +28,8 @@ pub use run::fines_band_ok;
 
 use super::expr::Expr;
 use super::{
-    BackCoupling, Equations, ExactKind, Fill, Precision, PressureKind, SceneFile, SpinUp,
-    StressKind,
+    BackCoupling, Equations, ExactKind, Fill, MergedWallsKind, Precision, PressureKind, SceneFile,
+    SpinUp, StressKind,
 };
 use crate::error::{Error, Result};
 use sieve_core::closure::Material;
@@ -158,6 +158,8 @@ pub struct FlowModel {
     pub pressure: PressureKind,
     /// Viscous stress of the flow step.
     pub stress: StressKind,
+    /// Which cell of a merge group takes a merged cut cell's wall term.
+    pub merged_walls: MergedWallsKind,
 }
 
 /// A validated scene: every number finite and in range, every expression compiled.
