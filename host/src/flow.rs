@@ -32,6 +32,35 @@ use sieve_core::frame::{Frame, Rotation};
 use sieve_core::{Boundary, Grid, Real, Segregation};
 use std::time::Instant;
 
+/// The line a run with `flow.merged_walls = "master"` prints before it starts where that rule
+/// does not apply (model.md 5.4, "The wall term of a merged cell"): without cut cells there is
+/// no merged cell; a cut wall turning in the lab frame and the objective stress keep each
+/// member's own term. Said (and kept in summary.json's `warnings`), not refused: the run is
+/// the `"member"` run.
+pub fn merged_walls_caveat(scene: &Scene) -> Option<String> {
+    let fm = scene.flow.as_ref()?;
+    if fm.merged_walls != MergedWallsKind::Master {
+        return None;
+    }
+    let moving = scene
+        .frame
+        .as_ref()
+        .is_some_and(|f| f.kind == FrameKind::Lab && f.omega != 0.0);
+    let why = if scene.geometry.is_none() {
+        "the scene has no cut cells, so no merged cell"
+    } else if moving {
+        "the cut wall turns in the lab frame, and a moving wall keeps each merged cell's own wall term"
+    } else if fm.stress == StressKind::Objective {
+        "flow.stress = objective keeps each merged cell's own wall term"
+    } else {
+        return None;
+    };
+    Some(format!(
+        "warning: {}: flow.merged_walls = master has no effect here: {why} (model.md 5.4)",
+        scene.label
+    ))
+}
+
 /// Columns of the x-reduced spin-up grid (periodic x needs a few cells for the stencils).
 pub const SPIN_UP_COLUMNS: usize = 4;
 

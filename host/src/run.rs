@@ -823,7 +823,8 @@ pub fn run_scene_with(
     // Run guard (issue 10): the output must fit the limit and the disk before anything runs.
     crate::estimate::check_output(scene, &opts.out)?;
     // said now, before the run, and kept in summary.json
-    let caveats = crate::silo::outlet_caveats(scene);
+    let mut caveats = crate::silo::outlet_caveats(scene);
+    caveats.extend(crate::flow::merged_walls_caveat(scene));
     for w in &caveats {
         eprintln!("{w}");
     }

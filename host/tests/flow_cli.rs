@@ -381,3 +381,63 @@ fn cg_tolerance_key_reaches_the_flow_solver() {
         assert_eq!(s["undershoot_max"].as_f64().unwrap(), 0.0);
     }
 }
+
+/// `flow.merged_walls = "master"` where it cannot apply (model.md 5.4) says so in one line
+/// before the run, keeps the line in summary.json's `warnings`, and runs: a scene without cut
+/// cells, and a drum whose cut wall turns in the lab frame. Where it applies (the tumbler in
+/// its rotating frame) there is no such line.
+#[test]
+fn merged_walls_master_says_where_it_has_no_effect() {
+    let d = tmp();
+    let cases: [(&str, &[&str], Option<&str>); 3] = [
+        ("silo", &["--grid", "15x50"], Some("no cut cells")),
+        (
+            "tumbler",
+            &["--grid", "18x18", "--set", "frame.kind=\"lab\""],
+            Some("turns in the lab frame"),
+        ),
+        ("tumbler", &["--grid", "18x18"], None),
+    ];
+    for (k, (scene, extra, why)) in cases.iter().enumerate() {
+        let out = format!("r{k}");
+        let mut args = vec![
+            "run",
+            scene,
+            "--t-end",
+            "0.01",
+            "--quiet",
+            "--set",
+            "flow.merged_walls=\"master\"",
+            "--out",
+            &out,
+        ];
+        args.extend_from_slice(extra);
+        let (code, _, err) = run_full(d.path(), &args);
+        assert_eq!(code, 0, "{scene} {extra:?}: {err}");
+        let lines: Vec<&str> = err
+            .lines()
+            .filter(|l| l.contains("flow.merged_walls"))
+            .collect();
+        let s = json(&d.path().join(&out).join("summary.json"));
+        let kept = s["warnings"].as_array().map_or(0, |w| {
+            w.iter()
+                .filter(|l| l.as_str().unwrap_or("").contains("flow.merged_walls"))
+                .count()
+        });
+        match why {
+            Some(why) => {
+                assert_eq!(lines.len(), 1, "{err}");
+                assert!(
+                    lines[0].starts_with("warning: ") && lines[0].contains(why),
+                    "{err}"
+                );
+                assert_eq!(kept, 1, "{}", s["warnings"]);
+            }
+            None => {
+                assert!(lines.is_empty(), "{err}");
+                assert_eq!(kept, 0, "{}", s["warnings"]);
+                assert_eq!(s["flow"]["merged_walls"], "master");
+            }
+        }
+    }
+}
