@@ -533,7 +533,7 @@ fn draw_psi(opts: &SweepOptions, rows: &Rows) -> Result<()> {
         // A time no run reaches (a damaged file) would leave no axis to draw on: name the file.
         if let Some(r) = series
             .iter()
-            .find(|r| !(r.t.is_finite() && r.t.abs() <= 1e150))
+            .find(|r| !(r.t.is_finite() && r.t.abs() <= plot::MAX_PLOTTABLE))
         {
             return Err(Error::failure(format!(
                 "{}: t = {:e} is not a time of a run; sweep_psi.png not drawn",
@@ -603,7 +603,7 @@ fn draw(opts: &SweepOptions, rows: &Rows) -> Result<()> {
                 .and_then(Value::as_f64);
             if let Some(y) = y.filter(|y| y.is_finite()) {
                 // A value past any physical one (a damaged summary) leaves no axis to draw on.
-                if y.abs() > 1e150 {
+                if y.abs() > plot::MAX_PLOTTABLE {
                     return Err(Error::failure(format!(
                         "{}: {} = {y:e} is out of the plottable range; sweep.png not drawn (sweep.csv and sweep.json are written)",
                         run_dir(&opts.out, index).join("summary.json").display(),

@@ -440,21 +440,8 @@ proptest::proptest! {
         let f = &files[which % files.len()];
         let orig = std::fs::read(f).expect("read");
         let mut b = orig.clone();
-        let n = b.len().max(1);
-        match how {
-            0 => { if !b.is_empty() { b[at % n] ^= byte | 1; } }
-            1 => b.truncate(at % n),
-            2 => { b.splice(at % (b.len() + 1)..at % (b.len() + 1), number.bytes()); }
-            _ => {
-                // Rewrite the digits around a position.
-                let i = at % n;
-                let s = (0..=i.min(b.len().saturating_sub(1))).rev().take_while(|&j| b.get(j).is_some_and(|c| c.is_ascii_digit())).last();
-                if let Some(s) = s {
-                    let e = (s..b.len()).find(|&j| !b[j].is_ascii_digit()).unwrap_or(b.len());
-                    b.splice(s..e, number.bytes());
-                }
-            }
-        }
+        // the digits around a position rewritten, or a byte flipped, a cut, an insert
+        crate::common::damage(&mut b, (how, at, byte), number, |c| c.is_ascii_digit());
         std::fs::write(f, &b).expect("write");
         let plots = tempfile::tempdir().expect("temp dir");
         let r = std::panic::catch_unwind(|| sieve::output::redraw::redraw(&dir, plots.path()));

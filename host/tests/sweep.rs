@@ -313,22 +313,9 @@ proptest::proptest! {
         let f = &files[which];
         let orig = std::fs::read(f).expect("read");
         let mut b = orig.clone();
-        let n = b.len().max(1);
-        match how {
-            0 => { if !b.is_empty() { b[at % n] ^= byte | 1; } }
-            1 => b.truncate(at % n),
-            2 => { b.splice(at % (b.len() + 1)..at % (b.len() + 1), number.bytes()); }
-            _ => {
-                // Rewrite the number around a position.
-                let i = at % n;
-                let is_num = |c: u8| c.is_ascii_digit() || c == b'.' || c == b'e' || c == b'-';
-                let s = (0..=i.min(b.len().saturating_sub(1))).rev().take_while(|&j| b.get(j).is_some_and(|&c| is_num(c))).last();
-                if let Some(s) = s {
-                    let e = (s..b.len()).find(|&j| !is_num(b[j])).unwrap_or(b.len());
-                    b.splice(s..e, number.bytes());
-                }
-            }
-        }
+        // the whole number around a position rewritten, or a byte flipped, a cut, an insert
+        let is_num = |c: u8| c.is_ascii_digit() || c == b'.' || c == b'e' || c == b'-';
+        crate::common::damage(&mut b, (how, at, byte), number, is_num);
         std::fs::write(f, &b).expect("write");
         let before: Vec<Vec<u8>> = files.iter().map(|p| std::fs::read(p).expect("read")).collect();
         let opts = sieve::sweep::SweepOptions {

@@ -38,10 +38,10 @@
 //! master's state. Faces inside a group carry no mass. The implicit stages (no stability
 //! limit) solve on the cells, and a member keeps its own solution for the rest of the step
 //! (its wall flux and heating); the next transport update takes the group's state from the
-//! master again. Which row takes a member's wall term there is [`MergedWalls`]' choice. Averaging the group after each implicit solve (content-conservative) was
-//! tried and dropped: the mean of a linear field over a group is not its value at the
-//! master's centre, which breaks the exactness above and tripled the rigid-rotation error of
-//! the drum (1.3e-2 against 4.4e-3 on 32 x 32, tests/tests/flow_drum.rs). With a moving wall
+//! master again; which row takes a member's wall term there is [`MergedWalls`]' choice.
+//! Averaging the group after each implicit solve (content-conservative) was tried and
+//! dropped: the mean of a linear field over a group is not its value at the master's centre,
+//! which breaks the exactness above and tripled the rigid-rotation error of the drum (1.3e-2 against 4.4e-3 on 32 x 32, tests/tests/flow_drum.rs). With a moving wall
 //! (lab frame) the master's momentum is handed to a member with the wall's rigid motion
 //! between their centres added ([`Flow::carry_rigid_offsets`]), so a rigid rotation passes
 //! the group update unchanged (a plain copy put every member `omega h` off it each step, and
@@ -133,8 +133,10 @@ pub(super) struct Walls<R: Real, const D: usize, const N: usize> {
     pub wall_d: [R; N],
     /// Unit wall normal (open -> solid).
     pub normal: [[R; N]; D],
-    /// Offset `n . x` of the wall fragment's plane (any point `x` of it).
-    pub plane: [R; N],
+    /// A merged cell's master's distance `d_M` to the cell's wall fragment's plane, for
+    /// [`MergedWalls::Master`]; 0 where the cell is no member with a fragment, or its master
+    /// lies no farther from the plane than the member's `d` (then the member keeps its term).
+    pub master_d: [R; N],
 }
 
 impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
@@ -156,7 +158,7 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
             ap_lo: [z; D],
             wall_k: z,
             wall_d: z,
-            plane: z,
+            master_d: z,
             normal: [z; D],
         }
     }
@@ -407,7 +409,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 an[a] = (w.ap_lo[a][i] - w.ap_hi[a][i]) * (cell / h[a]);
                 area2 += an[a] * an[a];
             }
-            let (area, nrm, d, plane) = if staircase {
+            let (area, nrm, d, master_d) = if staircase {
                 let area = area2.sqrt();
                 let mut nrm = [R::ZERO; D];
                 let mut d = R::ZERO;
@@ -418,33 +420,44 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         d = d.max(R::HALF * h[a] * nrm[a].abs());
                     }
                 }
-                // the plane through x_c + d n
-                let xc = grid.center(i);
-                let mut plane = d;
-                for a in 0..D {
-                    plane += nrm[a] * xc[a];
-                }
-                (area, nrm, d, plane)
+                // a staircase merges nothing
+                (area, nrm, d, R::ZERO)
             } else {
                 let nrm = cut.wall_normal(i);
-                let pt = cut.wall_point(i);
-                let mut plane = R::ZERO;
-                for a in 0..D {
-                    plane += nrm[a] * pt[a];
+                let d = cut.wall_distance(i);
+                let m = w.master[i] as usize;
+                let mut master_d = R::ZERO;
+                if m != i {
+                    // n . (x_wall - x_master): the plane through the fragment's point
+                    let pt = cut.wall_point(i);
+                    let xm = grid.center(m);
+                    let mut plane = R::ZERO;
+                    for a in 0..D {
+                        plane += nrm[a] * pt[a];
+                    }
+                    let mut dm = plane;
+                    for a in 0..D {
+                        dm -= xm[a] * nrm[a];
+                    }
+                    // a master on the wall's far side (not met in practice) keeps the
+                    // member's term
+                    if dm > d {
+                        master_d = dm;
+                    }
                 }
-                (cut.wall_area(i), nrm, cut.wall_distance(i), plane)
+                (cut.wall_area(i), nrm, d, master_d)
             };
             if area > R::ZERO && w.vol[i] > R::ZERO && d > R::ZERO {
                 w.wall_k[i] = area / (d * cell);
                 w.wall_d[i] = d;
-                w.plane[i] = plane;
+                w.master_d[i] = master_d;
                 for a in 0..D {
                     w.normal[a][i] = nrm[a];
                 }
             } else {
                 w.wall_k[i] = R::ZERO;
                 w.wall_d[i] = R::ZERO;
-                w.plane[i] = R::ZERO;
+                w.master_d[i] = R::ZERO;
                 for a in 0..D {
                     w.normal[a][i] = R::ZERO;
                 }
@@ -532,22 +545,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// the wall law evaluated there (a friction wall's stress stays `p tan(phi_w)`).
     pub(super) fn wall_term(&self, i: usize) -> (usize, R, [R; D], R) {
         let w = &self.walls;
-        let m = w.master[i] as usize;
-        if m != i
+        let dm = w.master_d[i];
+        if dm > R::ZERO
             && self.cfg.merged_walls == MergedWalls::Master
             && self.cfg.stress == super::Stress::Spec
             && w.wall.omega == R::ZERO
         {
-            let xm = self.grid.center(m);
-            let mut dm = w.plane[i];
-            for a in 0..D {
-                dm -= xm[a] * w.normal[a][i];
-            }
-            // a master on the wall's far side (not met in practice) keeps the member's term
-            if dm > w.wall_d[i] {
-                let (ub, e) = self.wall_law_on(i, m, dm);
-                return (m, w.wall_k[i] * w.wall_d[i] / dm, ub, e);
-            }
+            let m = w.master[i] as usize;
+            let (ub, e) = self.wall_law_on(i, m, dm);
+            return (m, w.wall_k[i] * w.wall_d[i] / dm, ub, e);
         }
         let (ub, e) = self.wall_law(i);
         (i, w.wall_k[i], ub, e)

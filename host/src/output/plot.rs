@@ -143,7 +143,7 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
         let (lo, hi) = y_pair(v);
         lo..hi
     };
-    let clamp_y = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
+    let near_axes = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
         let r = y_pair(v);
         v.iter()
             .map(|&(t, y)| (near_axis(t, (0.0, t_max)), near_axis(y, r)))
@@ -207,8 +207,11 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
             .axis_desc_style((FONT_NAME, 15))
             .draw()
             .map_err(fail(path))?;
-        c.draw_series(LineSeries::new(clamp_y(&drift), PALETTE[2].stroke_width(2)))
-            .map_err(fail(path))?;
+        c.draw_series(LineSeries::new(
+            near_axes(&drift),
+            PALETTE[2].stroke_width(2),
+        ))
+        .map_err(fail(path))?;
     }
     // Bound violations.
     {
@@ -228,7 +231,7 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
             .draw()
             .map_err(fail(path))?;
         c.draw_series(LineSeries::new(
-            clamp_y(&both)[..over.len()].to_vec(),
+            near_axes(&both)[..over.len()].to_vec(),
             PALETTE[3].stroke_width(2),
         ))
         .map_err(fail(path))?
@@ -238,7 +241,7 @@ pub fn psi(path: &Path, series: &[SeriesRow], threshold: f64, title: &str) -> Re
         ))
         .legend(swatch(PALETTE[3].stroke_width(2)));
         c.draw_series(LineSeries::new(
-            clamp_y(&both)[over.len()..].to_vec(),
+            near_axes(&both)[over.len()..].to_vec(),
             PALETTE[5].stroke_width(2),
         ))
         .map_err(fail(path))?
@@ -293,10 +296,14 @@ fn near_axis(v: f64, (lo, hi): (f64, f64)) -> f64 {
     }
 }
 
+/// The largest magnitude an axis may reach: beyond it the plotting library's tick
+/// computation overflows or loops (values read from a damaged file).
+pub const MAX_PLOTTABLE: f64 = 1e150;
+
 /// Why the axis ranges `axes` (low, high) cannot be drawn, if they cannot: the plotting
 /// library's tick computation overflows or loops on spans that are not finite, vanish against
-/// their magnitude or exceed 1e150 (values read from a damaged file; found by the plot reader
-/// fuzz test). `None` when every range is fine.
+/// their magnitude or exceed [`MAX_PLOTTABLE`] (values read from a damaged file; found by the
+/// plot reader fuzz test). `None` when every range is fine.
 fn unplottable(axes: &[(f64, f64)]) -> Option<String> {
     axes.iter().find_map(|&(lo, hi)| {
         let mag = lo.abs().max(hi.abs());
@@ -304,7 +311,7 @@ fn unplottable(axes: &[(f64, f64)]) -> Option<String> {
         let ok = lo.is_finite()
             && hi.is_finite()
             && span.is_finite()
-            && mag <= 1e150
+            && mag <= MAX_PLOTTABLE
             && span > 0.0
             && span >= 1e-15 * mag;
         (!ok).then(|| format!("values out of the plottable range ({lo:e} .. {hi:e}); not drawn"))

@@ -34,3 +34,39 @@ pub fn run_in(dir: &Path, args: &[&str]) -> (i32, String) {
     let (code, _, err) = run_full(dir, args);
     (code, err)
 }
+
+/// One damage of a file's bytes, as the fuzz tests of the run-directory readers apply it:
+/// `how` 0 flips bits of the byte at `at` (by `byte | 1`), 1 cuts the file at `at`, 2 inserts
+/// `number` at `at`, 3 rewrites the run of `is_num` bytes around `at` to `number` (positions
+/// taken modulo the length).
+pub fn damage(
+    b: &mut Vec<u8>,
+    (how, at, byte): (u8, usize, u8),
+    number: &str,
+    is_num: impl Fn(u8) -> bool,
+) {
+    let n = b.len().max(1);
+    match how {
+        0 => {
+            if !b.is_empty() {
+                b[at % n] ^= byte | 1;
+            }
+        }
+        1 => b.truncate(at % n),
+        2 => {
+            let i = at % (b.len() + 1);
+            b.splice(i..i, number.bytes());
+        }
+        _ => {
+            let i = at % n;
+            let s = (0..=i.min(b.len().saturating_sub(1)))
+                .rev()
+                .take_while(|&j| b.get(j).is_some_and(|&c| is_num(c)))
+                .last();
+            if let Some(s) = s {
+                let e = (s..b.len()).find(|&j| !is_num(b[j])).unwrap_or(b.len());
+                b.splice(s..e, number.bytes());
+            }
+        }
+    }
+}
