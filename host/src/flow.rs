@@ -32,22 +32,25 @@ use sieve_core::frame::{Frame, Rotation};
 use sieve_core::{Boundary, Grid, Real, Segregation};
 use std::time::Instant;
 
-/// The line a run with `flow.merged_walls = "master"` prints before it starts where that rule
-/// does not apply (model.md 5.4, "The wall term of a merged cell"): without cut cells there is
-/// no merged cell; a cut wall turning in the lab frame and the objective stress keep each
-/// member's own term. Said (and kept in summary.json's `warnings`), not refused: the run is
-/// the `"member"` run.
+/// The line a run that names `flow.merged_walls` prints before it starts where the rule it
+/// asked for does not apply (model.md 5.4, "The wall term of a merged cell"): without cut
+/// cells there is no merged cell (either rule); a cut wall turning in the lab frame and the
+/// objective stress keep each member's own term ("master"). Said (and kept in summary.json's
+/// `warnings`), not refused: the run is the `"member"` run. The default says nothing.
 pub fn merged_walls_caveat(scene: &Scene) -> Option<String> {
     let fm = scene.flow.as_ref()?;
-    if fm.merged_walls != MergedWallsKind::Master {
+    if !fm.merged_walls_given {
         return None;
     }
+    let rule = fm.merged_walls.name();
     let moving = scene
         .frame
         .as_ref()
         .is_some_and(|f| f.kind == FrameKind::Lab && f.omega != 0.0);
     let why = if scene.geometry.is_none() {
         "the scene has no cut cells, so no merged cell"
+    } else if fm.merged_walls == MergedWallsKind::Member {
+        return None;
     } else if moving {
         "the cut wall turns in the lab frame, and a moving wall keeps each merged cell's own wall term"
     } else if fm.stress == StressKind::Objective {
@@ -56,7 +59,7 @@ pub fn merged_walls_caveat(scene: &Scene) -> Option<String> {
         return None;
     };
     Some(format!(
-        "warning: {}: flow.merged_walls = master has no effect here: {why} (model.md 5.4)",
+        "warning: {}: flow.merged_walls = {rule} has no effect here: {why} (model.md 5.4)",
         scene.label
     ))
 }

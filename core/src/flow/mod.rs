@@ -302,7 +302,7 @@ impl<R: Real, const D: usize> FlowConfig<R, D> {
             pressure: PressureMode::Explicit,
             stress: Stress::Spec,
             guess: VelocityGuess::Extrapolated,
-            merged_walls: MergedWalls::Member,
+            merged_walls: MergedWalls::Master,
         }
     }
 }
@@ -536,7 +536,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 pressure: PressureMode::Explicit,
                 stress: Stress::Spec,
                 guess: VelocityGuess::Extrapolated,
-                merged_walls: MergedWalls::Member,
+                merged_walls: MergedWalls::Master,
             },
             c: z,
             m: zd,

@@ -444,9 +444,9 @@ pub struct FlowSpec {
     /// grad u^T)`, equal in simple shear, zero in a rigid rotation (model.md 2.6,
     /// docs/frames.md).
     pub stress: Option<StressKind>,
-    /// "member" (default): each merged cut cell takes its own wall fragment's term;
-    /// "master": a member's fragment acts on its master (model.md 5.4, docs/silo.md
-    /// section 7).
+    /// "master" (default): a member's fragment acts on its master; "member": each merged
+    /// cut cell takes its own wall fragment's term, the rule before 2026-12-05 (model.md
+    /// 5.4, docs/silo.md section 7).
     pub merged_walls: Option<MergedWallsKind>,
 }
 
@@ -455,9 +455,9 @@ pub struct FlowSpec {
 #[serde(rename_all = "kebab-case")]
 pub enum MergedWallsKind {
     /// The member's own row.
-    #[default]
     Member,
     /// The master's row, at the master's distance to the fragment.
+    #[default]
     Master,
 }
 

@@ -352,5 +352,6 @@ pub(super) fn check(
         pressure: fs.pressure.unwrap_or_default(),
         stress: fs.stress.unwrap_or_default(),
         merged_walls: fs.merged_walls.unwrap_or_default(),
+        merged_walls_given: fs.merged_walls.is_some(),
     })
 }

@@ -160,6 +160,9 @@ pub struct FlowModel {
     pub stress: StressKind,
     /// Which cell of a merge group takes a merged cut cell's wall term.
     pub merged_walls: MergedWallsKind,
+    /// Whether the scene file (or `--set`) named `flow.merged_walls`: only a rule asked for
+    /// is worth a warning where it has no effect.
+    pub merged_walls_given: bool,
 }
 
 /// A validated scene: every number finite and in range, every expression compiled.
