@@ -51,7 +51,8 @@ fn outlet_rate_caveat(scene: &Scene) -> Option<String> {
 /// along one axis (2D, or a 3D slot from wall to wall) opens between 2 and 3 cells (three
 /// grids), one with edges all round (a square in 3D) between 3 and 5 cells (two grids). The
 /// hopper's orifice, fed by its walls, drains below 3 cells too, at a rate that on 1 cell is
-/// 2.5 and 2.3 times its rate on 2 and 4 cells (docs/silo.md section 3).
+/// 1.8 times its rate on 2 and 4 cells (2.5 and 2.3 under the member wall rule; docs/silo.md
+/// section 3).
 pub fn min_outlet_cells(edged_axes: usize) -> f64 {
     if edged_axes >= 2 {
         5.0
@@ -284,9 +285,12 @@ pub struct DischargeSummary {
     /// The same for the small grains (carried transport).
     pub mass_small_error: f64,
     /// The steady window: from when 10 % of the grains have left to when 50 % have (or to
-    /// the end of the run if fewer left) \[s\].
+    /// the end of the run if fewer left; from its start if fewer than 10 % left, so a silo
+    /// that never opens reads a rate of 0) \[s\]. \[0, 0\] when the run ends at the output
+    /// where the tenth has left: no window yet.
     pub steady_window: [f64; 2],
-    /// Mean discharge rate over the steady window.
+    /// Mean discharge rate over the steady window; NaN without one (a rate of 0 there
+    /// would read as a closed orifice).
     pub steady_rate: f64,
     /// Small-grain fraction of the discharge over the steady window.
     pub steady_fines_fraction: f64,
@@ -488,7 +492,7 @@ impl DischargeSeries {
                     f64::NAN
                 },
             ),
-            _ => ([0.0, 0.0], 0.0, f64::NAN),
+            _ => ([0.0, 0.0], f64::NAN, f64::NAN),
         };
         DischargeSummary {
             mass_initial: m0,
