@@ -1071,7 +1071,7 @@ fn record_catalogue(
     }
     let (sc, fields) = scene::load(&a.scene, &sets)?;
     crate::embedded::refuse(&sc, "sieve record")?;
-    for w in crate::silo::outlet_caveats(&sc) {
+    for w in crate::run::caveats(&sc) {
         eprintln!("{w}");
     }
     let opts = soft_sensor::SceneRecordOptions {

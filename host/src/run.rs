@@ -801,6 +801,16 @@ impl FlowJob for RunJob<'_> {
     }
 }
 
+/// The lines a run of `scene` says before it starts (and keeps in summary.json's
+/// `warnings`): a run that will go on but whose numbers the user should read with care
+/// (narrow orifices, a wall rule that does not apply). Every command that runs a scene
+/// (`sieve run`, `sieve record`) says the same lines.
+pub fn caveats(scene: &Scene) -> Vec<String> {
+    let mut caveats = crate::silo::outlet_caveats(scene);
+    caveats.extend(crate::flow::merged_walls_caveat(scene));
+    caveats
+}
+
 /// `sieve run`: runs a validated scene and writes DIR atomically; returns the summary.
 pub fn run_scene(
     scene: &Scene,
@@ -823,8 +833,7 @@ pub fn run_scene_with(
     // Run guard (issue 10): the output must fit the limit and the disk before anything runs.
     crate::estimate::check_output(scene, &opts.out)?;
     // said now, before the run, and kept in summary.json
-    let mut caveats = crate::silo::outlet_caveats(scene);
-    caveats.extend(crate::flow::merged_walls_caveat(scene));
+    let caveats = caveats(scene);
     for w in &caveats {
         eprintln!("{w}");
     }
