@@ -15,6 +15,8 @@
 //! | `frozen-shear-cell-2d` | `sieve run shear-cell` on 16 x 16: flow spin-up on 4 columns, freeze, replication, segregation in the frozen flow |
 //! | `prescribed-2d-gray-thornton` | `sieve run gray-thornton-plug` on 40 x 20: 2D modified flux with inflow/outflow (model.md 5, 7.2) |
 //! | `prescribed-3d-shear` | a 3D prescribed box, f64, periodic in x, T and phi from expressions: 3D segregation step and direction from gravity |
+//! | `hopper-cut-cells-2d` | `sieve run hopper` on 15 x 50: cut-cell walls, merge groups and their wall terms on the masters (model.md 5.4), the orifice outlet, fines carried by the mass fluxes |
+//! | `tumbler-rotating-2d` | `sieve run tumbler` on 18 x 18: a cut-cell drum in its rotating frame (model.md 2.5), implicit pressure, limited transport |
 //!
 //! The constants live in ONE file, `tests/goldens.txt` (`name = 0x<16 hex digits>`). To
 //! re-mint every one of them after an intended change of the numerics:
@@ -197,6 +199,28 @@ fn cases() -> Vec<(&'static str, u64)> {
         ),
     ));
     v.push(("prescribed-3d-shear", host_run(&box3_path, &[])));
+    v.push((
+        "hopper-cut-cells-2d",
+        host_run(
+            "hopper",
+            &[
+                "grid.cells=[15, 50]",
+                "run.t_end=0.15",
+                "run.output_interval=0.05",
+            ],
+        ),
+    ));
+    v.push((
+        "tumbler-rotating-2d",
+        host_run(
+            "tumbler",
+            &[
+                "grid.cells=[18, 18]",
+                "run.t_end=0.2",
+                "run.output_interval=0.1",
+            ],
+        ),
+    ));
     v
 }
 
