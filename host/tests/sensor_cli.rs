@@ -412,3 +412,32 @@ fn bad_options_exit_2_with_one_line() {
         "cannot read the recording",
     );
 }
+
+/// `sieve record` says the same pre-run lines as `sieve run` (`run::caveats`): a scene that
+/// names `flow.merged_walls` without cut cells gets the one warning line, and records.
+#[test]
+fn record_says_the_runs_pre_run_warnings() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let file = dir.path().join("mw.rec");
+    let (code, _, err) = sieve(&[
+        "record",
+        "shear-cell",
+        "--frames",
+        "2",
+        "--set",
+        "flow.merged_walls=\"member\"",
+        "--out",
+        file.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.contains("flow.merged_walls"))
+        .collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].starts_with("warning: ") && lines[0].contains("no cut cells"),
+        "{err}"
+    );
+    assert!(file.exists());
+}
