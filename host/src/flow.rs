@@ -24,7 +24,7 @@ use crate::scene::{
 use sieve_core::closure::Packing;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{
-    CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, MergedWalls,
+    CutWall, Flow, FlowBoundaries, FlowConfig, FlowDiagnostics, FlowSide, MemberKept, MergedWalls,
     PressureMode, Slip, Stress,
 };
 use sieve_core::fork::Serial;
@@ -49,19 +49,38 @@ pub fn merged_walls_caveat(scene: &Scene) -> Option<String> {
         .is_some_and(|f| f.kind == FrameKind::Lab && f.omega != 0.0);
     let why = if scene.geometry.is_none() {
         "the scene has no cut cells, so no merged cell"
-    } else if fm.merged_walls == MergedWallsKind::Member {
-        return None;
-    } else if moving {
-        "the cut wall turns in the lab frame, and a moving wall keeps each merged cell's own wall term"
-    } else if fm.stress == StressKind::Objective {
-        "flow.stress = objective keeps each merged cell's own wall term"
     } else {
-        return None;
+        // the core's own answer to "does the rule apply here" (the step asks the same)
+        match merged_walls(fm.merged_walls).on_master(stress(fm.stress), moving) {
+            Ok(_) => return None,
+            Err(MemberKept::MovingWall) => {
+                "the cut wall turns in the lab frame, and a moving wall keeps each merged cell's own wall term"
+            }
+            Err(MemberKept::ObjectiveStress) => {
+                "flow.stress = objective keeps each merged cell's own wall term"
+            }
+        }
     };
     Some(format!(
         "warning: {}: flow.merged_walls = {rule} has no effect here: {why} (model.md 5.4)",
         scene.label
     ))
+}
+
+/// The core's stress for the scene's word.
+fn stress(k: StressKind) -> Stress {
+    match k {
+        StressKind::Spec => Stress::Spec,
+        StressKind::Objective => Stress::Objective,
+    }
+}
+
+/// The core's merged-wall rule for the scene's word.
+fn merged_walls(k: MergedWallsKind) -> MergedWalls {
+    match k {
+        MergedWallsKind::Member => MergedWalls::Member,
+        MergedWallsKind::Master => MergedWalls::Master,
+    }
 }
 
 /// Columns of the x-reduced spin-up grid (periodic x needs a few cells for the stencils).
@@ -111,14 +130,8 @@ fn config<R: Real, const D: usize>(scene: &Scene, fm: &FlowModel) -> FlowConfig<
         PressureKind::Explicit => PressureMode::Explicit,
         PressureKind::Implicit => PressureMode::Implicit,
     };
-    cfg.stress = match fm.stress {
-        StressKind::Spec => Stress::Spec,
-        StressKind::Objective => Stress::Objective,
-    };
-    cfg.merged_walls = match fm.merged_walls {
-        MergedWallsKind::Member => MergedWalls::Member,
-        MergedWallsKind::Master => MergedWalls::Master,
-    };
+    cfg.stress = stress(fm.stress);
+    cfg.merged_walls = merged_walls(fm.merged_walls);
     // A rotating frame (docs/frames.md): the grid turns with the container; validation
     // allows it with a coupled flow only and checks the centre, axis and rate.
     if let Some(fr) = scene

@@ -83,7 +83,7 @@ mod walls;
 
 pub use objective::Stress;
 pub use pressure::PressureMode;
-pub use walls::{CutWall, MergedWalls};
+pub use walls::{CutWall, MemberKept, MergedWalls};
 
 use crate::boundary::{check_periodic_pairs, Boundary, Openings};
 use crate::closure::{self, Material};

@@ -896,10 +896,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         if self.walls.on {
             // the cut wall fragment: towards u_B with the drag of the lagged wall law
+            let on_master = self.walls_on_master();
             for i in 0..n {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
-                    let (row, kw, ub, e) = self.wall_term(i);
+                    let (row, kw, ub, e) = self.wall_term(i, on_master);
                     let k = kw * e;
                     self.diag[row] += k;
                     self.rhs[row] += k * ub[comp];
@@ -1074,10 +1075,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         if self.walls.on {
             // the work of the cut wall term `e A / (d |C|) (u_B - u)` (content units)
+            let on_master = self.walls_on_master();
             for i in 0..n {
                 let kw = self.walls.wall_k[i];
                 if kw > R::ZERO {
-                    let (row, kw, ub, e) = self.wall_term(i);
+                    let (row, kw, ub, e) = self.wall_term(i, on_master);
                     let mut du2 = R::ZERO;
                     for (comp, b) in ub.iter().enumerate() {
                         let d = *b - self.u[comp][row];

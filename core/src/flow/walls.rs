@@ -75,6 +75,33 @@ pub enum MergedWalls {
     Master,
 }
 
+/// Why a member keeps its own wall term although [`MergedWalls::Master`] was asked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MemberKept {
+    /// The cut wall moves (a drum turning in the lab frame).
+    MovingWall,
+    /// The objective stress (model.md 2.6).
+    ObjectiveStress,
+}
+
+impl MergedWalls {
+    /// Whether a member's fragment acts on its master under this rule, for a wall that moves
+    /// or not and the given stress: `Ok(true)` for the master rule where it applies,
+    /// `Ok(false)` for the member rule, `Err` with the reason where the master rule was asked
+    /// for but the member keeps its term. The step and the host's pre-run warning both ask
+    /// this one question.
+    pub fn on_master(self, stress: super::Stress, wall_moves: bool) -> Result<bool, MemberKept> {
+        match self {
+            MergedWalls::Member => Ok(false),
+            MergedWalls::Master if wall_moves => Err(MemberKept::MovingWall),
+            MergedWalls::Master if stress == super::Stress::Objective => {
+                Err(MemberKept::ObjectiveStress)
+            }
+            MergedWalls::Master => Ok(true),
+        }
+    }
+}
+
 /// What the cut wall does: its tangential law and its (rigid) motion.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CutWall<R, const D: usize> {
@@ -540,19 +567,25 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.wall_law_on(i, i, self.walls.wall_d[i])
     }
 
+    /// Whether merged cells' wall terms go to their masters in this flow
+    /// ([`MergedWalls::on_master`]); asked once per stage, not per cell.
+    pub(super) fn walls_on_master(&self) -> bool {
+        self.cfg
+            .merged_walls
+            .on_master(self.cfg.stress, self.walls.wall.omega != R::ZERO)
+            .unwrap_or(false)
+    }
+
     /// The wall term of cell `i`'s fragment as the implicit stages book it: `(row, k, u_B,
     /// e)`, the term `k e (u_B - u_row)` in the row of cell `row`. That is `i` itself with its
-    /// own `A / (d |C|)`, or under [`MergedWalls::Master`] a member's master, with the same
-    /// area at the master's distance `d_M` to the fragment's plane (`k = A / (d_M |C|)`) and
-    /// the wall law evaluated there (a friction wall's stress stays `p tan(phi_w)`).
-    pub(super) fn wall_term(&self, i: usize) -> (usize, R, [R; D], R) {
+    /// own `A / (d |C|)`, or with `on_master` ([`Self::walls_on_master`]) a member's master,
+    /// with the same area at the master's distance `d_M` to the fragment's plane (`k = A /
+    /// (d_M |C|)`) and the wall law evaluated there (a friction wall's stress stays `p
+    /// tan(phi_w)`).
+    pub(super) fn wall_term(&self, i: usize, on_master: bool) -> (usize, R, [R; D], R) {
         let w = &self.walls;
         let dm = w.master_d[i];
-        if dm > R::ZERO
-            && self.cfg.merged_walls == MergedWalls::Master
-            && self.cfg.stress == super::Stress::Spec
-            && w.wall.omega == R::ZERO
-        {
+        if on_master && dm > R::ZERO {
             let m = w.master[i] as usize;
             let (ub, e) = self.wall_law_on(i, m, dm);
             return (m, w.wall_k[i] * w.wall_d[i] / dm, ub, e);
