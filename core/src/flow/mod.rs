@@ -487,8 +487,10 @@ impl<R: Real, const D: usize, const N: usize> SolveSet<R, D, N> {
 
 /// A second set of the implicit solves' systems and scratch: with it the velocity components
 /// solve on two workers at once, the vertical one on one, the horizontal ones on the other
-/// (docs/parallel.md, "Velocity components side by side"). Never state: nothing reads it
-/// outside that solve.
+/// (docs/parallel.md, "Velocity components side by side"). Never state: outside that solve
+/// only the implicit pressure keeps `p^n`, `c^n` and `a_s^2` in `diag`, `diag2` and `rhs`
+/// for its free-surface cap, between its solve and the momentum update (before the viscous
+/// stage; the main set's arrays are the embedded transport's scratch then).
 #[derive(Clone, Debug)]
 struct SpareSolve<R, const D: usize, const N: usize> {
     /// The first horizontal component's system.

@@ -171,11 +171,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.last_pressure_cg = res.iterations;
         self.cg_iterations += u64::from(res.iterations);
         for i in 0..n {
-            // kept for `consistent_pressure` (the transport and the wall updates do not touch
-            // these three scratch arrays; the viscous stage refills them later)
-            self.solve.ap[i] = self.p[i];
-            self.solve.p[i] = self.c[i];
-            self.rhs[i] = self.diag_a2(i, a2_floor);
+            // kept for `consistent_pressure` in the spare solve set, which only the viscous
+            // stage's side-by-side solves use, after it (the transport with embedded walls
+            // takes the main set's `ap`, `p` and `rhs` as its increment scratch)
+            self.spare.rhs[i] = self.diag_a2(i, a2_floor);
+            self.spare.diag[i] = self.p[i];
+            self.spare.diag2[i] = self.c[i];
             self.p[i] = (self.p[i] + self.flux[0][i]).max(R::ZERO);
         }
     }
@@ -221,11 +222,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     pub(super) fn consistent_pressure(&mut self) {
         let n = self.grid.len();
         let surface = self.cfg.surface;
+        // p^n, c^n and a_s^2 as `implicit_pressure` kept them
+        let (p0, c0, a2) = (&self.spare.diag, &self.spare.diag2, &self.spare.rhs);
         for i in 0..n {
             let fade = R::ONE - (self.c[i] / surface).min(R::ONE);
             if fade > R::ZERO {
-                let pc =
-                    (self.solve.ap[i] + self.rhs[i] * (self.c[i] - self.solve.p[i])).max(R::ZERO);
+                let pc = (p0[i] + a2[i] * (self.c[i] - c0[i])).max(R::ZERO);
                 let excess = (self.p[i] - pc).max(R::ZERO);
                 self.p[i] -= fade * excess;
             }
