@@ -75,14 +75,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // p^n from the current c and T (the packing limits may have changed since the last
         // step: back-coupling).
         self.pressures();
-        let mut hmin = h[0];
-        for hh in h.iter().take(D) {
-            hmin = hmin.min(*hh);
-        }
-        // The floor keeps the diagonal finite where `a_s = 0` (empty or cold loose cells,
-        // whose pressure does not depend on c); a cell whose sound crosses less than 1e-6 of
-        // a cell per step has no acoustic coupling worth solving for.
-        let a2_floor = R::from_f64(1e-12) * (hmin / dt) * (hmin / dt);
+        let a2_floor = self.sound_floor(dt);
         let mut vnorm = R::ZERO;
         for i in 0..n {
             let v = self.mass_factor(i);
@@ -93,8 +86,16 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 self.c_rcp[i],
                 self.c_rlp[i],
             );
-            self.diag[i] = v / a2.max(a2_floor);
+            let a2 = a2.max(a2_floor);
+            self.diag[i] = v / a2;
             self.rhs[i] = R::ZERO;
+            // p^n, c^n and a_s^2 kept for `consistent_pressure` in the spare solve set,
+            // which only the viscous stage's side-by-side solves use, after it (the transport
+            // with embedded walls takes the main set's `ap`, `p` and `rhs` as its increment
+            // scratch)
+            self.spare.diag[i] = self.p[i];
+            self.spare.diag2[i] = self.c[i];
+            self.spare.rhs[i] = a2;
             vnorm += v * v;
         }
         for a in 0..D {
@@ -171,27 +172,21 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.last_pressure_cg = res.iterations;
         self.cg_iterations += u64::from(res.iterations);
         for i in 0..n {
-            // kept for `consistent_pressure` in the spare solve set, which only the viscous
-            // stage's side-by-side solves use, after it (the transport with embedded walls
-            // takes the main set's `ap`, `p` and `rhs` as its increment scratch)
-            self.spare.rhs[i] = self.diag_a2(i, a2_floor);
-            self.spare.diag[i] = self.p[i];
-            self.spare.diag2[i] = self.c[i];
             self.p[i] = (self.p[i] + self.flux[0][i]).max(R::ZERO);
         }
     }
 
-    /// `a_s^2` of cell `i` at the floor the solve used.
-    #[inline(always)]
-    fn diag_a2(&self, i: usize, a2_floor: R) -> R {
-        closure::sound_speed_squared(
-            &self.cfg.material,
-            self.c_eff(i),
-            self.t[i],
-            self.c_rcp[i],
-            self.c_rlp[i],
-        )
-        .max(a2_floor)
+    /// Floor of `a_s^2` in the pressure system at the step `dt`. It keeps the diagonal
+    /// finite where `a_s = 0` (empty or cold loose cells, whose pressure does not depend on
+    /// c); a cell whose sound crosses less than 1e-6 of a cell per step has no acoustic
+    /// coupling worth solving for.
+    pub(super) fn sound_floor(&self, dt: R) -> R {
+        let h = self.grid.spacing();
+        let mut hmin = h[0];
+        for hh in h.iter().take(D) {
+            hmin = hmin.min(*hh);
+        }
+        R::from_f64(1e-12) * (hmin / dt) * (hmin / dt)
     }
 
     /// After the transport, in the cells the free surface fades (`c < surface`): the

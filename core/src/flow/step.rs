@@ -1332,7 +1332,7 @@ mod tests {
         // the start of the step, as the solve sees it
         flow.pressures();
         let (p0, c0) = (flow.p, flow.c);
-        let floor = 1e-12 * (h / dt) * (h / dt);
+        let floor = flow.sound_floor(dt);
         let mut a2 = [0.0; N];
         for (i, a) in a2.iter_mut().enumerate().take(cells) {
             let s = closure::sound_speed_squared(
