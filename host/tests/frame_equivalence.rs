@@ -12,13 +12,17 @@
 //! lab the wall slid under a flat bed. With that mended, the second test runs the scene's own
 //! 11 deg friction wall in both frames and checks the bed's geometry.
 //!
-//! Measured (lab / rotating, h = 3.1 mm, limited transport as the scene declares since stop 22):
-//! dynamic angle 20.58 / 21.52 deg, flowing layer 9.4 / 10.9 mm, circulation centre (4.7, -7.8)
-//! / (1.6, -10.9) mm from the axis (4.4 mm apart), fines core (-1.2, -15.7) / (2.0, -15.6) mm
-//! (3.2 mm apart), phihat at the centre 0.94 / 0.985, Psi(5 s) 0.707 / 0.500 (the donor rule:
-//! 20.49 / 21.44 deg, the same layer and centre, cores 4.9 mm apart, 0.84 / 0.96, Psi 0.847 /
-//! 0.669). The angle is asserted to half a cell over the fitted width (0.6 D): atan(h / 2 /
-//! 60 mm) = 1.5 deg.
+//! Measured (lab / rotating, h = 3.1 mm, limited transport as the scene declares, with the
+//! implicit pressure's viscous share since 2026-12-06): dynamic angle 22.33 / 22.25 deg,
+//! flowing layer 10.9 / 14.8 mm, circulation centre (4.7, -7.8) / (7.8, -10.9) mm from the axis,
+//! fines core (3.0, -14.5) / (4.9, -14.5) mm, phihat at the centre 0.994 / 0.997, Psi(5 s)
+//! 0.569 / 0.341. Before the share the angles were 20.58 / 21.52 deg (the bed's creep at the
+//! long step lowered the lab's more), so the angle is now asserted within 0.5 deg, a third of
+//! half a cell over the fitted width (atan(h / 2 / 60 mm) = 1.5 deg). The layer readout walks
+//! down the surface normal in quarter cells through the lab grid's cells and jumps by up to
+//! 1.5 cells (10.2 or 10.9 <-> 14.8 mm): at `flow.courant` 0.1 both frames give 10.9 mm, the
+//! rotating frame's 14.8 at 0.4 is one such jump (before the share it was 10.9 at 0.4 and 14.8
+//! at 0.1); asserted within 2 cells.
 //!
 //! Psi differs most, at D = 0, where nothing in the model remixes: there
 //! Psi measures the width of the core's numerical edge, and the lab frame carries the whole bed
@@ -38,6 +42,10 @@ const REV_PER_S: f64 = 0.1;
 /// Cell size of the 34 x 34 tumbler [m].
 const H: f64 = 0.10625 / 34.0;
 const AXIS: [f64; 2] = [0.05, 0.05];
+/// How far the two frames' dynamic angles may differ [deg] (module docs).
+const ANGLE_DEG: f64 = 0.5;
+/// How far their flowing-layer readouts may differ [m]: 2 cells (module docs).
+const LAYER: f64 = 2.0 * H;
 
 fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
@@ -163,10 +171,8 @@ fn lab_and_rotating_frames_tell_the_same_story_with_the_objective_stress() {
     );
     // The bed turns with the drum in both frames: a sloped surface, a flowing layer.
     assert!(ar > 15.0 && ar < 30.0, "{ar}");
-    // half a cell over the fitted 60 mm of surface
-    let half_cell_deg = (0.5 * H / 0.06f64).atan().to_degrees();
-    assert!((al - ar).abs() < half_cell_deg, "angle {al} vs {ar}");
-    assert!((ll - lr).abs() < H, "layer {ll} vs {lr}");
+    assert!((al - ar).abs() < ANGLE_DEG, "angle {al} vs {ar}");
+    assert!((ll - lr).abs() < LAYER, "layer {ll} vs {lr}");
     assert!(dist(cl, cr) < 2.0 * H, "centre {cl:?} vs {cr:?}");
     // The fines gather in the same place of the lab, below the surface near the centre.
     assert!(dist(kl, kr) < 2.0 * H, "fines core {kl:?} vs {kr:?}");
@@ -228,8 +234,9 @@ fn with_a_remixing_diffusivity_the_frames_agree_on_psi() {
 
 /// The scene's own wall, 11 deg of Coulomb friction, in both frames: the lab wall drags the
 /// bed up to the same dynamic angle (the wall law passes the Coulomb stress to the stiff bed,
-/// `Flow::wall_law`). Measured (lab / rotating): angle 20.49 / 21.55 deg, flowing layer 9.4 /
-/// 10.9 mm (20.51 / 21.52 deg in earlier notes); before stop 17 the lab bed slid flat (angle 0).
+/// `Flow::wall_law`). Measured (lab / rotating): angle 22.33 / 22.33 deg, flowing layer 10.2 /
+/// 14.8 mm (before the viscous share 20.49 / 21.55 deg, 9.4 / 10.9 mm); before stop 17 the lab
+/// bed slid flat (angle 0).
 #[test]
 fn with_the_friction_wall_the_lab_bed_turns_up_as_in_the_rotating_frame() {
     let d = tempfile::tempdir().unwrap();
@@ -249,9 +256,8 @@ fn with_the_friction_wall_the_lab_bed_turns_up_as_in_the_rotating_frame() {
         lr * 1e3
     );
     assert!(ar > 15.0 && ar < 30.0, "{ar}");
-    let half_cell_deg = (0.5 * H / 0.06f64).atan().to_degrees();
-    assert!((al - ar).abs() < half_cell_deg, "angle {al} vs {ar}");
-    assert!((ll - lr).abs() < H, "layer {ll} vs {lr}");
+    assert!((al - ar).abs() < ANGLE_DEG, "angle {al} vs {ar}");
+    assert!((ll - lr).abs() < LAYER, "layer {ll} vs {lr}");
 }
 
 #[test]

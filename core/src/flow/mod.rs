@@ -263,6 +263,14 @@ pub struct FlowConfig<R, const D: usize> {
     /// in the viscous and temperature stages (model.md 5.4, "The wall term of a merged
     /// cell"; [`MergedWalls`]).
     pub merged_walls: MergedWalls,
+    /// The viscous share of the implicit face velocity (on by default; implicit pressure
+    /// only; model.md 5.3 and docs/implicit-pressure.md, "The viscous share"): each face adds
+    /// `dt` times the smaller of its two cells' viscous accelerations of the last step when
+    /// they agree in sign, so that the face mass flux sees the stress that holds a bed.
+    /// Without it a drum's bed creeps downhill by `dt g sin(theta)` per step and its
+    /// readouts depend on the step (`tumbler-75` Psi 0.438 at `courant` 0.4 against 0.291
+    /// at 0.1; with it 0.255 and 0.242).
+    pub viscous_share: bool,
 }
 
 /// The initial guess of the viscous stage's conjugate-gradient solves (model.md 5.3).
@@ -282,7 +290,8 @@ pub enum VelocityGuess {
 impl<R: Real, const D: usize> FlowConfig<R, D> {
     /// Defaults for `material`: gravity -9.81 along the last axis, Courant 0.4,
     /// `T_min = 1e-14`, margin 1e-3, vacuum 1e-12, surface 0.05, CG tolerance 1e-10 (f64) or
-    /// 64 machine epsilons (f32), 2000 iterations, no free-surface push.
+    /// 64 machine epsilons (f32), 2000 iterations, no free-surface push, the viscous share of
+    /// the implicit face velocity on.
     pub fn new(material: Material<R>) -> Self {
         let mut gravity = [R::ZERO; D];
         gravity[D - 1] = R::from_f64(-9.81);
@@ -303,6 +312,7 @@ impl<R: Real, const D: usize> FlowConfig<R, D> {
             stress: Stress::Spec,
             guess: VelocityGuess::Extrapolated,
             merged_walls: MergedWalls::Master,
+            viscous_share: true,
         }
     }
 }
@@ -350,6 +360,7 @@ pub struct FlowDiagnostics<R> {
 const MOMENTUM_NAMES: [&str; 4] = ["m0", "m1", "m2", "m3+"];
 /// Names of the start-of-step velocity arrays in the state visitors.
 const START_NAMES: [&str; 4] = ["u0_start", "u1_start", "u2_start", "u3+_start"];
+const HOLD_NAMES: [&str; 4] = ["hold0", "hold1", "hold2", "hold3+"];
 
 /// The scalars of a [`Flow`] that a checkpoint keeps besides its arrays
 /// ([`Flow::for_each_state_array`]).
@@ -417,6 +428,9 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     /// Velocity at the start of the previous step, `u^{n-1}` (the guess `2 u^n - u^{n-1}`,
     /// [`VelocityGuess`]); copied from `u_prev` when a step starts.
     u_before: [[R; N]; D],
+    /// The viscous stage's acceleration `(u^{n+1} - u^*) / dt` of the last step per cell and
+    /// axis ([`FlowConfig::viscous_share`]; state, zero without it).
+    hold: [[R; N]; D],
     /// Scratch of the limiter and the linear solves' systems (`diag`, `rhs`); `inflow` is
     /// also the solves' `tmp` ([`SolveSet::scratch`]).
     inflow: [R; N],
@@ -539,6 +553,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 stress: Stress::Spec,
                 guess: VelocityGuess::Extrapolated,
                 merged_walls: MergedWalls::Master,
+                viscous_share: false,
             },
             c: z,
             m: zd,
@@ -558,6 +573,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             kf: zd,
             u_prev: zd,
             u_before: zd,
+            hold: zd,
             inflow: z,
             diag: z,
             rhs: z,
@@ -677,6 +693,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             self.u[a][..n].fill(R::ZERO);
             self.u_prev[a][..n].fill(R::ZERO);
             self.u_before[a][..n].fill(R::ZERO);
+            self.hold[a][..n].fill(R::ZERO);
             self.flux[a][..n].fill(R::ZERO);
             self.flux_low[a][..n].fill(R::ZERO);
         }
@@ -1112,6 +1129,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             f(crate::segregation::axis_name(a), &self.u[a][..n]);
             f(START_NAMES[a.min(3)], &self.u_prev[a][..n]);
         }
+        if self.holds() {
+            for a in 0..D {
+                f(HOLD_NAMES[a.min(3)], &self.hold[a][..n]);
+            }
+        }
     }
 
     /// The arrays of [`Self::for_each_state_array`] for writing (restoring a checkpoint bit for
@@ -1132,6 +1154,17 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             f(crate::segregation::axis_name(a), &mut self.u[a][..n]);
             f(START_NAMES[a.min(3)], &mut self.u_prev[a][..n]);
         }
+        if self.holds() {
+            for a in 0..D {
+                f(HOLD_NAMES[a.min(3)], &mut self.hold[a][..n]);
+            }
+        }
+    }
+
+    /// Whether the step keeps the viscous stage's acceleration for the next step's face
+    /// velocities ([`FlowConfig::viscous_share`] with implicit pressure).
+    pub(super) fn holds(&self) -> bool {
+        self.cfg.viscous_share && self.cfg.pressure == PressureMode::Implicit
     }
 
     /// Clock, counters and discharge totals (checkpoints; see [`FlowCounters`]).

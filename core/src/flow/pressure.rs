@@ -287,8 +287,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
     }
 
-    /// End-of-step face velocity `(u_L + u_R)/2 + dt F_f / c_f` of the face `(l, r)` along
-    /// `a` with its compact force `ff` (0 acceleration towards an empty face).
+    /// End-of-step face velocity `(u_L + u_R)/2 + dt (F_f / c_f + s_f)` of the face `(l, r)`
+    /// along `a` with its compact force `ff` (0 acceleration towards an empty face). `s_f`
+    /// is the viscous share ([`super::FlowConfig::viscous_share`]): the smaller of the two
+    /// cells' viscous accelerations of the last step when they agree in sign, else 0. Why:
+    /// the stage that holds a bed against gravity (the viscous one) runs after the transport;
+    /// without `s_f` every face of a friction-held bed moves with `dt` times the force the
+    /// stress balances. Why the smaller of two that agree: under a loose surface cell held
+    /// by the stress, the dense cell below changes by ~0, and a mean would put the surface
+    /// cell's hold on a balanced face (a bed in a box then creeps at 4e-2 m/s).
     #[inline(always)]
     pub(super) fn implicit_face_velocity(
         &self,
@@ -302,7 +309,16 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let cf = (self.c[l] + self.c[r]) * R::HALF;
         let um = (self.u[a][l] + self.u[a][r]) * R::HALF;
         if cf > vac {
-            um + dt * (ff / cf)
+            let mut f = ff / cf;
+            if self.holds() {
+                let (hl, hr) = (self.hold[a][l], self.hold[a][r]);
+                if hl > R::ZERO && hr > R::ZERO {
+                    f += hl.min(hr);
+                } else if hl < R::ZERO && hr < R::ZERO {
+                    f += hl.max(hr);
+                }
+            }
+            um + dt * f
         } else {
             um
         }
