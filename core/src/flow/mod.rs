@@ -360,6 +360,8 @@ pub struct FlowDiagnostics<R> {
 const MOMENTUM_NAMES: [&str; 4] = ["m0", "m1", "m2", "m3+"];
 /// Names of the start-of-step velocity arrays in the state visitors.
 const START_NAMES: [&str; 4] = ["u0_start", "u1_start", "u2_start", "u3+_start"];
+/// Names of the viscous-acceleration arrays ([`FlowConfig::viscous_share`]) in the state
+/// visitors.
 const HOLD_NAMES: [&str; 4] = ["hold0", "hold1", "hold2", "hold3+"];
 
 /// The scalars of a [`Flow`] that a checkpoint keeps besides its arrays
@@ -1109,7 +1111,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// active cells, by name, in a fixed order: `c`, `e` (= c T), `T`, `p`, the packing
     /// limits `c_rcp`, `c_rlp` (back-coupled), the lagged coefficients `eta`, `lambda`, `eps`,
     /// then momentum `m0..`, velocity `u0..` and the velocity at the start of the last step
-    /// `u0_start..` (the next step's initial guess extrapolates from it) per axis. Everything
+    /// `u0_start..` (the next step's initial guess extrapolates from it) per axis, and with
+    /// the implicit pressure's viscous share the last step's viscous accelerations `hold0..`
+    /// (the next step's face velocities add them). Everything
     /// else (face fluxes, CG and multigrid work space) is rebuilt within a step. With
     /// [`Self::counters`] this is the state a checkpoint keeps (the geometry and
     /// configuration come from the scene).

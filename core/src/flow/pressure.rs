@@ -311,11 +311,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if cf > vac {
             let mut f = ff / cf;
             if self.holds() {
-                let (hl, hr) = (self.hold[a][l], self.hold[a][r]);
-                if hl > R::ZERO && hr > R::ZERO {
-                    f += hl.min(hr);
-                } else if hl < R::ZERO && hr < R::ZERO {
-                    f += hl.max(hr);
+                if let Some(share) = minmod(self.hold[a][l], self.hold[a][r]) {
+                    f += share;
                 }
             }
             um + dt * f
@@ -360,5 +357,19 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             R::ZERO
         };
         (v, k)
+    }
+}
+
+/// The smaller in size of `a` and `b` when both are nonzero with the same sign, else `None`
+/// (the viscous share of [`Flow::implicit_face_velocity`]; `None` rather than 0 so that a
+/// face without a share keeps its bits, signed zeros included).
+#[inline(always)]
+fn minmod<R: Real>(a: R, b: R) -> Option<R> {
+    if a > R::ZERO && b > R::ZERO {
+        Some(a.min(b))
+    } else if a < R::ZERO && b < R::ZERO {
+        Some(a.max(b))
+    } else {
+        None
     }
 }
