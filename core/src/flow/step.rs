@@ -805,13 +805,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             preconditioner: Preconditioner::Auto,
         };
         let objective = self.cfg.stress == Stress::Objective;
-        // u* before the solves overwrite it: the viscous acceleration below
-        let share = self.holds();
-        if share {
-            for a in 0..D {
-                self.hold[a][..n].copy_from_slice(&self.u[a][..n]);
-            }
-        }
         if !objective && D > 1 && fork.parts() > 1 {
             // the horizontal components' systems into the spare set, the vertical one's
             // into `diag`, `rhs`
@@ -831,7 +824,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             }
             let iterations = self.solve_side_by_side(stop, fork);
             for (comp, it) in iterations.into_iter().enumerate() {
-                self.viscous_done(comp, it);
+                self.viscous_done(comp, it, dt);
             }
         } else {
             for comp in 0..D {
@@ -844,20 +837,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         *k *= R::HALF;
                     }
                 }
-                self.viscous_done(comp, iterations);
-            }
-        }
-        if share {
-            // the acceleration the stress gave each cell, for the next step's face velocities
-            // (`implicit_face_velocity`)
-            for a in 0..D {
-                for i in 0..n {
-                    self.hold[a][i] = if self.c[i] > vac {
-                        (self.u[a][i] - self.hold[a][i]) / dt
-                    } else {
-                        R::ZERO
-                    };
-                }
+                self.viscous_done(comp, iterations, dt);
             }
         }
         self.heating();
@@ -1016,19 +996,28 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         out
     }
 
-    /// After the solve of component `comp`: its iterations, and the momentum `c u` (zero
-    /// velocity in empty cells).
-    fn viscous_done(&mut self, comp: usize, iterations: u32) {
+    /// After the solve of component `comp`: its iterations, the momentum `c u` (zero
+    /// velocity in empty cells) and, with the viscous share, the step's viscous acceleration.
+    fn viscous_done(&mut self, comp: usize, iterations: u32, dt: R) {
         let n = self.grid.len();
         let vac = self.cfg.vacuum;
+        let share = self.holds();
         self.last_cg[comp.min(2)] = iterations;
         self.cg_iterations += u64::from(iterations);
         for i in 0..n {
             if self.c[i] > vac {
+                if share {
+                    // the acceleration the stress gave the cell, for the next step's face
+                    // velocities (`implicit_face_velocity`); `m / c` is still `u*` bit for
+                    // bit (`velocity_from_momentum`)
+                    let before = self.m[comp][i] / self.c[i];
+                    self.hold[comp][i] = (self.u[comp][i] - before) / dt;
+                }
                 self.m[comp][i] = self.c[i] * self.u[comp][i];
             } else {
                 self.u[comp][i] = R::ZERO;
                 self.m[comp][i] = R::ZERO;
+                self.hold[comp][i] = R::ZERO;
             }
         }
     }
