@@ -499,9 +499,11 @@ fn silo(mode: PressureMode, courant: f64) -> SiloOutcome {
 }
 
 /// Silo, implicit against explicit: grains and fines in + out to round-off, bounds exact, the
-/// rate constant while the bed is high (within 10 %, as in explicit mode). The implicit rate is
-/// first order in dt and approaches the explicit one as the step shrinks, so the test asserts
-/// that convergence, not agreement at the default step. Measured since the outlet's `p = 0`
+/// rate constant while the bed is high (within 10 %, as in explicit mode). The implicit rate
+/// approaches the explicit one as the step shrinks, so the test asserts that convergence, and
+/// at the default step agreement within 20 % (2026-12-06, with the share of the transport's
+/// acceleration and the outlet's share: 1.396e-2 against 1.221e-2 m^2/s over [1.25, 1.75] s;
+/// 1.593e-2 before them). Measured since the outlet's `p = 0`
 /// sits on the orifice face (2026-12-04; `sieve run silo --grid 15x50`, W = 0.04 m, over
 /// [1.25, 1.75] s): implicit 1.63e-2 m^2/s at Courant 0.4 (after a slow opening: 7.5e-3 over
 /// [0.25, 0.75] s), 1.32e-2 at 0.1, explicit 1.22e-2 (before: 7.31e-3, 4.40e-3, 3.38e-3
@@ -540,5 +542,11 @@ fn silo_discharges_granularly_and_its_rate_converges_to_the_explicit_one() {
         assert!((ri2 / ri1 - 1.0).abs() < 0.1, "{ri1} {ri2}");
         assert!(rf > re2 && rf < ri2, "{re2} < {rf} < {ri2}");
         assert!(rf - re2 < 0.5 * (ri2 - re2), "{re2} {rf} {ri2}");
+        // The share of the transport's acceleration (the jet's inertia) and the outlet's own
+        // share took the shipped step's excess from +30 % to +14 % (2026-12-06).
+        assert!(
+            ri2 < 1.2 * re2,
+            "implicit {ri2} against explicit {re2} at courant 0.4"
+        );
     });
 }

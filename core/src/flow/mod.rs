@@ -265,11 +265,12 @@ pub struct FlowConfig<R, const D: usize> {
     pub merged_walls: MergedWalls,
     /// The viscous share of the implicit face velocity (on by default; implicit pressure
     /// only; model.md 5.3 and docs/implicit-pressure.md, "The viscous share"): each face adds
-    /// `dt` times the smaller of its two cells' viscous accelerations of the last step when
-    /// they agree in sign, so that the face mass flux sees the stress that holds a bed.
+    /// `dt` times the smaller of its two cells' accelerations of the last step from the
+    /// stress and the transport when they agree in sign (an outlet face its cell's), so that
+    /// the face mass flux sees the stress that holds a bed and the inertia of a jet.
     /// Without it a drum's bed creeps downhill by `dt g sin(theta)` per step and its
     /// readouts depend on the step (`tumbler-75` Psi 0.438 at `courant` 0.4 against 0.291
-    /// at 0.1; with it 0.255 and 0.242).
+    /// at 0.1; with it 0.255 and 0.243), and a silo's rate grows with the step.
     pub viscous_share: bool,
 }
 
@@ -360,7 +361,7 @@ pub struct FlowDiagnostics<R> {
 const MOMENTUM_NAMES: [&str; 4] = ["m0", "m1", "m2", "m3+"];
 /// Names of the start-of-step velocity arrays in the state visitors.
 const START_NAMES: [&str; 4] = ["u0_start", "u1_start", "u2_start", "u3+_start"];
-/// Names of the viscous-acceleration arrays ([`FlowConfig::viscous_share`]) in the state
+/// Names of the held-acceleration arrays ([`FlowConfig::viscous_share`]) in the state
 /// visitors.
 const HOLD_NAMES: [&str; 4] = ["hold0", "hold1", "hold2", "hold3+"];
 
@@ -430,8 +431,9 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     /// Velocity at the start of the previous step, `u^{n-1}` (the guess `2 u^n - u^{n-1}`,
     /// [`VelocityGuess`]); copied from `u_prev` when a step starts.
     u_before: [[R; N]; D],
-    /// The viscous stage's acceleration `(u^{n+1} - u^*) / dt` of the last step per cell and
-    /// axis ([`FlowConfig::viscous_share`]; state, zero without it).
+    /// The last step's acceleration from the transport and the stress,
+    /// `(u^{n+1} - u^n)/dt` less the pressure and gravity's, per cell and axis
+    /// ([`FlowConfig::viscous_share`]; state, zero without it).
     hold: [[R; N]; D],
     /// Scratch of the limiter and the linear solves' systems (`diag`, `rhs`); `inflow` is
     /// also the solves' `tmp` ([`SolveSet::scratch`]).

@@ -290,12 +290,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// End-of-step face velocity `(u_L + u_R)/2 + dt (F_f / c_f + s_f)` of the face `(l, r)`
     /// along `a` with its compact force `ff` (0 acceleration towards an empty face). `s_f`
     /// is the viscous share ([`super::FlowConfig::viscous_share`]): the smaller of the two
-    /// cells' viscous accelerations of the last step when they agree in sign, else 0. Why:
-    /// the stage that holds a bed against gravity (the viscous one) runs after the transport;
-    /// without `s_f` every face of a friction-held bed moves with `dt` times the force the
-    /// stress balances. Why the smaller of two that agree: under a loose surface cell held
-    /// by the stress, the dense cell below changes by ~0, and a mean would put the surface
-    /// cell's hold on a balanced face (a bed in a box then creeps at 4e-2 m/s).
+    /// cells' accelerations of the last step from the stress and the transport (all but
+    /// pressure and gravity) when they agree in sign, else 0. Why: the stage that holds a
+    /// bed against gravity (the viscous one) runs after the transport; without `s_f` every
+    /// face of a friction-held bed moves with `dt` times the force the stress balances, and
+    /// every face of a steady accelerating jet (the silo's orifice) with `dt` times the
+    /// force the inertia balances. Why the smaller of two that agree: under a loose surface
+    /// cell held by the stress, the dense cell below changes by ~0, and a mean would put the
+    /// surface cell's hold on a balanced face (a bed in a box then creeps at 4e-2 m/s).
     #[inline(always)]
     pub(super) fn implicit_face_velocity(
         &self,
@@ -324,7 +326,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Velocity through an opening of the boundary face of cell `i` (side `high` of axis
     /// `a`), and the coefficient `open w` of its pressure coupling: in explicit mode the
     /// cell's velocity (and 0); in implicit mode the cell's end-of-step velocity from its
-    /// half of the outlet face force, `u_i + dt F_open / (2 c_i)` with the outlet ghost
+    /// half of the outlet face force, `u_i + dt (F_open / (2 c_i) + s_i)` (`s_i` the cell's
+    /// share, [`super::FlowConfig::viscous_share`]) with the outlet ghost
     /// `(c_i, p_ghost)`, and `open w` if the face holds `p = 0` (ghost `-p_i`) and moves
     /// grains out (a Dirichlet `dp = 0` on the face).
     pub(super) fn outlet_velocity(
@@ -349,7 +352,13 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // The cell's own half of the face force, as the momentum update gives it (the other
         // half belongs to the ghost): the full face force would double the outlet's push
         // against the explicit mode, where the outflow leaves with the cell's velocity.
-        let v = u + dt * (R::HALF * f / ci);
+        let mut v = u + dt * (R::HALF * f / ci);
+        if self.holds() {
+            // the cell's share, as on an interior face (the ghost mirrors the cell): without
+            // it the outflow leaves `dt` times the acceleration the stress and the transport
+            // balance faster than the cell moves (the implicit silo's rate grew with dt)
+            v += dt * self.hold[a][i];
+        }
         let out = if high { v > R::ZERO } else { v < R::ZERO };
         let k = if out && side.outlet == OutletPressure::Zero {
             open * w

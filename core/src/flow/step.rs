@@ -67,6 +67,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 } else {
                     self.pressures(); // new c, old T: forward-backward acoustics
                 }
+                if self.holds() {
+                    self.advective_hold(dt);
+                }
                 self.pressure_and_gravity(dt);
                 self.coefficients();
                 self.velocity_from_momentum();
@@ -690,6 +693,25 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
     }
 
+    /// With the share (implicit pressure): the transport's acceleration `(m/c - u^n)/dt` of
+    /// this step into `hold`, before the pressure and gravity act; `viscous_done` adds the
+    /// stress's. So `hold` is the step's acceleration from everything but the pressure and
+    /// gravity, and in a steady flow it balances the cell's face forces (model.md 5.3).
+    fn advective_hold(&mut self, dt: R) {
+        let n = self.grid.len();
+        let vac = self.cfg.vacuum;
+        for a in 0..D {
+            for i in 0..n {
+                let c = self.c[i];
+                self.hold[a][i] = if c > vac {
+                    (self.m[a][i] / c - self.u_prev[a][i]) / dt
+                } else {
+                    R::ZERO
+                };
+            }
+        }
+    }
+
     fn velocity_from_momentum(&mut self) {
         let n = self.grid.len();
         let vac = self.cfg.vacuum;
@@ -997,7 +1019,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 
     /// After the solve of component `comp`: its iterations, the momentum `c u` (zero
-    /// velocity in empty cells) and, with the viscous share, the step's viscous acceleration.
+    /// velocity in empty cells) and, with the viscous share, the step's viscous acceleration
+    /// added to the transport's in `hold`.
     fn viscous_done(&mut self, comp: usize, iterations: u32, dt: R) {
         let n = self.grid.len();
         let vac = self.cfg.vacuum;
@@ -1007,11 +1030,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         for i in 0..n {
             if self.c[i] > vac {
                 if share {
-                    // the acceleration the stress gave the cell, for the next step's face
-                    // velocities (`implicit_face_velocity`); `m / c` is still `u*` bit for
-                    // bit (`velocity_from_momentum`)
+                    // the acceleration the stress gave the cell, added to the transport's
+                    // (`advective_hold`), for the next step's face velocities
+                    // (`implicit_face_velocity`); `m / c` is still `u*` bit for bit
+                    // (`velocity_from_momentum`)
                     let before = self.m[comp][i] / self.c[i];
-                    self.hold[comp][i] = (self.u[comp][i] - before) / dt;
+                    self.hold[comp][i] += (self.u[comp][i] - before) / dt;
                 }
                 self.m[comp][i] = self.c[i] * self.u[comp][i];
             } else {
