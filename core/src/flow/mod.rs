@@ -1114,8 +1114,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// limits `c_rcp`, `c_rlp` (back-coupled), the lagged coefficients `eta`, `lambda`, `eps`,
     /// then momentum `m0..`, velocity `u0..` and the velocity at the start of the last step
     /// `u0_start..` (the next step's initial guess extrapolates from it) per axis, and with
-    /// the implicit pressure's viscous share the last step's viscous accelerations `hold0..`
-    /// (the next step's face velocities add them). Everything
+    /// the implicit pressure's viscous share the last step's accelerations from the stress
+    /// and the transport `hold0..` (the next step's face velocities add them). Everything
     /// else (face fluxes, CG and multigrid work space) is rebuilt within a step. With
     /// [`Self::counters`] this is the state a checkpoint keeps (the geometry and
     /// configuration come from the scene).
@@ -1167,8 +1167,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
     }
 
-    /// Whether the step keeps the viscous stage's acceleration for the next step's face
-    /// velocities ([`FlowConfig::viscous_share`] with implicit pressure).
+    /// Whether the step keeps its acceleration from the stress and the transport for the next
+    /// step's face velocities ([`FlowConfig::viscous_share`] with implicit pressure).
     pub(super) fn holds(&self) -> bool {
         self.cfg.viscous_share && self.cfg.pressure == PressureMode::Implicit
     }

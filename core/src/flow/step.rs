@@ -1039,9 +1039,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
                 self.m[comp][i] = self.c[i] * self.u[comp][i];
             } else {
+                // (`hold` of an empty cell is 0 already: `advective_hold` saw the same c)
                 self.u[comp][i] = R::ZERO;
                 self.m[comp][i] = R::ZERO;
-                self.hold[comp][i] = R::ZERO;
             }
         }
     }
