@@ -843,16 +843,20 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             self.viscous_rows(D - 1, dt, false);
             for comp in 0..D {
                 self.initial_guess(comp);
+                self.rigid_guess(comp, false);
             }
             let iterations = self.solve_side_by_side(stop, fork);
             for (comp, it) in iterations.into_iter().enumerate() {
+                self.rigid_guess(comp, true);
                 self.viscous_done(comp, it, dt);
             }
         } else {
             for comp in 0..D {
                 self.viscous_rows(comp, dt, objective);
                 self.initial_guess(comp);
+                self.rigid_guess(comp, false);
                 let iterations = self.solve_component(comp, stop, fork);
+                self.rigid_guess(comp, true);
                 if objective {
                     // back to eta_f ap / h^2 (a power of two: exact)
                     for k in self.kf[comp][..n].iter_mut() {
@@ -927,6 +931,60 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     self.diag[row] += k;
                     self.rhs[row] += k * ub[comp];
                 }
+            }
+            if self.turning_wall() {
+                self.rigid_rhs(comp);
+            }
+        }
+    }
+
+    /// Whether the cut wall turns (a drum in the lab frame): then the velocity solves work on
+    /// the flow relative to the wall's rigid motion `u_R` ([`Self::rigid_rhs`]).
+    #[inline(always)]
+    fn turning_wall(&self) -> bool {
+        self.walls.on && self.walls.wall.omega != R::ZERO && D >= 2
+    }
+
+    /// Shifts the system of component `comp` to the unknown `v = u - u_R`: `rhs -= A u_R`
+    /// (model.md 5.3, "The solves' stopping rule in a turning drum"). Why: the solve stops at
+    /// `|r| <= tol |b|`, and in the lab frame `|b|` is the rigid rotation's momentum
+    /// `c u_R / dt`, which the solve need not find (the guess holds it); the stop then
+    /// admitted errors of `tol` times the drum's speed in the flowing layer, and at the
+    /// tumbler's `cg_tolerance` 1e-4 the 68 x 68 lab drum's surface lay 2.3 deg low at Courant
+    /// 0.4 (19.45 against 21.48 deg at 0.2; 21.63 with 1e-6). With the shift the stop
+    /// measures the flow the wall does not impose, as in the drum's own frame; the residual,
+    /// and so the answer, is the same system's. Uses the CG scratch `p` and `ap` (free before
+    /// the solve).
+    fn rigid_rhs(&mut self, comp: usize) {
+        let n = self.grid.len();
+        let grid = self.grid;
+        for i in 0..n {
+            self.solve.p[i] = self.walls.rigid_velocity(&grid, i)[comp];
+        }
+        let st = Stencil {
+            grid: &self.grid,
+            periodic: self.periodic(),
+            kf: &self.kf,
+        };
+        st.residual(&self.diag, &self.rhs, &self.solve.p, &mut self.solve.ap);
+        self.rhs[..n].copy_from_slice(&self.solve.ap[..n]);
+    }
+
+    /// With a turning wall, takes the wall's rigid motion out of the guess of component
+    /// `comp` before its solve (`add` false) and puts it back after (`add` true), in the
+    /// cells with content ([`Self::rigid_rhs`]).
+    fn rigid_guess(&mut self, comp: usize, add: bool) {
+        if !self.turning_wall() {
+            return;
+        }
+        let n = self.grid.len();
+        let vac = self.cfg.vacuum;
+        let grid = self.grid;
+        for i in 0..n {
+            if self.c[i] > vac {
+                let ur = self.walls.rigid_velocity(&grid, i)[comp];
+                let u = &mut self.u[comp][i];
+                *u = if add { *u + ur } else { *u - ur };
             }
         }
     }

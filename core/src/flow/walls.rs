@@ -297,18 +297,25 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
 
     /// Wall velocity at the Dirichlet point `x_c + d n` of cell `i`.
     pub fn wall_velocity(&self, grid: &Grid<R, D>, i: usize) -> [R; D] {
+        let mut x = grid.center(i);
+        let d = self.wall_d[i];
+        for (a, xa) in x.iter_mut().enumerate() {
+            *xa += d * self.normal[a][i];
+        }
+        self.rigid_motion_at(x)
+    }
+
+    /// The wall's rigid motion `u_R = omega x (x - center)` at the point `x` (0 for a resting
+    /// wall).
+    fn rigid_motion_at(&self, x: [R; D]) -> [R; D] {
         let mut u = [R::ZERO; D];
         let w = &self.wall;
         if w.omega == R::ZERO || D < 2 {
             return u;
         }
-        let x = grid.center(i);
-        let d = self.wall_d[i];
         let [a, b] = w.plane;
-        let xa = x[a] + d * self.normal[a][i] - w.center[a];
-        let xb = x[b] + d * self.normal[b][i] - w.center[b];
-        u[a] = -(w.omega * xb);
-        u[b] = w.omega * xa;
+        u[a] = -(w.omega * (x[b] - w.center[b]));
+        u[b] = w.omega * (x[a] - w.center[a]);
         u
     }
 
@@ -317,6 +324,12 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
     #[inline(always)]
     pub fn rigid_groups(&self) -> bool {
         self.merged && self.wall.omega != R::ZERO && D >= 2
+    }
+
+    /// The wall's rigid motion `u_R = omega x (x - center)` at the centre of cell `i` (0 for a
+    /// resting wall).
+    pub fn rigid_velocity(&self, grid: &Grid<R, D>, i: usize) -> [R; D] {
+        self.rigid_motion_at(grid.center(i))
     }
 
     /// `u_R(x_j) - u_R(x_i)` of the wall's rigid motion `u_R = omega x (x - center)` between
