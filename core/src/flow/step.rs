@@ -942,7 +942,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// the flow relative to the wall's rigid motion `u_R` ([`Self::rigid_rhs`]).
     #[inline(always)]
     fn turning_wall(&self) -> bool {
-        self.walls.on && self.walls.wall.omega != R::ZERO && D >= 2
+        self.walls.on && self.walls.turns()
     }
 
     /// Shifts the system of component `comp` to the unknown `v = u - u_R`: `rhs -= A u_R`

@@ -297,25 +297,32 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
 
     /// Wall velocity at the Dirichlet point `x_c + d n` of cell `i`.
     pub fn wall_velocity(&self, grid: &Grid<R, D>, i: usize) -> [R; D] {
+        if !self.turns() {
+            return [R::ZERO; D];
+        }
         let mut x = grid.center(i);
         let d = self.wall_d[i];
         for (a, xa) in x.iter_mut().enumerate() {
             *xa += d * self.normal[a][i];
         }
-        self.rigid_motion_at(x)
+        self.turn(core::array::from_fn(|k| x[k] - self.wall.center[k]))
     }
 
-    /// The wall's rigid motion `u_R = omega x (x - center)` at the point `x` (0 for a resting
-    /// wall).
-    fn rigid_motion_at(&self, x: [R; D]) -> [R; D] {
+    /// Whether the wall moves: a rotation in a plane (`omega != 0`, two axes or more).
+    #[inline(always)]
+    pub fn turns(&self) -> bool {
+        self.wall.omega != R::ZERO && D >= 2
+    }
+
+    /// `omega x v` for a vector `v` in the rotation plane (0 off it): the rigid motion's
+    /// velocity of a point `v` from the centre, or the difference between two points'.
+    #[inline(always)]
+    fn turn(&self, v: [R; D]) -> [R; D] {
         let mut u = [R::ZERO; D];
         let w = &self.wall;
-        if w.omega == R::ZERO || D < 2 {
-            return u;
-        }
         let [a, b] = w.plane;
-        u[a] = -(w.omega * (x[b] - w.center[b]));
-        u[b] = w.omega * (x[a] - w.center[a]);
+        u[a] = -(w.omega * v[b]);
+        u[b] = w.omega * v[a];
         u
     }
 
@@ -323,25 +330,24 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
     /// rigid motion across its members ([`Flow::carry_rigid_offsets`]).
     #[inline(always)]
     pub fn rigid_groups(&self) -> bool {
-        self.merged && self.wall.omega != R::ZERO && D >= 2
+        self.merged && self.turns()
     }
 
     /// The wall's rigid motion `u_R = omega x (x - center)` at the centre of cell `i` (0 for a
     /// resting wall).
     pub fn rigid_velocity(&self, grid: &Grid<R, D>, i: usize) -> [R; D] {
-        self.rigid_motion_at(grid.center(i))
+        if !self.turns() {
+            return [R::ZERO; D];
+        }
+        let x = grid.center(i);
+        self.turn(core::array::from_fn(|k| x[k] - self.wall.center[k]))
     }
 
     /// `u_R(x_j) - u_R(x_i)` of the wall's rigid motion `u_R = omega x (x - center)` between
     /// the centres of cells `j` and `i` (0 off the rotation plane).
     pub fn rigid_offset(&self, grid: &Grid<R, D>, j: usize, i: usize) -> [R; D] {
-        let mut u = [R::ZERO; D];
-        let w = &self.wall;
         let (xj, xi) = (grid.center(j), grid.center(i));
-        let [a, b] = w.plane;
-        u[a] = -(w.omega * (xj[b] - xi[b]));
-        u[b] = w.omega * (xj[a] - xi[a]);
-        u
+        self.turn(core::array::from_fn(|k| xj[k] - xi[k]))
     }
 }
 
