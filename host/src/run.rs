@@ -901,6 +901,12 @@ pub fn run_scene_with(
     let last = stats.series.last().copied();
     let mass_initial = first.map_or(0.0, |r| r.mass);
     let mass_final = last.map_or(0.0, |r| r.mass);
+    // What left through outlets, booked by the coupled run: the summary's mass balance closes.
+    let mass_out = out
+        .flow
+        .as_ref()
+        .and_then(|f| f.outlet.as_ref())
+        .map_or(0.0, |o| o.out_small);
     let cells = scene.len();
     let stepping = stats.stepping.as_secs_f64();
     let exact = scene.column_a(fields).map(|ex| summary::ExactComparison {
@@ -949,10 +955,11 @@ pub fn run_scene_with(
         mass_initial,
         mass_final,
         mass_flushed: stats.flushed,
+        mass_out,
         mass_rel_drift: if mass_initial != 0.0 {
-            (mass_final + stats.flushed - mass_initial).abs() / mass_initial.abs()
+            (mass_final + stats.flushed + mass_out - mass_initial).abs() / mass_initial.abs()
         } else {
-            (mass_final + stats.flushed - mass_initial).abs()
+            (mass_final + stats.flushed + mass_out - mass_initial).abs()
         },
         overshoot_max: stats.overshoot_max(),
         undershoot_max: stats.undershoot_max(),

@@ -243,6 +243,7 @@ fn run_writes_every_output_with_the_contract_headers() {
         "cell_updates_per_second",
         "mass_initial",
         "mass_final",
+        "mass_out",
         "mass_rel_drift",
         "overshoot_max",
         "undershoot_max",
@@ -258,6 +259,7 @@ fn run_writes_every_output_with_the_contract_headers() {
     assert_eq!(s["scene"], "column-a");
     assert_eq!(s["dims"], 1);
     assert_eq!(s["cells"], serde_json::json!([50]));
+    assert_eq!(s["mass_out"], 0.0, "no outlet, nothing booked out");
     assert!(s["segregation_time"].is_null(), "not segregated by t = 0.3");
     assert_eq!(s["psi_threshold"], 0.05);
     assert_eq!(s["state_hash"].as_str().unwrap().len(), 16);
