@@ -189,6 +189,8 @@ fn readouts(
             ("drum.flowing_layer_thickness", d.flowing_layer_thickness),
             ("drum.centre_phihat", d.centre_phihat),
             ("drum.centre_speed", d.centre_speed),
+            ("drum.relative_kinetic_energy", d.relative_kinetic_energy),
+            ("drum.loose_share", d.loose_share),
         ]);
     }
     // a value the level does not have (no steady window yet, no surface to fit) is NaN in

@@ -413,6 +413,12 @@ pub struct DrumSummary {
     pub angle_of_repose_deg: f64,
     /// Flowing-layer thickness \[m\] (NaN if the velocity along the slope never turns).
     pub flowing_layer_thickness: f64,
+    /// Window mean of the kinetic energy relative to the drum's rigid rotation, in units of
+    /// the bed's solid-body kinetic energy (NaN if the drum does not turn).
+    pub relative_kinetic_energy: f64,
+    /// Share of that energy (summed over the window) in loose cells, `c < phi_rlp`: a free
+    /// surface's partly filled cells and the dust above it (NaN if nothing moves).
+    pub loose_share: f64,
     /// phihat about the circulation centre, at the last output.
     pub radial_about_centre: Vec<RadialBin>,
     /// phihat about the drum axis, at the last output.

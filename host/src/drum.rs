@@ -10,7 +10,12 @@
 //!   surface over the central 60 % of the drum's width, averaged over the window);
 //! * the **flowing-layer thickness**: the depth below the surface, along its normal through
 //!   the point above the drum axis, at which the time-averaged velocity along the slope
-//!   turns from downhill (the flowing layer) to uphill (the bed turning with the drum).
+//!   turns from downhill (the flowing layer) to uphill (the bed turning with the drum);
+//! * the **relative kinetic energy** of the flow against the drum's rigid rotation, in units
+//!   of the bed's solid-body energy, and the **share of it in loose cells** (below the random
+//!   loose packing): a free surface that runs obliquely to the grid lines leaves a staircase
+//!   of partly filled cells that slide over the bed and throw off dust, and this share says
+//!   how much of the flow a run puts there (docs/tumbler.md, "Where the anisotropy lives").
 //!
 //! The grid turns with the drum (rotating frame, model.md 2.5), so every snapshot is first
 //! mapped into the lab: position `o + Rot(omega t)(x - o)`, velocity
@@ -35,6 +40,11 @@ struct LabField {
     c: Vec<f64>,
     phihat: Vec<f64>,
     v: Vec<[f64; 2]>,
+    /// Per lab cell: the open volume of its solver cell, `|u - Omega x r|^2` (the velocity
+    /// relative to the drum's rigid rotation, any frame) and `|Omega x r|^2`.
+    vol: Vec<f64>,
+    rel2: Vec<f64>,
+    rigid2: Vec<f64>,
 }
 
 /// The lab grid: the solver's cells, axes x and z (2D).
@@ -190,12 +200,17 @@ fn lab_field(v: &Vti, grid: LabGrid, drum: &Drum) -> Option<LabField> {
     if c.len() != n || phihat.len() != n || u.len() != 3 * n {
         return None;
     }
-    let volume = v.array("volume");
+    // a volume array of the wrong length is ignored, as in `axial_mean` (indexing it panicked
+    // on a damaged snapshot: found by `tests/tests/fuzz_readers.rs`)
+    let volume = v.array("volume").filter(|vol| vol.len() == n);
     let (s, co) = (drum.omega * v.t).sin_cos();
     let mut out = LabField {
         c: vec![f64::NAN; n],
         phihat: vec![f64::NAN; n],
         v: vec![[f64::NAN; 2]; n],
+        vol: vec![0.0; n],
+        rel2: vec![0.0; n],
+        rigid2: vec![0.0; n],
     };
     for j in 0..n {
         let p = grid.center(j);
@@ -218,6 +233,13 @@ fn lab_field(v: &Vti, grid: LabGrid, drum: &Drum) -> Option<LabField> {
         out.c[j] = c[i];
         out.phihat[j] = phihat[i];
         out.v[j] = [co * w[0] - s * w[1], s * w[0] + co * w[1]];
+        // Relative to the drum's rigid rotation: `u + (omega - turn) e_y x r` in the solver's
+        // own cell, so exactly `u` in the rotating frame and `u - turn e_y x r` in the lab.
+        let spin = drum.omega - drum.turn;
+        let rel = [u[3 * i] - spin * r[1], u[3 * i + 2] + spin * r[0]];
+        out.vol[j] = volume.map_or(grid.h[0] * grid.h[1], |vol| vol[i]);
+        out.rel2[j] = rel[0] * rel[0] + rel[1] * rel[1];
+        out.rigid2[j] = drum.turn * drum.turn * (r[0] * r[0] + r[1] * r[1]);
     }
     Some(out)
 }
@@ -412,6 +434,7 @@ pub fn analyse_snapshots(scene: &Scene, t_last: f64, window: Vec<Vti>) -> Option
         }
         f64::NAN
     });
+    let (relative_kinetic_energy, loose_share) = kinetic_energy(&fields_in, loose_below(scene));
     let width = (drum.radius / 10.0).max(hmax);
     Some(DrumSummary {
         window: [t0, t_last],
@@ -421,9 +444,49 @@ pub fn analyse_snapshots(scene: &Scene, t_last: f64, window: Vec<Vti>) -> Option
         centre_phihat: last.phihat[centre],
         angle_of_repose_deg: angle,
         flowing_layer_thickness: thickness,
+        relative_kinetic_energy,
+        loose_share,
         radial_about_centre: radial(grid, last, centre_xz, width, drum.radius),
         radial_about_axis: radial(grid, last, drum.axis, width, drum.radius),
     })
+}
+
+/// The c below which a cell counts as loose: the flow material's random loose packing (no
+/// yield stress below it), or half the bed's packing ([`DENSE`]) for a scene without a flow.
+fn loose_below(scene: &Scene) -> f64 {
+    scene.flow.as_ref().map_or(DENSE, |f| f.phi_rlp)
+}
+
+/// The window mean of `sum c |u - Omega x r|^2 V / sum c |Omega x r|^2 V` over the grain
+/// cells, and the share of the window's summed numerator in cells with `c < loose` (NaN
+/// where a denominator is 0: a drum that does not turn, or one that does not move).
+fn kinetic_energy(fields: &[LabField], loose: f64) -> (f64, f64) {
+    let (mut ratio, mut samples, mut all, mut in_loose) = (0.0, 0usize, 0.0, 0.0);
+    for f in fields {
+        let (mut rel, mut rigid) = (0.0, 0.0);
+        for (j, &c) in f.c.iter().enumerate() {
+            if c > 0.0 {
+                let e = c * f.rel2[j] * f.vol[j];
+                rel += e;
+                rigid += c * f.rigid2[j] * f.vol[j];
+                if c < loose {
+                    in_loose += e;
+                }
+            }
+        }
+        if rigid > 0.0 {
+            ratio += rel / rigid;
+            samples += 1;
+        }
+        all += rel;
+    }
+    let mean = if samples > 0 {
+        ratio / samples as f64
+    } else {
+        f64::NAN
+    };
+    let share = if all > 0.0 { in_loose / all } else { f64::NAN };
+    (mean, share)
 }
 
 /// `radial.csv`: both radial profiles, one row per ring.

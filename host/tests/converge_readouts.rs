@@ -208,6 +208,8 @@ fn drums_on_cut_cells_compare_readouts_only() {
             "drum.flowing_layer_thickness",
             "drum.centre_phihat",
             "drum.centre_speed",
+            "drum.relative_kinetic_energy",
+            "drum.loose_share",
         ];
         for name in drum {
             let in_run = name

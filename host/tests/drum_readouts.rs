@@ -177,6 +177,40 @@ fn readouts_recover_the_constructed_drum() {
     }
     // About the drum axis the core is off-centre: the first ring is not pure.
     assert!(d.radial_about_axis[0].phihat < 1.0);
+    // The kinetic energy relative to the drum's rotation, evaluated on the lab cells' centres
+    // directly: the readout pulls each lab cell from the turning grid, so it agrees to the
+    // cells the pull misses or takes twice at the wall (a fraction of a percent here).
+    let (omega, lab) = (
+        TAU,
+        Lab {
+            slope: (ANGLE * PI / 180.0).tan(),
+        },
+    );
+    let (mut rel, mut rigid) = (0.0, 0.0);
+    for iz in 0..scene.cells[1] {
+        for ix in 0..scene.cells[0] {
+            let g = scene.geometry.as_ref().unwrap();
+            let q = [
+                scene.lower[0] + (ix as f64 + 0.5) * h[0] - g.center[0],
+                scene.lower[1] + (iz as f64 + 0.5) * h[1] - g.center[1],
+            ];
+            if q[0].hypot(q[1]) > g.size {
+                continue;
+            }
+            let (c, v) = (lab.c(q), lab.velocity(q));
+            rel += c * ((v[0] + omega * q[1]).powi(2) + (v[1] - omega * q[0]).powi(2));
+            rigid += c * omega * omega * (q[0] * q[0] + q[1] * q[1]);
+        }
+    }
+    let expected = rel / rigid;
+    assert!(
+        (d.relative_kinetic_energy / expected - 1.0).abs() < 0.01,
+        "relative kinetic energy {} vs {expected}",
+        d.relative_kinetic_energy
+    );
+    // the constructed bed is dense (c = 0.6 > phi_rlp) up to the surface: only the air's
+    // 1e-9 counts as loose
+    assert!(d.loose_share < 1e-6, "loose share {}", d.loose_share);
     let csv = sieve::drum::radial_csv(&d);
     assert!(
         csv.starts_with("about,r_lo,r_hi,cells,phihat,c\ncentre,0,"),
@@ -242,6 +276,14 @@ fn a_3d_drum_is_read_as_its_axial_mean() {
             d3.centre_phihat,
             d2.centre_phihat
         );
+        // c and the grains' weight scale alike in both sums: the same ratio with or without
+        // the empty slice
+        assert!(
+            close(d3.relative_kinetic_energy, d2.relative_kinetic_energy),
+            "{empty:?}: relative kinetic energy {} vs {}",
+            d3.relative_kinetic_energy,
+            d2.relative_kinetic_energy
+        );
         for (a, b) in d3.radial_about_centre.iter().zip(&d2.radial_about_centre) {
             assert_eq!(a.cells, b.cells, "{empty:?}: ring {a:?} vs {b:?}");
             assert!(
@@ -250,4 +292,98 @@ fn a_3d_drum_is_read_as_its_axial_mean() {
             );
         }
     }
+}
+
+/// The kinetic-energy readout in the lab frame, where the snapshots are the lab (each lab cell
+/// is its own solver cell, so the sums are exact): a bed turning rigidly with the drum plus a
+/// slow drift, a loose skin (c = 0.3, below the tumbler material's phi_rlp = 0.5757) sliding
+/// downhill over it, and air at rest. The readout must subtract the drum's rotation (the bed's
+/// rigid part leaves nothing), weigh by c and the open volume, and put the skin's share apart.
+#[test]
+fn kinetic_energy_relative_to_the_drum_splits_the_loose_skin_from_the_bed() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (scene, _) = sieve::scene::load(
+        "tumbler",
+        &[
+            "grid.cells=[32,32]".into(),
+            "frame.kind=\"lab\"".into(),
+            "frame.rev_per_s=0.5".into(),
+            "run.t_end=2.0".into(),
+            "run.output_interval=0.25".into(),
+        ],
+    )
+    .expect("scene");
+    let g = scene.geometry.clone().expect("geometry");
+    let (h, n, nx) = (scene.spacing(), scene.len(), scene.cells[0]);
+    let omega = TAU * 0.5;
+    let (drift, slide) = (0.004, 0.05);
+    let (mut bed, mut skin, mut rigid) = (0.0, 0.0, 0.0);
+    let mut entries = Vec::new();
+    for k in 0..=8 {
+        let t = 0.25 * k as f64;
+        let mut snap = Snapshot {
+            t,
+            c: vec![1e-9; n],
+            phi: vec![0.0; n],
+            temp: vec![0.0; n],
+            u: vec![[0.0; 3]; n],
+            p: None,
+            volume: Some(vec![0.0; n]),
+        };
+        for i in 0..n {
+            let q = [
+                scene.lower[0] + ((i % nx) as f64 + 0.5) * h[0] - g.center[0],
+                scene.lower[1] + ((i / nx) as f64 + 0.5) * h[1] - g.center[1],
+            ];
+            if q[0].hypot(q[1]) > g.size {
+                continue;
+            }
+            // open volume: smaller in a ring near the wall, as cut cells are
+            let vol = if q[0].hypot(q[1]) > g.size - h[0] {
+                0.5
+            } else {
+                1.0
+            };
+            snap.volume.as_mut().unwrap()[i] = vol;
+            let turning = [-omega * q[1], omega * q[0]];
+            let (c, extra) = if q[1] < 0.0 {
+                (0.6, [drift, 0.0])
+            } else if q[1] < 0.004 {
+                (0.3, [-slide, 0.0])
+            } else {
+                (1e-9, [-turning[0], -turning[1]]) // air at rest in the lab
+            };
+            snap.c[i] = c;
+            snap.u[i] = [turning[0] + extra[0], 0.0, turning[1] + extra[1]];
+            if k == 0 {
+                let e = c * (extra[0] * extra[0] + extra[1] * extra[1]) * vol;
+                if c >= 0.5757 {
+                    bed += e;
+                } else {
+                    skin += e;
+                }
+                rigid += c * (turning[0] * turning[0] + turning[1] * turning[1]) * vol;
+            }
+        }
+        let name = format!("state_{k:04}.vti");
+        write_vti(&dir.path().join(&name), &scene, &snap).expect("vti");
+        entries.push((t, name));
+    }
+    let d = sieve::drum::analyse(&scene, dir.path(), &entries)
+        .expect("analyse")
+        .expect("a 2D drum with velocities");
+    assert_eq!(d.samples, 9);
+    let (ke, share) = ((bed + skin) / rigid, skin / (bed + skin));
+    assert!(
+        (d.relative_kinetic_energy / ke - 1.0).abs() < 1e-12,
+        "relative kinetic energy {} vs {ke}",
+        d.relative_kinetic_energy
+    );
+    assert!(
+        (d.loose_share / share - 1.0).abs() < 1e-12,
+        "loose share {} vs {share}",
+        d.loose_share
+    );
+    // the skin dominates: 0.3 x 0.05^2 per cell against 0.6 x 0.004^2 in the bed
+    assert!(share > 0.5 && share < 1.0, "{share}");
 }
