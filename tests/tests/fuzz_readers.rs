@@ -1,5 +1,5 @@
 //! Fuzzing every reader of files and bytes (issue 10, "Hostile files"): the recording reader
-//! and replay, the scene TOML reader (parse, deserialise, validate, evaluate), expressions,
+//! and replay, the snapshot (`.vti`) reader with the drum readouts, the scene TOML reader (parse, deserialise, validate, evaluate), expressions,
 //! and the sensor frame decoder (COBS + CRC + postcard) feeding the estimator. Each gets
 //! arbitrary input and structure-aware mutations of valid input (a valid recording with a
 //! header field changed and its CRC recomputed, truncated, frames duplicated, bits flipped; a
@@ -569,9 +569,159 @@ fn replace_number(text: &str, at: usize, value: &str) -> String {
     format!("{}{}{}", &text[..s], value, &text[e..])
 }
 
+/// A small valid `.vti` of a drum, as `sieve run` writes it (2D tumbler 12 x 12, or the
+/// 3D tumbler 8 x 3 x 8, whose drum readouts take the axial mean first), with a flowing
+/// half-filled bed so that every readout has something to measure.
+fn drum_vti(three: bool) -> &'static (SceneSpec, Vec<u8>) {
+    static B: [OnceLock<(SceneSpec, Vec<u8>)>; 2] = [OnceLock::new(), OnceLock::new()];
+    B[three as usize].get_or_init(|| {
+        let (name, cells) = if three {
+            ("tumbler-3d", "[8,3,8]")
+        } else {
+            ("tumbler", "[12,12]")
+        };
+        let sets = [format!("grid.cells={cells}"), "run.t_end=1.0".into()];
+        let (scene, _) = scene::load(name, &sets).expect("scene");
+        let n = scene.len();
+        let (nx, nz) = (scene.cells[0], scene.cells[scene.dim - 1]);
+        let mut snap = sieve::data::Snapshot {
+            t: 1.0,
+            c: vec![1e-9; n],
+            phi: vec![0.0; n],
+            temp: vec![0.0; n],
+            u: vec![[0.0; 3]; n],
+            p: None,
+            volume: Some(vec![1.0; n]),
+        };
+        for i in 0..n {
+            let (ix, iz) = (i % nx, i / (n / nz));
+            if iz < nz / 2 {
+                snap.c[i] = 0.58 - 0.01 * (ix % 3) as f64;
+                snap.phi[i] = snap.c[i] * (ix as f64 / nx as f64);
+                snap.u[i] = [0.01 * iz as f64, 0.0, -0.01 * ix as f64];
+            }
+            if ix == 0 || ix == nx - 1 {
+                snap.volume.as_mut().unwrap()[i] = 0.0;
+            }
+        }
+        let bytes = sieve::output::vtk::vti_bytes(&scene, &snap);
+        (scene, bytes)
+    })
+}
+
+/// `text` with its `at`-th run of digits (modulo their count; with a sign, point or
+/// exponent inside) replaced by `value`.
+fn replace_digits(text: &str, at: usize, value: &str) -> String {
+    let b = text.as_bytes();
+    let mut spans = Vec::new();
+    let mut i = 0;
+    while i < b.len() {
+        if b[i].is_ascii_digit() && (i == 0 || !b[i - 1].is_ascii_alphanumeric()) {
+            let s = i;
+            while i < b.len()
+                && (b[i].is_ascii_digit() || matches!(b[i], b'.' | b'e' | b'-' | b'+'))
+            {
+                i += 1;
+            }
+            spans.push((s, i));
+        } else {
+            i += 1;
+        }
+    }
+    if spans.is_empty() {
+        return text.to_string();
+    }
+    let (s, e) = spans[at % spans.len()];
+    format!("{}{}{}", &text[..s], value, &text[e..])
+}
+
+/// Reads `bytes` as a `.vti` and, if it reads, measures a drum from it: either a one-line
+/// refusal or readouts, never a panic or an unbounded allocation.
+fn vti_ok(scene: &SceneSpec, bytes: &[u8]) -> Result<(), TestCaseError> {
+    match sieve::output::vtk::vti_from_bytes(bytes, "state_0001.vti") {
+        Err(e) => one_line(&e.to_string())?,
+        Ok(v) => {
+            let _ = sieve::drum::axial_mean(v.clone());
+            let t = v.t;
+            let _ = sieve::drum::analyse_snapshots(scene, t, vec![v]);
+        }
+    }
+    Ok(())
+}
+
+/// The numbers a header edit puts in.
+fn nasty_number() -> impl Strategy<Value = String> {
+    prop_oneof![
+        Just("0".to_string()),
+        Just("1".to_string()),
+        Just("-1".to_string()),
+        Just("4294967296".to_string()),
+        Just("18446744073709551615".to_string()),
+        Just("99999999999999999999".to_string()),
+        Just("1e308".to_string()),
+        Just("NaN".to_string()),
+        Just("inf".to_string()),
+        Just(String::new()),
+        (0u64..100_000).prop_map(|v| v.to_string()),
+    ]
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    /// Snapshot files (`sieve plot`, the drum readouts, a resumed run's snapshots): a valid
+    /// `.vti` with one number of its XML header replaced (extents, origin, spacing, time,
+    /// component counts, offsets), then possibly damaged raw (a bit flipped, cut short,
+    /// bytes appended).
+    #[test]
+    fn vti_reader_and_drum_readouts(three in any::<bool>(), at in any::<usize>(),
+                                   value in nasty_number(), edit in any::<bool>(),
+                                   dmg in proptest::option::of((0u8..3, any::<usize>(), 0u8..8))) {
+        let (scene, base) = drum_vti(three);
+        let head = base.windows(13).position(|w| w == b"<AppendedData").expect("appended");
+        let mut b = if edit {
+            let text = std::str::from_utf8(&base[..head]).expect("utf-8 header");
+            let mut b = replace_digits(text, at, &value).into_bytes();
+            b.extend_from_slice(&base[head..]);
+            b
+        } else {
+            base.clone()
+        };
+        if let Some((kind, i, bit)) = dmg {
+            let n = b.len();
+            match kind {
+                0 => b[i % n] ^= 1 << bit,
+                1 => b.truncate(i % n),
+                _ => b.extend_from_slice(&[bit; 9]),
+            }
+        }
+        vti_ok(scene, &b)?;
+    }
+
+    /// Arbitrary bytes, and arbitrary bytes behind a valid header.
+    #[test]
+    fn vti_arbitrary_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..3000), header in any::<bool>()) {
+        let (scene, base) = drum_vti(false);
+        let mut b = Vec::new();
+        if header {
+            let at = base.windows(13).position(|w| w == b"<AppendedData").expect("appended");
+            let under = base[at..].iter().position(|&c| c == b'_').expect("_") + at + 1;
+            b.extend_from_slice(&base[..under]);
+        }
+        b.extend_from_slice(&bytes);
+        vti_ok(scene, &b)?;
+    }
+}
+
 /// The fuzzing above ran: the base recording replays, the built-in scenes load.
 #[test]
 fn the_fuzz_starts_from_valid_inputs() {
+    for three in [false, true] {
+        let (scene, bytes) = drum_vti(three);
+        let v = sieve::output::vtk::vti_from_bytes(bytes, "base").expect("base snapshot reads");
+        let d = sieve::drum::analyse_snapshots(scene, v.t, vec![v]).expect("drum readouts");
+        assert!(d.relative_kinetic_energy > 0.0, "{d:?}");
+    }
     let r = replay_bytes(base(), &ReplayOptions::default()).expect("base replays");
     assert!(r.rows.len() >= 10, "{}", r.rows.len());
     for name in builtin::names() {
