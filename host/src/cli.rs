@@ -638,6 +638,9 @@ fn run_command(a: &RunArgs) -> Result<()> {
                 crate::outln!("{}", crate::silo::outlet_line(o, summary.cells.len()))?;
             }
         }
+        if let Some(d) = &summary.drum {
+            crate::outln!("{}", crate::drum::line(d))?;
+        }
     }
     Ok(())
 }

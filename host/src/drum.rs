@@ -489,6 +489,32 @@ fn kinetic_energy(fields: &[LabField], loose: f64) -> (f64, f64) {
     (mean, share)
 }
 
+/// The line `sieve run` prints for a drum: what a process engineer reads off first (the
+/// window, the angle of repose, the flowing layer, the core) and the grid check (the share of
+/// the flow in loose surface cells). A value the window did not give reads `-`.
+pub fn line(d: &DrumSummary) -> String {
+    let num = |v: f64, digits: usize| {
+        if v.is_finite() {
+            format!("{v:.digits$}")
+        } else {
+            "-".to_string()
+        }
+    };
+    format!(
+        "drum ({} - {} s, {} snapshots): angle of repose {} deg, flowing layer {} mm, circulation centre ({}, {}) mm from the axis with phihat {}; kinetic energy relative to the drum {} of the bed's rigid rotation, {} % of it in loose surface cells (docs/tumbler.md)",
+        crate::text::approx(d.window[0]),
+        crate::text::approx(d.window[1]),
+        d.samples,
+        num(d.angle_of_repose_deg, 1),
+        num(1e3 * d.flowing_layer_thickness, 1),
+        num(1e3 * d.circulation_centre[0], 1),
+        num(1e3 * d.circulation_centre[1], 1),
+        num(d.centre_phihat, 2),
+        num(d.relative_kinetic_energy, 2),
+        num(100.0 * d.loose_share, 0),
+    )
+}
+
 /// `radial.csv`: both radial profiles, one row per ring.
 pub fn radial_csv(d: &DrumSummary) -> String {
     let mut s = String::from("about,r_lo,r_hi,cells,phihat,c\n");

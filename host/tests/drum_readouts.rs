@@ -211,6 +211,21 @@ fn readouts_recover_the_constructed_drum() {
     // the constructed bed is dense (c = 0.6 > phi_rlp) up to the surface: only the air's
     // 1e-9 counts as loose
     assert!(d.loose_share < 1e-6, "loose share {}", d.loose_share);
+    // the line `sieve run` prints
+    let line = sieve::drum::line(&d);
+    assert!(
+        line.starts_with("drum (0 - 1 s, 11 snapshots): angle of repose "),
+        "{line}"
+    );
+    assert!(
+        line.contains(&format!("angle of repose {:.1} deg", d.angle_of_repose_deg)),
+        "{line}"
+    );
+    assert!(line.contains("0 % of it in loose surface cells"), "{line}");
+    let mut missing = d.clone();
+    missing.flowing_layer_thickness = f64::NAN;
+    let line = sieve::drum::line(&missing);
+    assert!(line.contains("flowing layer - mm"), "{line}");
     let csv = sieve::drum::radial_csv(&d);
     assert!(
         csv.starts_with("about,r_lo,r_hi,cells,phihat,c\ncentre,0,"),

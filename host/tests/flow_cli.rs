@@ -317,6 +317,30 @@ fn converge_runs_the_frozen_flow_per_level() {
     assert!(l1.is_finite() && l1 > 0.0, "{l1}");
 }
 
+/// `sieve run` on a drum prints the drum's readouts in one line after the flow's.
+#[test]
+fn drum_run_prints_its_readouts() {
+    let d = tmp();
+    let (code, out, err) = run_full(
+        d.path(),
+        &[
+            "run", "tumbler", "--cells", "12", "--t-end", "0.3", "--out", "drum",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<&str> = out.lines().filter(|l| l.starts_with("drum (")).collect();
+    assert_eq!(lines.len(), 1, "{out}");
+    assert!(lines[0].contains("% of it in loose surface cells"), "{out}");
+    let s = json(&d.path().join("drum/summary.json"));
+    let share = s["drum"]["loose_share"]
+        .as_f64()
+        .expect("a share: the bed moves");
+    assert!(
+        lines[0].contains(&format!("{:.0} % of it", 100.0 * share)),
+        "{out}"
+    );
+}
+
 /// `flow.cg_tolerance` reaches the solver: a looser tolerance takes fewer CG iterations on the
 /// same steps (a short coupled drum), and the run keeps both phases and the bounds.
 #[test]
