@@ -76,8 +76,10 @@ impl LabGrid {
         (ix >= 0.0 && iz >= 0.0 && (ix as usize) < self.n[0] && (iz as usize) < self.n[1])
             .then(|| ix as usize + self.n[0] * iz as usize)
     }
+    /// Cells of the grid; saturating, so that a damaged file's absurd extents match no array
+    /// (found by `tests/tests/fuzz_readers.rs`: the product overflowed).
     fn len(&self) -> usize {
-        self.n[0] * self.n[1]
+        self.n[0].saturating_mul(self.n[1])
     }
 }
 
@@ -139,9 +141,10 @@ pub fn axial_mean(v: Vti) -> Option<Vti> {
     if ny <= 1 {
         return Some(v);
     }
-    let n = nx * ny * nz;
+    // saturating: absurd extents (a damaged file) match no array
+    let n = nx.saturating_mul(ny).saturating_mul(nz);
     let (c, phihat, u) = (v.array("c")?, v.array("phihat")?, v.array("u")?);
-    if c.len() != n || phihat.len() != n || u.len() != 3 * n {
+    if c.len() != n || phihat.len() != n || u.len() != n.saturating_mul(3) {
         return None;
     }
     let volume = v.array("volume").filter(|vol| vol.len() == n);
@@ -197,7 +200,7 @@ pub fn axial_mean(v: Vti) -> Option<Vti> {
 fn lab_field(v: &Vti, grid: LabGrid, drum: &Drum) -> Option<LabField> {
     let (c, phihat, u) = (v.array("c")?, v.array("phihat")?, v.array("u")?);
     let n = grid.len();
-    if c.len() != n || phihat.len() != n || u.len() != 3 * n {
+    if c.len() != n || phihat.len() != n || u.len() != n.saturating_mul(3) {
         return None;
     }
     // a volume array of the wrong length is ignored, as in `axial_mean` (indexing it panicked
