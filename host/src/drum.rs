@@ -40,11 +40,6 @@ struct LabField {
     c: Vec<f64>,
     phihat: Vec<f64>,
     v: Vec<[f64; 2]>,
-    /// Per lab cell: the open volume of its solver cell, `|u - Omega x r|^2` (the velocity
-    /// relative to the drum's rigid rotation, any frame) and `|Omega x r|^2`.
-    vol: Vec<f64>,
-    rel2: Vec<f64>,
-    rigid2: Vec<f64>,
 }
 
 /// The lab grid: the solver's cells, axes x and z (2D).
@@ -211,9 +206,6 @@ fn lab_field(v: &Vti, grid: LabGrid, drum: &Drum) -> Option<LabField> {
         c: vec![f64::NAN; n],
         phihat: vec![f64::NAN; n],
         v: vec![[f64::NAN; 2]; n],
-        vol: vec![0.0; n],
-        rel2: vec![0.0; n],
-        rigid2: vec![0.0; n],
     };
     for j in 0..n {
         let p = grid.center(j);
@@ -236,13 +228,6 @@ fn lab_field(v: &Vti, grid: LabGrid, drum: &Drum) -> Option<LabField> {
         out.c[j] = c[i];
         out.phihat[j] = phihat[i];
         out.v[j] = [co * w[0] - s * w[1], s * w[0] + co * w[1]];
-        // Relative to the drum's rigid rotation: `u + (omega - turn) e_y x r` in the solver's
-        // own cell, so exactly `u` in the rotating frame and `u - turn e_y x r` in the lab.
-        let spin = drum.omega - drum.turn;
-        let rel = [u[3 * i] - spin * r[1], u[3 * i + 2] + spin * r[0]];
-        out.vol[j] = volume.map_or(grid.h[0] * grid.h[1], |vol| vol[i]);
-        out.rel2[j] = rel[0] * rel[0] + rel[1] * rel[1];
-        out.rigid2[j] = drum.turn * drum.turn * (r[0] * r[0] + r[1] * r[1]);
     }
     Some(out)
 }
@@ -359,9 +344,12 @@ pub fn needed_from(scene: &Scene, t: f64) -> Option<f64> {
 pub fn analyse_snapshots(scene: &Scene, t_last: f64, window: Vec<Vti>) -> Option<DrumSummary> {
     let drum = drum_of(scene)?;
     let t0 = window_start(scene, t_last)?;
+    let loose = loose_below(scene);
     let mut grid = None;
     let mut fields_in = Vec::with_capacity(window.len());
+    let mut energies = Vec::with_capacity(window.len());
     for v in window {
+        energies.push(energy(&v, &drum, loose)?);
         let v = axial_mean(v)?;
         let g = *grid.get_or_insert_with(|| LabGrid::of(&v));
         fields_in.push(lab_field(&v, g, &drum)?);
@@ -437,7 +425,7 @@ pub fn analyse_snapshots(scene: &Scene, t_last: f64, window: Vec<Vti>) -> Option
         }
         f64::NAN
     });
-    let (relative_kinetic_energy, loose_share) = kinetic_energy(&fields_in, loose_below(scene));
+    let (relative_kinetic_energy, loose_share) = kinetic_energy(&energies);
     let width = (drum.radius / 10.0).max(hmax);
     Some(DrumSummary {
         window: [t0, t_last],
@@ -460,28 +448,55 @@ fn loose_below(scene: &Scene) -> f64 {
     scene.flow.as_ref().map_or(DENSE, |f| f.phi_rlp)
 }
 
-/// The window mean of `sum c |u - Omega x r|^2 V / sum c |Omega x r|^2 V` over the grain
-/// cells, and the share of the window's summed numerator in cells with `c < loose` (NaN
-/// where a denominator is 0: a drum that does not turn, or one that does not move).
-fn kinetic_energy(fields: &[LabField], loose: f64) -> (f64, f64) {
-    let (mut ratio, mut samples, mut all, mut in_loose) = (0.0, 0usize, 0.0, 0.0);
-    for f in fields {
-        let (mut rel, mut rigid) = (0.0, 0.0);
-        for (j, &c) in f.c.iter().enumerate() {
-            if c > 0.0 {
-                let e = c * f.rel2[j] * f.vol[j];
-                rel += e;
-                rigid += c * f.rigid2[j] * f.vol[j];
-                if c < loose {
-                    in_loose += e;
-                }
-            }
+/// One snapshot's kinetic energies on the solver's own cells (in 3D every cell, before the
+/// axial mean, so a thin slice beside an end wall is judged loose or dense by its own c):
+/// `[sum c |u - Omega x r|^2 V, sum c |Omega x r|^2 V, the first sum over cells with c <
+/// loose]`. The velocity relative to the drum's rigid rotation is `u + (omega - turn) e_y x
+/// r`: exactly `u` in the rotating frame, `u - turn e_y x r` in the lab. `None` if an array is
+/// missing or has the wrong length.
+fn energy(v: &Vti, drum: &Drum, loose: f64) -> Option<[f64; 3]> {
+    let [nx, ny, nz] = v.cells;
+    let n = nx.saturating_mul(ny).saturating_mul(nz);
+    let (c, u) = (v.array("c")?, v.array("u")?);
+    if c.len() != n || u.len() != n.saturating_mul(3) {
+        return None;
+    }
+    let volume = v.array("volume").filter(|vol| vol.len() == n);
+    let spin = drum.omega - drum.turn;
+    let mut sums = [0.0; 3];
+    for (i, &ci) in c.iter().enumerate() {
+        let (ix, iz) = (i % nx, i / (nx * ny));
+        let r = [
+            v.origin[0] + (ix as f64 + 0.5) * v.spacing[0] - drum.axis[0],
+            v.origin[2] + (iz as f64 + 0.5) * v.spacing[2] - drum.axis[1],
+        ];
+        let vol = volume.map_or(1.0, |vol| vol[i]);
+        if !(ci > 0.0 && vol > 0.0) {
+            continue;
         }
+        let rel = [u[3 * i] - spin * r[1], u[3 * i + 2] + spin * r[0]];
+        let e = ci * (rel[0] * rel[0] + rel[1] * rel[1]) * vol;
+        sums[0] += e;
+        sums[1] += ci * drum.turn * drum.turn * (r[0] * r[0] + r[1] * r[1]) * vol;
+        if ci < loose {
+            sums[2] += e;
+        }
+    }
+    Some(sums)
+}
+
+/// The window mean of `sum c |u - Omega x r|^2 V / sum c |Omega x r|^2 V` ([`energy`] per
+/// snapshot), and the share of the window's summed numerator in loose cells (NaN where a
+/// denominator is 0: a drum that does not turn, or one that does not move).
+fn kinetic_energy(energies: &[[f64; 3]]) -> (f64, f64) {
+    let (mut ratio, mut samples, mut all, mut in_loose) = (0.0, 0usize, 0.0, 0.0);
+    for &[rel, rigid, loose] in energies {
         if rigid > 0.0 {
             ratio += rel / rigid;
             samples += 1;
         }
         all += rel;
+        in_loose += loose;
     }
     let mean = if samples > 0 {
         ratio / samples as f64

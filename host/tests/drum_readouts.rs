@@ -178,8 +178,8 @@ fn readouts_recover_the_constructed_drum() {
     // About the drum axis the core is off-centre: the first ring is not pure.
     assert!(d.radial_about_axis[0].phihat < 1.0);
     // The kinetic energy relative to the drum's rotation, evaluated on the lab cells' centres
-    // directly: the readout pulls each lab cell from the turning grid, so it agrees to the
-    // cells the pull misses or takes twice at the wall (a fraction of a percent here).
+    // directly: the readout sums over the turning grid's own cells, so the two agree to the
+    // cells at the wall (a fraction of a percent here).
     let (omega, lab) = (
         TAU,
         Lab {
