@@ -167,6 +167,21 @@ pub struct Snapshot {
 }
 
 impl Snapshot {
+    /// `n` cells at rest at time `t`, all with volume fraction `c`, no grains of the tracked
+    /// phase and open volume `volume`: a start that synthetic snapshots (tests, fuzzing) fill
+    /// in.
+    pub fn at_rest(t: f64, n: usize, c: f64, volume: f64) -> Self {
+        Snapshot {
+            t,
+            c: vec![c; n],
+            phi: vec![0.0; n],
+            temp: vec![0.0; n],
+            u: vec![[0.0; 3]; n],
+            p: None,
+            volume: Some(vec![volume; n]),
+        }
+    }
+
     /// Takes the state of `s`.
     pub fn of<R: Real, const D: usize, const N: usize>(
         s: &Segregation<R, D, N>,

@@ -82,15 +82,7 @@ fn write_revolution(
     for k in 0..=10 {
         let t = 0.1 * k as f64;
         let (s, co) = (omega * t).sin_cos();
-        let mut snap = Snapshot {
-            t,
-            c: vec![0.0; n],
-            phi: vec![0.0; n],
-            temp: vec![0.0; n],
-            u: vec![[0.0; 3]; n],
-            p: None,
-            volume: Some(vec![1.0; n]),
-        };
+        let mut snap = Snapshot::at_rest(t, n, 0.0, 1.0);
         for i in 0..n {
             let (ix, iy, iz) = (i % nx, (i / nx) % ny, i / (nx * ny));
             let r = [
@@ -336,15 +328,7 @@ fn kinetic_energy_relative_to_the_drum_splits_the_loose_skin_from_the_bed() {
     let mut entries = Vec::new();
     for k in 0..=8 {
         let t = 0.25 * k as f64;
-        let mut snap = Snapshot {
-            t,
-            c: vec![1e-9; n],
-            phi: vec![0.0; n],
-            temp: vec![0.0; n],
-            u: vec![[0.0; 3]; n],
-            p: None,
-            volume: Some(vec![0.0; n]),
-        };
+        let mut snap = Snapshot::at_rest(t, n, 1e-9, 0.0);
         for i in 0..n {
             let q = [
                 scene.lower[0] + ((i % nx) as f64 + 0.5) * h[0] - g.center[0],

@@ -542,14 +542,22 @@ fn replace_quoted(text: &str, at: usize, value: &str) -> String {
     format!("{}{}{}", &text[..s], value, &text[e..])
 }
 
-/// `text` with its `at`-th number literal (modulo their count) replaced by `value`.
+/// `text` with its `at`-th number literal of a scene (modulo their count) replaced by `value`.
 fn replace_number(text: &str, at: usize, value: &str) -> String {
+    replace_literal(text, at, value, |p| {
+        matches!(p, b' ' | b'=' | b'[' | b',' | b'-')
+    })
+}
+
+/// `text` with its `at`-th number (modulo their count) replaced by `value`: a run of digits
+/// (with a sign, point or exponent inside) that starts at the text's start or after a byte
+/// `after` accepts.
+fn replace_literal(text: &str, at: usize, value: &str, after: impl Fn(u8) -> bool) -> String {
     let b = text.as_bytes();
     let mut spans = Vec::new();
     let mut i = 0;
     while i < b.len() {
-        let starts = b[i].is_ascii_digit()
-            && (i == 0 || matches!(b[i - 1], b' ' | b'=' | b'[' | b',' | b'-'));
+        let starts = b[i].is_ascii_digit() && (i == 0 || after(b[i - 1]));
         if starts {
             let s = i;
             while i < b.len()
@@ -584,15 +592,7 @@ fn drum_vti(three: bool) -> &'static (SceneSpec, Vec<u8>) {
         let (scene, _) = scene::load(name, &sets).expect("scene");
         let n = scene.len();
         let (nx, nz) = (scene.cells[0], scene.cells[scene.dim - 1]);
-        let mut snap = sieve::data::Snapshot {
-            t: 1.0,
-            c: vec![1e-9; n],
-            phi: vec![0.0; n],
-            temp: vec![0.0; n],
-            u: vec![[0.0; 3]; n],
-            p: None,
-            volume: Some(vec![1.0; n]),
-        };
+        let mut snap = sieve::data::Snapshot::at_rest(1.0, n, 1e-9, 1.0);
         for i in 0..n {
             let (ix, iz) = (i % nx, i / (n / nz));
             if iz < nz / 2 {
@@ -607,32 +607,6 @@ fn drum_vti(three: bool) -> &'static (SceneSpec, Vec<u8>) {
         let bytes = sieve::output::vtk::vti_bytes(&scene, &snap);
         (scene, bytes)
     })
-}
-
-/// `text` with its `at`-th run of digits (modulo their count; with a sign, point or
-/// exponent inside) replaced by `value`.
-fn replace_digits(text: &str, at: usize, value: &str) -> String {
-    let b = text.as_bytes();
-    let mut spans = Vec::new();
-    let mut i = 0;
-    while i < b.len() {
-        if b[i].is_ascii_digit() && (i == 0 || !b[i - 1].is_ascii_alphanumeric()) {
-            let s = i;
-            while i < b.len()
-                && (b[i].is_ascii_digit() || matches!(b[i], b'.' | b'e' | b'-' | b'+'))
-            {
-                i += 1;
-            }
-            spans.push((s, i));
-        } else {
-            i += 1;
-        }
-    }
-    if spans.is_empty() {
-        return text.to_string();
-    }
-    let (s, e) = spans[at % spans.len()];
-    format!("{}{}{}", &text[..s], value, &text[e..])
 }
 
 /// Reads `bytes` as a `.vti` and, if it reads, measures a drum from it: either a one-line
@@ -681,7 +655,9 @@ proptest! {
         let head = base.windows(13).position(|w| w == b"<AppendedData").expect("appended");
         let mut b = if edit {
             let text = std::str::from_utf8(&base[..head]).expect("utf-8 header");
-            let mut b = replace_digits(text, at, &value).into_bytes();
+            // any number of the XML header: after a quote, a space or a `>`
+            let mut b = replace_literal(text, at, &value, |p| !p.is_ascii_alphanumeric())
+                .into_bytes();
             b.extend_from_slice(&base[head..]);
             b
         } else {
