@@ -93,10 +93,11 @@ pub struct PlotArgs {
 /// Arguments of `sieve record`.
 #[derive(Debug, Args)]
 #[command(after_help = "\
-SCENE is any 2D scene of the catalogue (see `sieve scenes`) or a scene TOML file whose \
-model.equations is \"prescribed\" or \"frozen-flow\" (\"coupled\" is rejected: its velocity is \
-not a fixed field). The truth is the scene's own run (as `sieve run`; a frozen flow is spun up \
-first) on its grid, sampled at every frame; the frames are its velocity averaged onto the \
+SCENE is any 2D box scene of the catalogue (see `sieve scenes`) or a scene TOML file: \
+prescribed, frozen-flow or coupled (a silo with an outlet, a collapse, a chute; scenes with a \
+[geometry] container are not supported yet). The truth is the scene's own run (as `sieve run`; \
+a frozen flow is spun up first) on its grid, sampled at every frame; the frames are its velocity \
+averaged onto the \
 sensor grid plus noise; the sensor configuration (extent, boundaries, c, S0/eta0/eps0/heating, \
 gravity, inflow phihat) comes from the scene, with notes on stderr where it departs from it. \
 Default period: 2 stable estimator substeps; default frames: cover run.t_end.\n\n\
@@ -104,8 +105,8 @@ Legacy hand-written scenes: idealised-shear-cell (model.md 7.3, firmware-sim's \
 recordings/shear-cell.rec: --rate 100 --frames 100) and gray-thornton-sensor; by default 100 Hz, \
 150 and 300 frames, truth 32x32.")]
 pub struct RecordArgs {
-    /// Scene: a 2D prescribed or frozen-flow built-in (e.g. shear-cell, shear-cell-mixed,
-    /// gray-thornton-shear), a scene TOML file, or idealised-shear-cell / gray-thornton-sensor.
+    /// Scene: a 2D built-in box scene (e.g. shear-cell, shear-cell-mixed, gray-thornton-shear,
+    /// silo), a scene TOML file, or idealised-shear-cell / gray-thornton-sensor.
     pub scene: String,
     /// Sensor (velocity frame) grid NXxNZ, 2..=16 points per axis.
     #[arg(long = "sensor-grid", value_name = "NXxNZ", default_value = "8x8")]
