@@ -934,9 +934,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     }
                     let mut acc = R::ZERO;
                     if implicit {
-                        acc = R::HALF * self.outlet_face_force(a, i, high, side).0 / ci;
+                        let (push, share, _) = self.outlet_push(a, i, high, side);
+                        acc = push;
                         if self.holds() {
-                            acc += self.hold[a][i];
+                            acc += share;
                         }
                     }
                     f(a, self.u[a][i].abs(), acc.abs());

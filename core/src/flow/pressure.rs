@@ -348,16 +348,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if open == R::ZERO {
             return (u, R::ZERO);
         }
-        let (f, w) = self.outlet_face_force(a, i, high, side);
-        // The cell's own half of the face force, as the momentum update gives it (the other
-        // half belongs to the ghost): the full face force would double the outlet's push
-        // against the explicit mode, where the outflow leaves with the cell's velocity.
-        let mut v = u + dt * (R::HALF * f / ci);
+        let (push, share, w) = self.outlet_push(a, i, high, side);
+        let mut v = u + dt * push;
         if self.holds() {
-            // the cell's share, as on an interior face (the ghost mirrors the cell): without
-            // it the outflow leaves `dt` times the acceleration the stress and the transport
-            // balance faster than the cell moves (the implicit silo's rate grew with dt)
-            v += dt * self.hold[a][i];
+            v += dt * share;
         }
         let out = if high { v > R::ZERO } else { v < R::ZERO };
         let k = if out && side.outlet == OutletPressure::Zero {
@@ -366,6 +360,31 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             R::ZERO
         };
         (v, k)
+    }
+
+    /// What the implicit step adds per unit step to the exit speed of cell `i` behind an open
+    /// face, and the face's Dirichlet weight: `(F_open / (2 c_i), s_i, w)`. The push is the
+    /// cell's own half of the outlet face force, as the momentum update gives it (the other
+    /// half belongs to the ghost): the full force would double the outlet's push against the
+    /// explicit mode, where the outflow leaves with the cell's velocity. `s_i` is the cell's
+    /// share, as on an interior face (the ghost mirrors the cell; 0 unless
+    /// [`Self::holds`]): without it the outflow leaves `dt` times the acceleration the stress
+    /// and the transport balance faster than the cell moves (the implicit silo's rate grew
+    /// with dt). One place for [`Self::outlet_velocity`] and the step's outlet bound.
+    pub(super) fn outlet_push(
+        &self,
+        a: usize,
+        i: usize,
+        high: bool,
+        side: &FlowSide<R, D>,
+    ) -> (R, R, R) {
+        let (f, w) = self.outlet_face_force(a, i, high, side);
+        let share = if self.holds() {
+            self.hold[a][i]
+        } else {
+            R::ZERO
+        };
+        (R::HALF * f / self.c[i], share, w)
     }
 }
 
