@@ -82,6 +82,9 @@ pub trait Real:
     fn hash_into(self, h: &mut Fnv64);
     /// Bit pattern widened to u64 (f32 bits in the low half), for serialisation.
     fn to_bits_u64(self) -> u64;
+    /// Conversion to an integer, truncating towards zero, saturating at the ends of `i128`,
+    /// NaN to 0 (Rust's `as`: the same on every target; [`crate::sum::FixedSum`]).
+    fn trunc_to_i128(self) -> i128;
 
     /// Larger of two values (the second if either is NaN-free and equal).
     #[inline(always)]
@@ -123,6 +126,10 @@ macro_rules! impl_real {
             #[inline(always)]
             fn to_f64(self) -> f64 {
                 self as f64
+            }
+            #[inline(always)]
+            fn trunc_to_i128(self) -> i128 {
+                self as i128
             }
             #[inline(always)]
             fn sqrt(self) -> Self {

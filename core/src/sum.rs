@@ -175,6 +175,58 @@ pub fn update<R: Real>(alpha: R, p: &[R], q: &[R], x: &mut [R], r: &mut [R]) -> 
     total
 }
 
+/// Fractional bits of [`FixedSum`]: a term is cut to a multiple of `2^-FIXED_FRAC`.
+pub const FIXED_FRAC: u32 = 80;
+
+/// `2^FIXED_FRAC`, exact in f32 and f64.
+const FIXED_ONE: f64 = (1u128 << FIXED_FRAC) as f64;
+
+/// A book kept in fixed point: an `i128` count of `2^-80`. Each term is cut once to that grid
+/// (towards zero, so by less than `2^-80 ~ 8e-25` in absolute value), and the cut terms add
+/// as integers, exactly. So the total depends on neither the order of the terms nor how
+/// they are grouped: a subdomain books its own faces and a driver merges the books of any
+/// number of threads or ranks, in any order, to the same bits (the last resort of the module
+/// docs, used where terms arrive a few at a time from everywhere: the amounts that cross a
+/// box's open sides, `Segregation::side_books`). Terms up to `2^47 ~ 1.4e14` in size add
+/// without saturating; the sum saturates at `2^47` too (never a wrap-around).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FixedSum(i128);
+
+impl FixedSum {
+    /// The empty book.
+    pub const ZERO: Self = FixedSum(0);
+
+    /// Adds `x`, cut to a multiple of `2^-80` towards zero (a NaN adds 0).
+    #[inline]
+    pub fn add<R: Real>(&mut self, x: R) {
+        // `x * 2^80` is exact (a power of two, far from overflow for the terms booked here).
+        let units = (x * R::from_f64(FIXED_ONE)).trunc_to_i128();
+        self.0 = self.0.saturating_add(units);
+    }
+
+    /// Adds another book (exactly: merging in any order gives the same bits).
+    #[inline]
+    pub fn merge(&mut self, other: FixedSum) {
+        self.0 = self.0.saturating_add(other.0);
+    }
+
+    /// The total, rounded once to the nearest f64.
+    pub fn to_f64(self) -> f64 {
+        self.0 as f64 / FIXED_ONE
+    }
+
+    /// The raw count of `2^-80` as its low and high 64 bits (messages, checkpoints).
+    pub fn to_words(self) -> [u64; 2] {
+        let bits = self.0 as u128;
+        [bits as u64, (bits >> 64) as u64]
+    }
+
+    /// A book from [`Self::to_words`].
+    pub fn from_words(w: [u64; 2]) -> Self {
+        FixedSum((u128::from(w[0]) | (u128::from(w[1]) << 64)) as i128)
+    }
+}
+
 /// A bound on `|reduce(x) - sum x|` for `n` terms: `gamma_k sum |x_i|` with
 /// `gamma_k = k u / (1 - k u)`, `u = EPSILON / 2` and `k` the longest chain of additions a
 /// term passes through (lane, tree, fold). The classical bound of recursive summation

@@ -35,6 +35,7 @@ use crate::error::{Error, Result};
 use crate::scene::{Fields, Scene};
 use sieve_core::flow::coupled::CoupledTotals;
 use sieve_core::flow::{Flow, FlowCounters};
+use sieve_core::sum::FixedSum;
 use sieve_core::{Real, Segregation};
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
@@ -1079,6 +1080,12 @@ pub fn put_segregation<R: Real, const D: usize, const N: usize>(
     e.put("seg.time", Value::F64(s.time().to_f64()));
     e.put("seg.steps", Value::U64(s.steps()));
     e.put("seg.flushed", Value::F64(s.flushed_tracked().to_f64()));
+    let books = s
+        .side_books()
+        .into_iter()
+        .flatten()
+        .flat_map(|b| b.to_words());
+    e.put("seg.side_books", Value::U64s(books.collect()));
     e.put(
         "seg.excess",
         Value::F64s(s.tracked_excess().iter().map(|x| x.to_f64()).collect()),
@@ -1109,6 +1116,9 @@ pub fn restore_segregation<R: Real, const D: usize, const N: usize>(
     s.set_tracked_excess([R::from_f64(ex[0]), R::from_f64(ex[1])]);
     s.set_clock(R::from_f64(e.f64("seg.time")?), e.u64("seg.steps")?);
     s.set_flushed_tracked(R::from_f64(e.f64("seg.flushed")?));
+    let w = e.u64s("seg.side_books", 4 * D)?;
+    let book = |k: usize| FixedSum::from_words([w[2 * k], w[2 * k + 1]]);
+    s.set_side_books(core::array::from_fn(|a| [book(2 * a), book(2 * a + 1)]));
     let g = e.f64s("seg.gravity", D)?;
     let g: [R; D] = core::array::from_fn(|a| R::from_f64(g[a]));
     if g != s.config().gravity {

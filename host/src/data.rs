@@ -7,7 +7,7 @@
 
 use crate::scene::Scene;
 use serde::Serialize;
-use sieve_core::{Real, Segregation, SegregationClock};
+use sieve_core::{Boundary, Real, Segregation, SegregationClock};
 use std::time::Duration;
 
 /// One row of `series.csv`: diagnostics at an output time.
@@ -44,6 +44,10 @@ pub struct LoopStats {
     /// Small-phase mass flushed to zero as vanishing fractions
     /// ([`sieve_core::Segregation::flushed_small_mass`], docs/model.md 5.6).
     pub flushed: f64,
+    /// Small-phase mass that left through each inflow or outflow side of the box, net, as
+    /// (solver axis, side 0 low / 1 high, mass)
+    /// ([`sieve_core::Segregation::small_mass_out_through_sides`]); empty without such sides.
+    pub sides_out: Vec<(usize, usize, f64)>,
     /// Why the loop stopped before its end time (a signal, a non-finite value); None if it
     /// ran to the end. Set only by the `*_until_stop` loops (host/src/interrupt.rs).
     pub stop: Option<crate::interrupt::Stop>,
@@ -85,6 +89,21 @@ impl LoopStats {
         let (above, below) = s.bound_violations();
         self.every_step = (above.to_f64().max(0.0), below.to_f64().max(0.0));
         self.flushed = s.flushed_small_mass().to_f64();
+        let out = s.small_mass_out_through_sides();
+        self.sides_out.clear();
+        for (a, kinds) in s.boundaries().iter().enumerate() {
+            for (side, kind) in kinds.iter().enumerate() {
+                if matches!(kind, Boundary::Inflow | Boundary::Outflow) {
+                    self.sides_out.push((a, side, out[a][side].to_f64()));
+                }
+            }
+        }
+    }
+
+    /// The net small-phase mass out through all inflow and outflow sides, summed in axis and
+    /// side order.
+    pub fn mass_out_through_sides(&self) -> f64 {
+        self.sides_out.iter().map(|e| e.2).sum()
     }
 }
 

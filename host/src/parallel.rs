@@ -18,6 +18,7 @@ use crate::scene::Scene;
 use sieve_core::decomp::{self, Side, Subdomain};
 use sieve_core::geometry::CutCells;
 use sieve_core::segregation::{lands_on_target, snap_slack};
+use sieve_core::sum::FixedSum;
 use sieve_core::{Real, Segregation};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Barrier, Mutex};
@@ -136,6 +137,35 @@ pub(crate) struct Chunk<R> {
     pub(crate) excess: [R; 2],
     /// (step number before the step, value) of every non-zero flushed fraction, in order.
     pub(crate) flushed: Vec<(u64, R)>,
+    /// The chunk's books of the open sides, per axis (low, high) ([`Segregation::side_books`]):
+    /// merged exactly, so in any order.
+    pub(crate) books: Vec<[FixedSum; 2]>,
+}
+
+impl<R> Chunk<R> {
+    /// The books as the solver keeps them.
+    pub(crate) fn side_books<const D: usize>(&self) -> [[FixedSum; 2]; D] {
+        core::array::from_fn(|a| self.books[a])
+    }
+
+    /// The books as words for a message (each book's low and high 64 bits; a rank's chunk).
+    #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+    pub(crate) fn book_words(&self) -> Vec<u64> {
+        self.books
+            .iter()
+            .flatten()
+            .flat_map(|b| b.to_words())
+            .collect()
+    }
+}
+
+/// The books of [`Chunk::book_words`].
+#[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+pub(crate) fn books_from_words(w: &[u64]) -> Vec<[FixedSum; 2]> {
+    let book = |k: usize| FixedSum::from_words([w[2 * k], w[2 * k + 1]]);
+    (0..w.len() / 4)
+        .map(|a| [book(2 * a), book(2 * a + 1)])
+        .collect()
 }
 
 /// The halo rows of a subdomain of `s`: the box step's, [`decomp::GROUP_REACH`] wider on
@@ -289,6 +319,9 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         }
         global.set_tracked_excess(excess);
         global.set_flushed_tracked(fold_flushed(global.flushed_tracked(), &chunks));
+        for c in &chunks {
+            global.merge_side_books(&c.side_books());
+        }
         c0.taken
     }
 
@@ -308,6 +341,8 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         decomp::copy_rows(g, sub, l, self.fields);
         l.set_clock(g.time(), g.steps());
         l.set_tracked_excess(g.tracked_excess());
+        // the books of this chunk's steps alone: the global solver holds the earlier ones
+        l.set_side_books([[FixedSum::ZERO; 2]; D]);
         let mut excess = g.tracked_excess();
         let mut flushed = Vec::new();
         let mut taken = 0;
@@ -330,6 +365,7 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
             steps: l.steps(),
             excess,
             flushed,
+            books: l.side_books().to_vec(),
         }
     }
 

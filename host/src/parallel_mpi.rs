@@ -42,7 +42,7 @@
 
 use crate::data::Snapshot;
 use crate::error::{Error, Result};
-use crate::parallel::{halo_of, step_owned, Chunk, Pace};
+use crate::parallel::{books_from_words, halo_of, step_owned, Chunk, Pace};
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Equations, Scene};
 use mpi::topology::SimpleCommunicator;
@@ -50,6 +50,7 @@ use mpi::traits::*;
 use sieve_core::decomp::{self, Side, Subdomain};
 use sieve_core::geometry::CutCells;
 use sieve_core::segregation::snap_slack;
+use sieve_core::sum::FixedSum;
 use sieve_core::{Real, Segregation};
 use std::cell::{Cell, RefCell};
 use std::ops::Range;
@@ -519,6 +520,8 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
         let slack = snap_slack(target);
         let mut flushed = Vec::new();
         let mut taken = 0;
+        // the books of this chunk's steps alone: rank 0's global solver holds the earlier ones
+        self.s.set_side_books([[FixedSum::ZERO; 2]; D]);
         let pace = Pace {
             target,
             dt: self.dt,
@@ -537,6 +540,7 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
             steps: self.s.steps(),
             excess: self.excess,
             flushed,
+            books: self.s.side_books().to_vec(),
         }
     }
 
@@ -612,13 +616,14 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
     fn send_chunk(&self, c: &Chunk<R>) {
         let world = comm();
         let root = world.process_at_rank(0);
-        let head = [
+        let mut head = vec![
             c.taken,
             c.time.to_f64().to_bits(),
             c.steps,
             c.excess[0].to_f64().to_bits(),
             c.excess[1].to_f64().to_bits(),
         ];
+        head.extend(c.book_words());
         root.send_with_tag(&head[..], TAG_HEAD);
         root.send_with_tag(&self.owned_values()[..], TAG_VALUES);
         let steps: Vec<u64> = c.flushed.iter().map(|e| e.0).collect();
@@ -777,6 +782,7 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
         let sub = local.sub;
         decomp::gather_rows(&local.s, &sub, global, fields);
         let mut excess = mine.excess;
+        global.merge_side_books(&mine.side_books());
         let mut lists = vec![mine.flushed];
         for (r, sub) in self.subs.iter().enumerate().skip(1) {
             let p = world.process_at_rank(r as i32);
@@ -789,6 +795,8 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
             for (e, &h) in excess.iter_mut().zip(&head[3..5]) {
                 *e = e.max(R::from_f64(f64::from_bits(h)));
             }
+            let books = books_from_words(&head[5..]);
+            global.merge_side_books(&core::array::from_fn(|a| books[a]));
             lists.push(
                 steps
                     .into_iter()

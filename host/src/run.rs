@@ -13,6 +13,7 @@ use crate::scene::{solver_errors, Fields, Precision, Scene};
 use sieve_core::flow::Flow;
 use sieve_core::geometry::CutCells;
 use sieve_core::segregation::SegregationConfig;
+use sieve_core::sum::FixedSum;
 use sieve_core::{DirectionMode, Grid, Real, Segregation, TemperatureMode};
 use std::time::Instant;
 
@@ -461,6 +462,8 @@ struct Checkpoint<R> {
     steps: u64,
     /// The flushed-mass counter (docs/model.md 5.6): a replay must not count a flush twice.
     flushed: R,
+    /// The open sides' books (`Segregation::side_books`): nor must it book a face twice.
+    books: Vec<[FixedSum; 2]>,
     timer: SegregationTimer,
 }
 
@@ -475,6 +478,7 @@ impl<R: Real> Checkpoint<R> {
             time: s.time(),
             steps: s.steps(),
             flushed: s.flushed_tracked(),
+            books: s.side_books().to_vec(),
             timer,
         }
     }
@@ -503,6 +507,7 @@ fn resolve_crossing<R: Real, const D: usize, const N: usize>(
     }
     s.set_clock(cp.time, cp.steps);
     s.set_flushed_tracked(cp.flushed);
+    s.set_side_books(core::array::from_fn(|a| cp.books[a]));
     let mut timer = cp.timer;
     // Psi after every step until the first crossing; the rest of the interval needs no
     // samples (the timer keeps the first crossing), so it is stepped in one call: the same
@@ -901,12 +906,20 @@ pub fn run_scene_with(
     let last = stats.series.last().copied();
     let mass_initial = first.map_or(0.0, |r| r.mass);
     let mass_final = last.map_or(0.0, |r| r.mass);
-    // What left through outlets, booked by the coupled run: the summary's mass balance closes.
+    // What left through outlets (booked by the coupled run) and through inflow and outflow
+    // sides (booked by the segregation step): the summary's mass balance closes.
     let mass_out = out
         .flow
         .as_ref()
         .and_then(|f| f.outlet.as_ref())
-        .map_or(0.0, |o| o.out_small);
+        .map_or(0.0, |o| o.out_small)
+        + stats.mass_out_through_sides();
+    let axes = crate::scene::validate::axis_names(scene.dim);
+    let mass_out_sides = stats
+        .sides_out
+        .iter()
+        .map(|&(a, side, m)| (format!("{}_{}", axes[a], ["low", "high"][side]), m))
+        .collect();
     let cells = scene.len();
     let stepping = stats.stepping.as_secs_f64();
     let exact = scene.column_a(fields).map(|ex| summary::ExactComparison {
@@ -956,6 +969,7 @@ pub fn run_scene_with(
         mass_final,
         mass_flushed: stats.flushed,
         mass_out,
+        mass_out_sides,
         mass_rel_drift: if mass_initial != 0.0 {
             (mass_final + stats.flushed + mass_out - mass_initial).abs() / mass_initial.abs()
         } else {

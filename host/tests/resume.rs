@@ -180,6 +180,24 @@ fn prescribed_large_phase_f32_godunov_killed_and_resumed() {
 }
 
 #[test]
+fn open_side_books_survive_a_kill_and_resume() {
+    // Gray-Thornton's shear layer with its inflow and outflow sides, the large phase tracked:
+    // the sides' books (summary.json's mass_out_sides, docs/model.md 5.6) come back from the
+    // checkpoint. The inflow lets in u c phihat = 0.36 of fines per unit time (u = 2z over a
+    // unit height), so 4.32 by t = 12, and the books close the mass.
+    let s = kill_and_resume(&[
+        "gray-thornton-shear",
+        "--t-end",
+        "12",
+        "--set",
+        "numerics.phase=\"large\"",
+    ]);
+    let x_low = s["mass_out_sides"]["x_low"].as_f64().unwrap();
+    assert!((x_low + 0.36 * 12.0).abs() < 1e-12, "{s}");
+    assert!(s["mass_rel_drift"].as_f64().unwrap() < 1e-12, "{s}");
+}
+
+#[test]
 fn frozen_flow_scene_killed_and_resumed_ends_with_the_same_bits() {
     let s = kill_and_resume(&["shear-cell", "--grid", "20x20", "--t-end", "40"]);
     assert_eq!(s["flow"]["equations"], "frozen-flow");

@@ -292,6 +292,10 @@ fn without_walls_the_embedded_step_gives_the_box_step_bits() {
         assert_eq!(ha, hb);
         let (da, db) = (diagnose(&*a), diagnose_embedded(&*b, &*g));
         assert_eq!(da.mass_small.to_bits(), db.mass_small.to_bits());
+        // the open sides' books of the cut-cell step are the box step's
+        assert_eq!(a.side_books(), b.side_books());
+        let out = b.small_mass_out_through_sides();
+        assert_eq!(out[0][0] < 0.0, inflow, "{out:?}");
         assert_eq!(da.psi.to_bits(), db.psi.to_bits());
     }
 }

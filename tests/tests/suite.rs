@@ -63,5 +63,6 @@ mod sensor_seq_wrap;
 mod sensor_silo;
 mod sensor_wire;
 mod serial_passes;
+mod side_books;
 mod subnormal;
 mod uniform_fast_path;

@@ -226,6 +226,11 @@ fn in_place_1d_sweep_keeps_the_general_bits() {
                             general.flushed_tracked().to_bits(),
                             "{what}: flushed at step {step}"
                         );
+                        assert_eq!(
+                            fast.side_books(),
+                            general.side_books(),
+                            "{what}: side books at step {step}"
+                        );
                     }
                     flushed_somewhere |= fast.flushed_tracked() != 0.0;
                 }

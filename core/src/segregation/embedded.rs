@@ -457,6 +457,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let high = self.bc[axis][1];
         let low = self.bc[axis][0];
         let grid = self.grid;
+        let (book_low, book_high) = (self.books_side(axis, 0), self.books_side(axis, 1));
         grid.for_each_boundary_cell(axis, true, |last, first_cell| {
             let f = match high {
                 Boundary::Wall => R::ZERO,
@@ -479,6 +480,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             } else {
                 self.rhs[last] -= f;
             }
+            if book_high {
+                let small = self.small_across::<K, DIFFUSE>(axis, last, f, ap[last], ax);
+                self.book_side(axis, 1, last, -small);
+            }
         });
         if low != Boundary::Wall {
             grid.for_each_boundary_cell(axis, false, |first_cell, last| {
@@ -492,6 +497,11 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                     ),
                 };
                 self.rhs[first_cell] += f;
+                if book_low {
+                    let ap = geo.aperture_low(axis, first_cell);
+                    let small = self.small_across::<K, DIFFUSE>(axis, first_cell, f, ap, ax);
+                    self.book_side(axis, 0, first_cell, small);
+                }
             });
         }
         for b in 0..fb.blocks {

@@ -24,6 +24,7 @@ use crate::boundary::{check_periodic_pairs, Boundaries, Boundary};
 use crate::fork::{self, Call, Fork, SerialAt};
 use crate::grid::Grid;
 use crate::real::Real;
+use crate::sum::FixedSum;
 use direction::LANES_3D;
 use serde::{Deserialize, Serialize};
 
@@ -228,6 +229,11 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     /// Sum of the tracked fractions flushed to zero ([`SegregationConfig::flush_below`]),
     /// weighted by the open volume fraction of their cell (1 on a box grid).
     flushed: R,
+    /// Per axis and side (low, high): the tracked phase that has entered the box through that
+    /// side since setup, net (what left counts negative), in cell volumes; kept only for
+    /// inflow and outflow sides, and only for the faces of counted cells (`tally`), so a
+    /// driver merges its subdomains' books exactly ([`FixedSum`]; [`Self::side_books`]).
+    side_books: [[FixedSum; 2]; D],
     prepared: bool,
     /// Per axis: c, T, k and u are the same in every cell (bit for bit) since the last
     /// prepare, so the step reads only q on that axis ([`Self::detect_uniform`]).
@@ -269,6 +275,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             excess: [R::ZERO; 2],
             tally: (0, usize::MAX),
             flushed: R::ZERO,
+            side_books: [[FixedSum::ZERO; 2]; D],
             prepared: false,
             uniform: [false; D],
             transport: Transport::Donor,
@@ -351,6 +358,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.excess = [R::ZERO; 2];
         self.tally = (0, usize::MAX);
         self.flushed = R::ZERO;
+        self.side_books = [[FixedSum::ZERO; 2]; D];
         self.prepared = false;
         self.uniform = [false; D];
         self.transport = Transport::Donor;
@@ -483,6 +491,22 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// Restores the running maxima of [`Self::tracked_excess`] (checkpoints).
     pub fn set_tracked_excess(&mut self, excess: [R; 2]) {
         self.excess = excess;
+    }
+
+    /// Whether the side (`0` low, `1` high) of `axis` opens to the world outside the box, so
+    /// that what crosses it is booked ([`Self::side_books`]).
+    #[inline(always)]
+    pub(super) fn books_side(&self, axis: usize, side: usize) -> bool {
+        matches!(self.bc[axis][side], Boundary::Inflow | Boundary::Outflow)
+    }
+
+    /// Books `into` (tracked phase into the box through boundary cell `i`'s face on that side)
+    /// if the cell counts (`tally`: a subdomain's halo cells do not).
+    #[inline(always)]
+    pub(super) fn book_side(&mut self, axis: usize, side: usize, i: usize, into: R) {
+        if self.tally.0 <= i && i < self.tally.1 {
+            self.side_books[axis][side].add(into);
+        }
     }
 
     #[inline]
@@ -947,6 +971,40 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             Phase::Small => m,
             Phase::Large => -m,
         }
+    }
+
+    /// The books of the box's inflow and outflow sides, per axis and side (low, high): the
+    /// tracked phase that entered through the side since setup, net, in cell volumes (each
+    /// face's flux of every step, booked exactly: [`FixedSum`]). Walls and periodic sides keep
+    /// empty books. A subdomain books the faces of its own cells only, so the books of all
+    /// subdomains merged ([`Self::merge_side_books`]) are the undivided grid's, bit for bit.
+    pub fn side_books(&self) -> [[FixedSum; 2]; D] {
+        self.side_books
+    }
+
+    /// Replaces the side books (restoring a checkpoint).
+    pub fn set_side_books(&mut self, books: [[FixedSum; 2]; D]) {
+        self.side_books = books;
+    }
+
+    /// Adds the books of a subdomain's steps (a driver, after a chunk of steps).
+    pub fn merge_side_books(&mut self, books: &[[FixedSum; 2]; D]) {
+        for (mine, theirs) in self.side_books.iter_mut().zip(books) {
+            mine[0].merge(theirs[0]);
+            mine[1].merge(theirs[1]);
+        }
+    }
+
+    /// Small-phase mass that has left the box through each inflow or outflow side since setup,
+    /// per axis and side (low, high), net (negative where more came in): with the cells and
+    /// [`Self::flushed_small_mass`] it closes the small phase's books of a scene whose
+    /// prescribed flow crosses its sides (docs/model.md 5.6). Each value is rounded once from
+    /// its exact book.
+    pub fn small_mass_out_through_sides(&self) -> [[R; 2]; D] {
+        let v = self.grid.cell_volume();
+        core::array::from_fn(|a| {
+            core::array::from_fn(|side| -R::from_f64(self.side_books[a][side].to_f64()) * v)
+        })
     }
 
     /// Sets the flushed amount (restoring a checkpoint), in the units of

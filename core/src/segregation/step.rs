@@ -6,7 +6,7 @@
 //! mass changes only by the rounding of those additions.
 
 use super::flux::{self, Scheme};
-use super::Segregation;
+use super::{Phase, Segregation};
 use crate::boundary::Boundary;
 use crate::hot::{Baseline, HotLoop, Isa};
 use crate::real::Real;
@@ -245,6 +245,31 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
     }
 
+    /// The small phase that a boundary face of cell `i` along `axis` carries along +axis in a
+    /// step, given the tracked phase's flux `f` through it (both times dt/h; `scale` the face's
+    /// aperture, 1 on a box): `f` when the small phase is tracked, else the face's transport of
+    /// c minus `f` (the flux of `q = c` on both sides, whose segregation and diffusion parts
+    /// vanish; the ghost side keeps the cell's own c and u), so that the books hold the small
+    /// phase in either case ([`Segregation::side_books`]).
+    #[inline(always)]
+    pub(super) fn small_across<K: Kernel<R>, const DIFFUSE: bool>(
+        &self,
+        axis: usize,
+        i: usize,
+        f: R,
+        scale: R,
+        ax: AxisConst<R>,
+    ) -> R {
+        match self.cfg.phase {
+            Phase::Small => f,
+            Phase::Large => {
+                let mut s = self.side(axis, i);
+                s.q = s.c;
+                face::<R, K, DIFFUSE>(s, s, ax) * scale - f
+            }
+        }
+    }
+
     /// The ghost side of boundary cell `i`: its own coefficients, with the Dirichlet value for
     /// inflow or its own value (zero gradient) for outflow.
     #[inline(always)]
@@ -395,6 +420,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         // High boundary faces, stored at the last cell of each line (periodic low faces reuse them).
         let low = self.bc[axis][0];
         let grid = self.grid;
+        let (book_low, book_high) = (self.books_side(axis, 0), self.books_side(axis, 1));
         grid.for_each_boundary_cell(axis, true, |last, first| {
             let f = self.high_boundary_flux::<K, DIFFUSE>(axis, last, first, ax);
             self.flux[last] = f;
@@ -403,6 +429,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             } else {
                 self.rhs[last] -= f;
             }
+            if book_high {
+                let small = self.small_across::<K, DIFFUSE>(axis, last, f, R::ONE, ax);
+                self.book_side(axis, 1, last, -small);
+            }
         });
         // Each cell has lost its high-face flux (above). The cells at the low end of a line
         // gain their boundary flux (they have no interior face below) ...
@@ -410,6 +440,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             grid.for_each_boundary_cell(axis, false, |first, last| {
                 let f = self.low_boundary_flux::<K, DIFFUSE>(axis, first, self.flux[last], ax);
                 self.rhs[first] += f;
+                if book_low {
+                    let small = self.small_across::<K, DIFFUSE>(axis, first, f, R::ONE, ax);
+                    self.book_side(axis, 0, first, small);
+                }
             });
         }
         // ... and every other cell the flux of the interior face below it.
@@ -534,7 +568,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         let f0 = face::<R, K, DIFFUSE>(at(self.q[0]), at(self.q[1]), ax);
         let mut inc0 = -f0;
         if self.bc[0][0] != Boundary::Wall {
-            inc0 += self.low_boundary_flux::<K, DIFFUSE>(0, 0, f_high, ax);
+            let f_low = self.low_boundary_flux::<K, DIFFUSE>(0, 0, f_high, ax);
+            inc0 += f_low;
+            if self.books_side(0, 0) {
+                let small = self.small_across::<K, DIFFUSE>(0, 0, f_low, R::ONE, ax);
+                self.book_side(0, 0, 0, small);
+            }
+        }
+        if self.books_side(0, 1) {
+            let small = self.small_across::<K, DIFFUSE>(0, n - 1, f_high, R::ONE, ax);
+            self.book_side(0, 1, n - 1, -small);
         }
         self.q[0] += inc0;
         let (above, below) = (

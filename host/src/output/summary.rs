@@ -3,6 +3,7 @@
 use super::write_file;
 use crate::error::{Error, Result};
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::path::Path;
 
 /// Comparison with a closed-form solution at `t_end`.
@@ -135,13 +136,20 @@ pub struct Summary {
     /// Small-phase mass set to zero as vanishing fractions (below 2^-800 in f64, so
     /// subnormal numbers never slow the run; docs/model.md 5.6); counted in the drift.
     pub mass_flushed: f64,
-    /// Small-phase mass that left through the scene's outlets and open sides, as the coupled
-    /// run booked it face by face (`flow.outlet.out_small`; 0 for scenes without outlets).
+    /// Small-phase mass that left through the scene's outlets and open sides, net (what came in
+    /// through an inflow side counts negative), booked face by face and step by step: the
+    /// coupled run's outlets (`flow.outlet.out_small`) plus the inflow and outflow sides of the
+    /// segregation step (`mass_out_sides`); 0 for closed boxes.
     pub mass_out: f64,
+    /// Per inflow or outflow side of the box (`x_low`, ..., `z_high`), the small-phase mass
+    /// that left through it, net (negative where more came in than left); absent for scenes
+    /// without such sides. Booked exactly (fixed point) and merged the same way for any
+    /// number of threads or ranks.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub mass_out_sides: BTreeMap<String, f64>,
     /// `|mass_final + mass_flushed + mass_out - mass_initial| / mass_initial` (0 if there is no
-    /// mass): what the books do not account for, so round-off for a silo too. Prescribed-flow
-    /// scenes with inflow or outflow sides exchange mass that is not booked, so there it is an
-    /// exchange, not a conservation error.
+    /// mass): what the books do not account for, so round-off for every scene, open sides
+    /// and outlets included.
     pub mass_rel_drift: f64,
     /// Largest `phi - c` over cells and output times (0 if never above).
     pub overshoot_max: f64,
