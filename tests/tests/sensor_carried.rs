@@ -269,6 +269,10 @@ fn gray_thornton_shear_replays_within_the_stated_accuracy() {
         );
     }
     assert!(r.mean_l1 < 0.016, "{}", r.mean_l1);
+    // the box exchanges fines through its inflow and outflow sides (19 % more by the end),
+    // and the estimator's books close its mass to f32 round-off (measured -6.3e-7)
+    assert!(r.mass_drift > 0.1, "{}", r.mass_drift);
+    assert!(r.mass_unbooked.abs() < 5e-6, "{}", r.mass_unbooked);
     assert!(r.max_c_error < 0.15, "{}", r.max_c_error);
     assert!(r.mean_c_error < 0.035, "{}", r.mean_c_error);
     let coarse = replay(&["grid.cells=[32,32]".to_string()]);
