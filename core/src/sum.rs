@@ -187,8 +187,9 @@ const FIXED_ONE: f64 = (1u128 << FIXED_FRAC) as f64;
 /// they are grouped: a subdomain books its own faces and a driver merges the books of any
 /// number of threads or ranks, in any order, to the same bits (the last resort of the module
 /// docs, used where terms arrive a few at a time from everywhere: the amounts that cross a
-/// box's open sides, `Segregation::side_books`). Terms up to `2^47 ~ 1.4e14` in size add
-/// without saturating; the sum saturates at `2^47` too (never a wrap-around).
+/// box's open sides, `Segregation::side_books`). Terms and totals up to `2^47 ~ 1.4e14` in
+/// size are exact; beyond, a term or the total saturates at that size instead of wrapping
+/// around (and only then does the order of additions matter again).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FixedSum(i128);
 
@@ -204,7 +205,8 @@ impl FixedSum {
         self.0 = self.0.saturating_add(units);
     }
 
-    /// Adds another book (exactly: merging in any order gives the same bits).
+    /// Adds another book (exactly: merging in any order gives the same bits, below the
+    /// saturation of the type docs).
     #[inline]
     pub fn merge(&mut self, other: FixedSum) {
         self.0 = self.0.saturating_add(other.0);

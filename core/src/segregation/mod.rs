@@ -229,7 +229,7 @@ pub struct Segregation<R: Real, const D: usize, const N: usize> {
     /// Sum of the tracked fractions flushed to zero ([`SegregationConfig::flush_below`]),
     /// weighted by the open volume fraction of their cell (1 on a box grid).
     flushed: R,
-    /// Per axis and side (low, high): the tracked phase that has entered the box through that
+    /// Per axis and side (low, high): the small phase that has entered the box through that
     /// side since setup, net (what left counts negative), in cell volumes; kept only for
     /// inflow and outflow sides, and only for the faces of counted cells (`tally`), so a
     /// driver merges its subdomains' books exactly ([`FixedSum`]; [`Self::side_books`]).
@@ -500,8 +500,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         matches!(self.bc[axis][side], Boundary::Inflow | Boundary::Outflow)
     }
 
-    /// Books `into` (tracked phase into the box through boundary cell `i`'s face on that side)
-    /// if the cell counts (`tally`: a subdomain's halo cells do not).
+    /// Books `into` (small phase into the box through boundary cell `i`'s face on that side,
+    /// [`Self::small_across`]) if the cell counts (`tally`: a subdomain's halo cells do not).
     #[inline(always)]
     pub(super) fn book_side(&mut self, axis: usize, side: usize, i: usize, into: R) {
         if self.tally.0 <= i && i < self.tally.1 {
