@@ -227,6 +227,20 @@ impl FixedSum {
     pub fn from_words(w: [u64; 2]) -> Self {
         FixedSum((u128::from(w[0]) | (u128::from(w[1]) << 64)) as i128)
     }
+
+    /// Per-side books (axis by axis, low then high) as words, two per book: what a rank's
+    /// message and a checkpoint carry.
+    pub fn words_of(books: &[[FixedSum; 2]]) -> impl Iterator<Item = u64> + '_ {
+        books.iter().flatten().flat_map(|b| b.to_words())
+    }
+
+    /// The per-side books of [`Self::words_of`]; words missing at the end read as 0 (callers
+    /// check the length: a checkpoint's entry, a rank's own message).
+    pub fn sides_from_words<const D: usize>(w: &[u64]) -> [[FixedSum; 2]; D] {
+        let word = |k: usize| w.get(k).copied().unwrap_or(0);
+        let book = |k: usize| FixedSum::from_words([word(2 * k), word(2 * k + 1)]);
+        core::array::from_fn(|a| [book(2 * a), book(2 * a + 1)])
+    }
 }
 
 /// A bound on `|reduce(x) - sum x|` for `n` terms: `gamma_k sum |x_i|` with

@@ -1080,12 +1080,8 @@ pub fn put_segregation<R: Real, const D: usize, const N: usize>(
     e.put("seg.time", Value::F64(s.time().to_f64()));
     e.put("seg.steps", Value::U64(s.steps()));
     e.put("seg.flushed", Value::F64(s.flushed_tracked().to_f64()));
-    let books = s
-        .side_books()
-        .into_iter()
-        .flatten()
-        .flat_map(|b| b.to_words());
-    e.put("seg.side_books", Value::U64s(books.collect()));
+    let books = FixedSum::words_of(&s.side_books()).collect();
+    e.put("seg.side_books", Value::U64s(books));
     e.put(
         "seg.excess",
         Value::F64s(s.tracked_excess().iter().map(|x| x.to_f64()).collect()),
@@ -1117,8 +1113,7 @@ pub fn restore_segregation<R: Real, const D: usize, const N: usize>(
     s.set_clock(R::from_f64(e.f64("seg.time")?), e.u64("seg.steps")?);
     s.set_flushed_tracked(R::from_f64(e.f64("seg.flushed")?));
     let w = e.u64s("seg.side_books", 4 * D)?;
-    let book = |k: usize| FixedSum::from_words([w[2 * k], w[2 * k + 1]]);
-    s.set_side_books(core::array::from_fn(|a| [book(2 * a), book(2 * a + 1)]));
+    s.set_side_books(FixedSum::sides_from_words(w));
     let g = e.f64s("seg.gravity", D)?;
     let g: [R; D] = core::array::from_fn(|a| R::from_f64(g[a]));
     if g != s.config().gravity {

@@ -147,25 +147,6 @@ impl<R> Chunk<R> {
     pub(crate) fn side_books<const D: usize>(&self) -> [[FixedSum; 2]; D] {
         core::array::from_fn(|a| self.books[a])
     }
-
-    /// The books as words for a message (each book's low and high 64 bits; a rank's chunk).
-    #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
-    pub(crate) fn book_words(&self) -> Vec<u64> {
-        self.books
-            .iter()
-            .flatten()
-            .flat_map(|b| b.to_words())
-            .collect()
-    }
-}
-
-/// The books of [`Chunk::book_words`].
-#[cfg_attr(not(feature = "mpi"), allow(dead_code))]
-pub(crate) fn books_from_words(w: &[u64]) -> Vec<[FixedSum; 2]> {
-    let book = |k: usize| FixedSum::from_words([w[2 * k], w[2 * k + 1]]);
-    (0..w.len() / 4)
-        .map(|a| [book(2 * a), book(2 * a + 1)])
-        .collect()
 }
 
 /// The halo rows of a subdomain of `s`: the box step's, [`decomp::GROUP_REACH`] wider on

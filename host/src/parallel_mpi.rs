@@ -42,7 +42,7 @@
 
 use crate::data::Snapshot;
 use crate::error::{Error, Result};
-use crate::parallel::{books_from_words, halo_of, step_owned, Chunk, Pace};
+use crate::parallel::{halo_of, step_owned, Chunk, Pace};
 use crate::scene::validate::{Direction, Temperature};
 use crate::scene::{Equations, Scene};
 use mpi::topology::SimpleCommunicator;
@@ -623,7 +623,7 @@ impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
             c.excess[0].to_f64().to_bits(),
             c.excess[1].to_f64().to_bits(),
         ];
-        head.extend(c.book_words());
+        head.extend(FixedSum::words_of(&c.books));
         root.send_with_tag(&head[..], TAG_HEAD);
         root.send_with_tag(&self.owned_values()[..], TAG_VALUES);
         let steps: Vec<u64> = c.flushed.iter().map(|e| e.0).collect();
@@ -795,8 +795,7 @@ impl<R: Real, const D: usize, const N: usize> Driver<R, D, N> {
             for (e, &h) in excess.iter_mut().zip(&head[3..5]) {
                 *e = e.max(R::from_f64(f64::from_bits(h)));
             }
-            let books = books_from_words(&head[5..]);
-            global.merge_side_books(&core::array::from_fn(|a| books[a]));
+            global.merge_side_books(&FixedSum::sides_from_words(&head[5..]));
             lists.push(
                 steps
                     .into_iter()
