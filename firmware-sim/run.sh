@@ -19,6 +19,7 @@
 # Exit codes: 0 ok | 2 bad option | 10 Rust target install failed | 11 no QEMU (install refused
 #             or failed) | 12 build failed
 #             13 QEMU run failed or timed out | 14 hash differs from golden | 15 host differs
+#             16 a tick executed more instructions than the cost model gives it
 set -u
 cd "$(dirname "$0")"
 TARGET=thumbv7em-none-eabihf
@@ -186,6 +187,18 @@ if [ -f "$GOLDEN" ]; then
   [ $status -eq 0 ] && echo "firmware-sim: firmware hashes equal the golden host-replay hashes ($GOLDEN)"
 else
   echo "firmware-sim: no golden file $GOLDEN; comparing with the host build only"
+fi
+# The cost model caps every tick's substeps, so no tick may execute more instructions than
+# the model gives it (QEMU -icount counts are deterministic for a given build).
+over=$(grep -o 'ticks_over_model=[0-9]*' "$OUT" | grep -v '=0$' | head -n 1)
+if [ -z "$(grep -o 'ticks_over_model=' "$OUT")" ]; then
+  loud "no cost_model line in the firmware log"
+  status=16
+elif [ -n "$over" ]; then
+  loud "the cost model under-counts a tick ($over; raise CycleBudget::CORTEX_M4F in core/src/sensor/config.rs to the measured cost_model line and re-bless the recording)"
+  status=16
+else
+  echo "firmware-sim: every tick within the cost model ($(grep -o 'max_tick_over_model=[0-9.]*' "$OUT" | tr '\n' ' '))"
 fi
 
 # --- the same loop on the host --------------------------------------------------------------

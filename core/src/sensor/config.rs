@@ -76,15 +76,14 @@ pub struct CycleBudget {
 
 impl CycleBudget {
     /// The cost model of the f32 estimator on the Cortex-M4F (firmware-sim, 32 x 32 estimator,
-    /// 8 x 8 sensor, measured again 2026-11-30 with the noise term's bookkeeping, the term
-    /// itself off as configured by default): per cell map 60 + `prepare_velocity` 382 +
-    /// estimate 83 = 525, 1,454 per sensor point (feed, decode, filter), substep 359 (394 /
-    /// 404 in the clean / faulted pass with the packing cap, 2026-12-01, whose ticks vary
-    /// more: the largest tick needs 425); rounded up so that a whole tick stays inside the
-    /// model.
+    /// 8 x 8 sensor, measured again 2026-12-06): per cell map 60 + `prepare_velocity` 407 +
+    /// estimate 83 = 551 (525 on 2026-11-30, before the carried c's vents and filters grew
+    /// `prepare_velocity`), 1,454 per sensor point (feed, decode, filter), substep 406 / 416
+    /// in the clean / faulted pass (the largest tick needs 425); rounded up so that every
+    /// tick stays inside the model (firmware-sim/run.sh fails when one does not).
     pub const CORTEX_M4F: Self = Self {
         cycles: 0,
-        per_cell: 541,
+        per_cell: 580,
         per_point: 1_500,
         per_cell_substep: 440,
     };
