@@ -2,13 +2,15 @@
 # firmware-sim/run.sh: builds the soft-sensor firmware for the Cortex-M4F, runs it under QEMU
 # (mps2-an386, semihosting, -icount shift=0) and checks that its final state hashes equal the
 # golden values of the host replay (recordings/<name>.golden, written by the sieve-tests test
-# `sensor_golden`). Also runs the same loop built for the host and compares.
+# `sensor_golden`) and that no tick exceeds the cost model, for each recording: the shear cell
+# (recordings/shear-cell.rec) and a discharging silo (recordings/silo.rec). Also runs the same
+# loop built for the host and compares.
 #
 # Usage: firmware-sim/run.sh [--no-host] [--native]
 #   --no-host   skip the host build of the loop
 #   --native    also run the host build with RUSTFLAGS="-C target-cpu=native" (own target dir)
-# Environment: SIEVE_RECORDING=/path/file.rec embeds another recording (golden file next to it,
-#   same name with .golden, if present); QEMU_TIMEOUT seconds (default 300);
+# Environment: SIEVE_RECORDING=/path/file.rec checks that recording alone (golden file next to
+#   it, same name with .golden, if present); QEMU_TIMEOUT seconds (default 300);
 #   SIEVE_QEMU_INSTALL = what to do if qemu-system-arm is not on PATH (see "QEMU" below):
 #     auto (default)  system-wide apt install if root (or passwordless sudo) and it removes
 #                     nothing, else a private copy in firmware-sim/target/qemu
@@ -153,58 +155,67 @@ if ! command -v qemu-system-arm >/dev/null 2>&1 && qemu_local_ready; then
 fi
 qemu-system-arm --version | head -n 1
 
-# --- golden values ------------------------------------------------------------------------
-REC="${SIEVE_RECORDING:-recordings/shear-cell.rec}"
-GOLDEN="${REC%.rec}.golden"
-OUT=target/firmware-sim.log
-mkdir -p target
-
-# --- build and run on the emulated Cortex-M4F ---------------------------------------------
-if ! cargo build --release --target "$TARGET"; then
-  loud "firmware build failed"
-  exit 12
-fi
-ELF="target/$TARGET/release/firmware-sim"
-for tool in llvm-size rust-size arm-none-eabi-size; do
-  if command -v "$tool" >/dev/null 2>&1; then "$tool" -A "$ELF" | grep -E '^\.(text|rodata|data|bss|uninit) '; break; fi
-done
-if ! timeout "${QEMU_TIMEOUT:-300}" cargo run --release --target "$TARGET" >"$OUT" 2>&1; then
-  tail -n 20 "$OUT" >&2
-  loud "QEMU run failed or timed out (log: firmware-sim/$OUT)"
-  exit 13
-fi
-grep -v '^est ' "$OUT"
-fw_clean=$(grep -o 'final_state_hash=0x[0-9a-f]*' "$OUT" | head -n 1)
-fw_fault=$(grep -o 'faulted_state_hash=0x[0-9a-f]*' "$OUT" | head -n 1)
-status=0
-if [ -f "$GOLDEN" ]; then
-  for want in $(cat "$GOLDEN"); do
-    if [ "$want" != "$fw_clean" ] && [ "$want" != "$fw_fault" ]; then
-      loud "firmware hash differs from golden $want (firmware: $fw_clean $fw_fault)"
-      status=14
-    fi
+# --- one recording: build it in, run it on the emulated Cortex-M4F and on the host ----------
+# check_recording REC: the firmware's hashes against REC's golden file (same name, .golden),
+# every tick against the cost model, and the host build of the loop against the firmware.
+check_recording() {
+  local rec=$1 name out golden status=0
+  name=$(basename "${rec%.rec}")
+  golden="${rec%.rec}.golden"
+  out="target/firmware-sim-$name.log"
+  echo "firmware-sim: recording $rec"
+  if ! SIEVE_RECORDING="$rec" cargo build --release --target "$TARGET"; then
+    loud "firmware build failed"
+    return 12
+  fi
+  local elf="target/$TARGET/release/firmware-sim"
+  for tool in llvm-size rust-size arm-none-eabi-size; do
+    if command -v "$tool" >/dev/null 2>&1; then "$tool" -A "$elf" | grep -E '^\.(text|rodata|data|bss|uninit) '; break; fi
   done
-  [ $status -eq 0 ] && echo "firmware-sim: firmware hashes equal the golden host-replay hashes ($GOLDEN)"
-else
-  echo "firmware-sim: no golden file $GOLDEN; comparing with the host build only"
-fi
-# The cost model caps every tick's substeps, so no tick may execute more instructions than
-# the model gives it (QEMU -icount counts are deterministic for a given build).
-over=$(grep -o 'ticks_over_model=[0-9]*' "$OUT" | grep -v '=0$' | head -n 1)
-if [ -z "$(grep -o 'ticks_over_model=' "$OUT")" ]; then
-  loud "no cost_model line in the firmware log"
-  status=16
-elif [ -n "$over" ]; then
-  loud "the cost model under-counts a tick ($over; raise CycleBudget::CORTEX_M4F in core/src/sensor/config.rs to the measured cost_model line and re-bless the recording)"
-  status=16
-else
-  echo "firmware-sim: every tick within the cost model ($(grep -o 'max_tick_over_model=[0-9.]*' "$OUT" | tr '\n' ' '))"
-fi
+  if ! SIEVE_RECORDING="$rec" timeout "${QEMU_TIMEOUT:-300}" cargo run --release --target "$TARGET" >"$out" 2>&1; then
+    tail -n 20 "$out" >&2
+    loud "QEMU run failed or timed out (log: firmware-sim/$out)"
+    return 13
+  fi
+  grep -v '^est ' "$out"
+  local fw_clean fw_fault
+  fw_clean=$(grep -o 'final_state_hash=0x[0-9a-f]*' "$out" | head -n 1)
+  fw_fault=$(grep -o 'faulted_state_hash=0x[0-9a-f]*' "$out" | head -n 1)
+  if [ -f "$golden" ]; then
+    for want in $(cat "$golden"); do
+      if [ "$want" != "$fw_clean" ] && [ "$want" != "$fw_fault" ]; then
+        loud "firmware hash differs from golden $want (firmware: $fw_clean $fw_fault)"
+        status=14
+      fi
+    done
+    [ $status -eq 0 ] && echo "firmware-sim: firmware hashes equal the golden host-replay hashes ($golden)"
+  else
+    echo "firmware-sim: no golden file $golden; comparing with the host build only"
+  fi
+  # The cost model caps every tick's substeps, so no tick may execute more instructions than
+  # the model gives it (QEMU -icount counts are deterministic for a given build).
+  local over
+  over=$(grep -o 'ticks_over_model=[0-9]*' "$out" | grep -v '=0$' | head -n 1)
+  if [ -z "$(grep -o 'ticks_over_model=' "$out")" ]; then
+    loud "no cost_model line in the firmware log"
+    status=16
+  elif [ -n "$over" ]; then
+    loud "the cost model under-counts a tick of $name ($over; raise CycleBudget::CORTEX_M4F in core/src/sensor/config.rs above the worst parts of the cost_model line and re-bless the recordings)"
+    status=16
+  else
+    echo "firmware-sim: every tick within the cost model ($(grep -o 'max_tick_over_model=[0-9.]*' "$out" | tr '\n' ' '))"
+  fi
+  if [ $HOST -eq 1 ]; then host_check "$rec" "target/host-$name.log" "$fw_clean" "$fw_fault" || status=15; fi
+  if [ $NATIVE -eq 1 ]; then
+    CARGO_TARGET_DIR=target/native RUSTFLAGS="-C target-cpu=native" host_check "$rec" "target/host-native-$name.log" "$fw_clean" "$fw_fault" || status=15
+  fi
+  return $status
+}
 
 # --- the same loop on the host --------------------------------------------------------------
 host_check() {
-  local log=$1
-  if ! cargo run --release >"$log" 2>&1; then
+  local rec=$1 log=$2 fw_clean=$3 fw_fault=$4
+  if ! SIEVE_RECORDING="$rec" cargo run --release >"$log" 2>&1; then
     tail -n 20 "$log" >&2
     loud "host build of the loop failed"
     return 15
@@ -218,8 +229,18 @@ host_check() {
   fi
   echo "firmware-sim: host loop hashes equal the firmware's ($log)"
 }
-if [ $HOST -eq 1 ]; then host_check target/host.log || status=15; fi
-if [ $NATIVE -eq 1 ]; then
-  CARGO_TARGET_DIR=target/native RUSTFLAGS="-C target-cpu=native" host_check target/host-native.log || status=15
+
+# --- the recordings: the shear cell and a discharging silo (or SIEVE_RECORDING alone) -------
+mkdir -p target
+if [ -n "${SIEVE_RECORDING:-}" ]; then
+  RECS="$SIEVE_RECORDING"
+else
+  RECS="recordings/shear-cell.rec recordings/silo.rec"
 fi
-exit $status
+final=0
+for rec in $RECS; do
+  check_recording "$rec"
+  rc=$?
+  [ $rc -ne 0 ] && [ $final -eq 0 ] && final=$rc
+done
+exit $final

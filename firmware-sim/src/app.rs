@@ -64,6 +64,12 @@ struct Stats {
     max_over_model: u64,
     /// Ticks whose measured instructions exceeded the cost model.
     ticks_over_model: u32,
+    /// Largest instructions of one tick's fixed estimator part (map, prepare, estimate).
+    max_fixed: u64,
+    /// Largest mean instructions of one substep within a tick.
+    max_substep: u64,
+    /// Largest instructions per decoded frame of one tick's feed (UART, decode, filter).
+    max_feed_frame: u64,
 }
 
 macro_rules! out {
@@ -110,6 +116,10 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
             let t1 = p.instructions();
             let (e, prof) = s.sensor.finish_tick_profiled(&mut || p.instructions());
             let dt = p.instructions() - t0;
+            st.max_fixed = st.max_fixed.max(prof.map + prof.prepare + prof.estimate);
+            if e.substeps > 0 {
+                st.max_substep = st.max_substep.max(prof.substeps / e.substeps as u64);
+            }
             st.phases.map += prof.map;
             st.phases.prepare += prof.prepare;
             st.phases.substeps += prof.substeps;
@@ -128,8 +138,10 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
             let seen = w.decoded + w.overflow + w.framing + w.crc + w.decode;
             let frames = seen - frames_before;
             frames_before = seen;
-            let model = b.fixed_frames(cells as usize, cfg.sensor_points(), frames)
-                + e.substeps as u64 * b.substep(cells as usize);
+            st.max_feed_frame = st.max_feed_frame.max((t1 - t0) / frames.max(1) as u64);
+            let grid = cfg.estimator_grid();
+            let model = b.fixed_frames(grid, cfg.sensor_points(), frames)
+                + e.substeps as u64 * b.substep(grid);
             let permille = dt * 1000 / model.max(1);
             st.max_over_model = st.max_over_model.max(permille);
             st.ticks_over_model += (dt > model) as u32;
@@ -176,21 +188,22 @@ pub fn run(p: &mut impl Platform, s: &mut State) -> bool {
             st.mapped,
             st.substeps
         );
-        // The measured coefficients in the cost model's form (CycleBudget), next to the
-        // configured ones: per cell (map + prepare_velocity per mapped tick, estimate per
-        // tick), per sensor point (feed per tick), per cell and substep.
-        let points = cfg.sensor_points() as u64;
+        // The worst parts of any tick against the cost model's (CycleBudget): the fixed
+        // estimator part (map, prepare_velocity, estimate), the feed of one frame, one
+        // substep; and every whole tick against the model for its frames and substeps.
         let b = &cfg.budget;
+        let grid = cfg.estimator_grid();
+        let points = cfg.sensor_points();
         out!(
             p,
-            "cost_model pass={} measured per_cell={} per_point={} per_cell_substep={} configured per_cell={} per_point={} per_cell_substep={} budget_cycles={} substep_cap={} max_tick_over_model={}.{:03} ticks_over_model={}",
+            "cost_model pass={} worst fixed={} (model {}) feed_frame={} (model {}) substep={} (model {}) budget_cycles={} substep_cap={} max_tick_over_model={}.{:03} ticks_over_model={}",
             label,
-            per(st.phases.map + st.phases.prepare, st.mapped as u64) + per(st.phases.estimate, ticks),
-            st.feed / (points * ticks.max(1)),
-            per(st.phases.substeps, st.substeps),
-            b.per_cell,
-            b.per_point,
-            b.per_cell_substep,
+            st.max_fixed,
+            b.fixed(grid, 0),
+            st.max_feed_frame,
+            b.per_point as u64 * points as u64,
+            st.max_substep,
+            b.substep(grid),
             b.cycles,
             cfg.substep_cap(),
             st.max_over_model / 1000,

@@ -96,7 +96,9 @@ fn header_sizes_are_bounded_before_anything_is_allocated() {
     // A budget of u32::MAX cycles at zero cost would ask for 65,535 substeps a tick.
     let budget = rewrite(&good, |h, _| {
         h.config.budget.cycles = u32::MAX;
+        h.config.budget.per_substep = 0;
         h.config.budget.per_cell_substep = 0;
+        h.config.budget.per_face_substep = 0;
     });
     refused(
         dir.path(),

@@ -16,46 +16,53 @@ const N: usize = 1024;
 /// The cap by hand: 32 x 32 estimator, 16 x 16 sensor, 168 MHz at 10 Hz.
 #[test]
 fn cap_is_the_cost_model_floor() {
+    const G: [usize; 2] = [32, 32];
     let b = CycleBudget::CORTEX_M4F.with_clock(168e6, 0.1, 1.0);
     assert_eq!(b.cycles, 16_800_000);
-    let fixed = 580 * 1024 + 1500 * 256;
-    assert_eq!(b.fixed(1024, 256), fixed);
-    assert_eq!(b.substep(1024), 440 * 1024);
-    // (16,800,000 - 977,920) / 450,560 = 35.12
-    assert_eq!(b.substeps(1024, 256), 35);
+    // per tick + per cell + per point; per substep + per cell + per boundary face (2 (32 + 32)).
+    let fixed = 4_000 + 580 * 1024 + 1520 * 256;
+    let substep = 1_000 + 575 * 1024 + 310 * 128;
+    assert_eq!(b.fixed(G, 256), fixed);
+    assert_eq!(b.substep(G), substep);
+    // (16,800,000 - 987,040) / 629,480 = 25.12
+    assert_eq!(b.substeps(G, 256), 25);
     // Exactly k substeps' worth gives k; one cycle less gives k - 1.
-    for k in [1u64, 2, 7, 35] {
+    for k in [1u64, 2, 7, 25] {
         let exact = CycleBudget {
-            cycles: (fixed + k * 440 * 1024) as u32,
+            cycles: (fixed + k * substep) as u32,
             ..b
         };
-        assert_eq!(exact.substeps(1024, 256), k as u16);
+        assert_eq!(exact.substeps(G, 256), k as u16);
         let short = CycleBudget {
             cycles: exact.cycles - 1,
             ..b
         };
-        assert_eq!(short.substeps(1024, 256), k as u16 - 1);
+        assert_eq!(short.substeps(G, 256), k as u16 - 1);
     }
     // A burst of 3 frames pays for 2 more decodes out of the substeps.
     assert_eq!(
-        b.substeps_frames(1024, 256, 3),
-        ((16_800_000 - 580 * 1024 - 3 * 1500 * 256) / (440 * 1024)) as u16
+        b.substeps_frames(G, 256, 3),
+        ((16_800_000 - 4_000 - 580 * 1024 - 3 * 1520 * 256) / substep) as u16
     );
+    // The same cells in a long thin estimator cost more: more boundary faces per substep.
+    assert_eq!(b.substep([8, 128]), 1_000 + 575 * 1024 + 310 * 272);
+    assert!(b.substeps([8, 128], 256) < b.substeps(G, 256));
     // Nothing left after the fixed part: no substep, and the configuration is refused.
     let starved = CycleBudget {
         cycles: fixed as u32,
         ..b
     };
-    assert_eq!(starved.substeps(1024, 256), 0);
+    assert_eq!(starved.substeps(G, 256), 0);
     let mut cfg = Scene::ShearCell.sensor_config([32, 32], [16, 16], 0.05, 0.1, starved);
     assert!(cfg.validate(N).is_err());
     cfg.budget = b;
-    assert_eq!(cfg.substep_cap(), 35);
+    assert_eq!(cfg.substep_cap(), 25);
     cfg.validate(N).unwrap();
-    // The host's helper is the same model: the firmware recording's 100 Hz budget.
+    // The host's helper is the same model: the firmware recording's 100 Hz budget affords
+    // the one substep its ticks need.
     assert_eq!(cpu_budget(DEFAULT_CPU_HZ, 1.0, 0.01).cycles, 1_680_000);
-    assert_eq!(cpu_budget(DEFAULT_CPU_HZ, 1.0, 0.01).substeps(1024, 64), 2);
-    assert_eq!(CycleBudget::for_substeps(3, 1024).substeps(1024, 256), 3);
+    assert_eq!(cpu_budget(DEFAULT_CPU_HZ, 1.0, 0.01).substeps(G, 64), 1);
+    assert_eq!(CycleBudget::for_substeps(3, 1024).substeps(G, 256), 3);
 }
 
 /// The exact shear-cell velocity on an 8 x 8 sensor (divergence-free).
@@ -127,7 +134,7 @@ fn shear_cell_mixed(cpu_hz: f64) -> Vec<u8> {
 }
 
 /// Issue 9: at 10 Hz, 16 x 16 sensor, 5 % noise, the cap of 4 substeps fell 1.7 s behind;
-/// the budget of a 168 MHz Cortex-M4F affords 35 and the sensor keeps up (measured when
+/// the budget of a 168 MHz Cortex-M4F affords 25 and the sensor keeps up (measured when
 /// written: 9 to 12 substeps a tick, lag 0, max psi error 0.074 against 0.084 with the cap
 /// of 4, which also shifts the estimate 1.73 s behind the truth).
 #[test]
@@ -137,10 +144,10 @@ fn m4f_budget_keeps_up_with_shear_cell_mixed_at_10_hz() {
     assert_eq!(fast.counters.budget_limited, 0);
     assert_eq!(fast.lag, 0.0);
     let most = fast.rows.iter().map(|r| r.substeps).max().unwrap();
-    assert!((5..=35).contains(&most), "{most}");
+    assert!((5..=25).contains(&most), "{most}");
     assert!(fast.max_psi_error < 0.08, "{}", fast.max_psi_error);
-    // 28 MHz affords (2,800,000 - 977,920) / 450,560 = 4 substeps: the old cap.
-    let slow = replay_bytes(&shear_cell_mixed(28e6), &ReplayOptions::default()).unwrap();
+    // 36 MHz affords (3,600,000 - 987,040) / 629,480 = 4 substeps: the old cap.
+    let slow = replay_bytes(&shear_cell_mixed(36e6), &ReplayOptions::default()).unwrap();
     assert!(slow.rows.iter().all(|r| r.substeps <= 4));
     assert_eq!(slow.counters.budget_limited, 30);
     assert!(slow.lag > 1.5, "{}", slow.lag);

@@ -6,7 +6,9 @@
 //! To regenerate after an intended change: `SIEVE_BLESS=1 cargo test -p sieve-tests --test
 //! suite sensor_golden::`, then update the constants below from the printed values.
 
-use sieve::soft_sensor::{record_to_bytes, replay_bytes, RecordOptions, ReplayOptions, Scene};
+use sieve::soft_sensor::{
+    record_to_bytes, replay_bytes, RecordOptions, ReplayOptions, ReplayReport, Scene,
+};
 use sieve_core::sensor::feeder::Faults;
 use std::path::PathBuf;
 
@@ -67,14 +69,13 @@ fn short_replay_golden_hash() {
     }
 }
 
-/// The committed recording is what the recorder produces today, and its replay hashes are the
-/// committed golden values that firmware-sim/run.sh checks the emulated firmware against.
-#[test]
-fn firmware_recording_and_golden_hashes() {
-    let (bytes, _) = record_to_bytes(&firmware_options()).unwrap();
-    let clean = replay_bytes(&bytes, &ReplayOptions::default()).unwrap();
+/// Replays `bytes` clean and with the demo faults, and checks that
+/// `firmware-sim/recordings/NAME.rec` and `NAME.golden` equal `bytes` and the two replays'
+/// hashes (written instead with `SIEVE_BLESS=1`); returns the golden text and the replays.
+fn committed_equal(name: &str, bytes: &[u8]) -> (String, ReplayReport, ReplayReport) {
+    let clean = replay_bytes(bytes, &ReplayOptions::default()).unwrap();
     let faulted = replay_bytes(
-        &bytes,
+        bytes,
         &ReplayOptions {
             faults: Faults::DEMO,
         },
@@ -85,18 +86,30 @@ fn firmware_recording_and_golden_hashes() {
         clean.final_state_hash, faulted.final_state_hash
     );
     let dir = recordings_dir();
+    let (rec, gold) = (
+        dir.join(format!("{name}.rec")),
+        dir.join(format!("{name}.golden")),
+    );
     if std::env::var("SIEVE_BLESS").is_ok() {
         std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(dir.join("shear-cell.rec"), &bytes).unwrap();
-        std::fs::write(dir.join("shear-cell.golden"), &golden).unwrap();
+        std::fs::write(&rec, bytes).unwrap();
+        std::fs::write(&gold, &golden).unwrap();
     }
-    let committed = std::fs::read(dir.join("shear-cell.rec")).expect("committed recording");
+    let committed = std::fs::read(&rec).expect("committed recording");
     assert!(
         committed == bytes,
-        "recording differs from the recorder's output"
+        "{name}.rec differs from the recorder's output"
     );
-    let committed_golden = std::fs::read_to_string(dir.join("shear-cell.golden")).unwrap();
-    assert_eq!(committed_golden, golden);
+    assert_eq!(std::fs::read_to_string(&gold).unwrap(), golden);
+    (golden, clean, faulted)
+}
+
+/// The committed recording is what the recorder produces today, and its replay hashes are the
+/// committed golden values that firmware-sim/run.sh checks the emulated firmware against.
+#[test]
+fn firmware_recording_and_golden_hashes() {
+    let (bytes, _) = record_to_bytes(&firmware_options()).unwrap();
+    let (golden, clean, faulted) = committed_equal("shear-cell", &bytes);
     // The faulted pass really exercised the fault paths and stayed accurate enough to use.
     let c = faulted.counters;
     let w = faulted.wire;
@@ -113,6 +126,59 @@ fn firmware_recording_and_golden_hashes() {
         w.decoded,
         c.accepted + c.non_finite + c.seq + c.dims + c.range
     );
+}
+
+/// The silo recording firmware-sim also runs (issue 9: the firmware on the device it is for):
+/// the short silo (15 x 50 truth, 0.04 m orifice, 3 s), an 8 x 28 estimator carrying c
+/// through the orifice, a 2 x 7 sensor (4x coarser), 5 % noise, 10 Hz, and the M4F budget.
+/// Its replays are the golden hashes; the firmware must print the same and keep every tick
+/// inside the cost model, whose constant and boundary terms this small grid exercises.
+#[test]
+fn firmware_silo_recording_and_golden_hashes() {
+    let (scene, fields) = sieve::scene::load(
+        "silo",
+        &[
+            "grid.cells=[15,50]".to_string(),
+            "boundary.flow.z_low.outlet.width=0.04".to_string(),
+            "run.t_end=3".to_string(),
+        ],
+    )
+    .expect("scene");
+    let opts = sieve::soft_sensor::SceneRecordOptions {
+        estimator_cells: [8, 28],
+        sensor: [2, 7],
+        period: Some(0.1),
+        ..Default::default()
+    };
+    let bytes = sieve::soft_sensor::record_scene(&scene, &fields, &opts)
+        .expect("record")
+        .0;
+    let (golden, clean, faulted) = committed_equal("silo", &bytes);
+    let out = clean
+        .outflow
+        .as_ref()
+        .expect("a silo recording scores its outflow");
+    println!(
+        "{golden}silo: outflow fines error max {} (flowing {}) mean {}, out est {} truth {}, unbooked {}",
+        out.max_window_error,
+        out.max_window_error_flowing,
+        out.mean_window_error,
+        out.total_out[0],
+        out.total_out[1],
+        clean.mass_unbooked
+    );
+    assert_eq!(clean.ticks, 30);
+    // Nothing budget-limited: the M4F at 10 Hz affords this estimator's substeps.
+    assert_eq!(clean.counters.budget_limited, 0);
+    assert_eq!(clean.lag, 0.0);
+    // The estimator lets grains out through the orifice and books them.
+    assert!(
+        out.total_out[0] > 0.3 * out.total_out[1],
+        "{:?}",
+        out.total_out
+    );
+    assert!(clean.mass_unbooked.abs() < 5e-6, "{}", clean.mass_unbooked);
+    assert!(faulted.counters.stale_ticks > 0 || faulted.wire.crc > 0);
 }
 
 /// The file-based entry points the CLI wires (`sieve record` / `sieve replay`) round-trip

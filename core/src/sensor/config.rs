@@ -49,43 +49,61 @@ pub struct SensorOpening<R> {
 /// The tick's time budget and the estimator's cost model, in CPU cycles (issue 9).
 ///
 /// A tick may take as many substeps as the stable step asks for, up to
-/// `floor((cycles - fixed) / substep)` with `fixed = per_cell cells + per_point points
-/// frames` (`frames`: the frames the tick decoded, at least 1, so a burst after a stall pays
-/// for its decoding out of the substeps) and `substep = per_cell_substep cells`
-/// ([`Self::substeps`]). The cap is a model of the cost,
-/// not a clock reading, so it is the same on the host and on the firmware and a replay is
-/// deterministic. The coefficients are instruction counts measured by `firmware-sim/run.sh`
-/// under QEMU `-icount` (one cycle per instruction: the Cortex-M4F issues most integer and
-/// FPU instructions in one cycle; flash wait states on a real part make a cycle count larger,
-/// which a controller covers by granting the sensor less than the whole period, see
-/// docs/soft-sensor.md "Cycle budget"). The firmware checks every tick's measured count
-/// against the model.
+/// `floor((cycles - fixed) / substep)` ([`Self::substeps`]) with, for an estimator of
+/// `cells = nx nz` cells and `faces = 2 (nx + nz)` boundary faces,
+///
+/// ```text
+/// fixed   = per_tick + per_cell cells + per_point points frames
+/// substep = per_substep + per_cell_substep cells + per_face_substep faces
+/// ```
+///
+/// (`frames`: the frames the tick decoded, at least 1, so a burst after a stall pays for its
+/// decoding out of the substeps). The constant and boundary terms are why a small or
+/// elongated estimator costs more per cell than a square one (docs/soft-sensor.md "Cycle
+/// budget"). The cap is a model of the cost, not a clock reading, so it is the same on the
+/// host and on the firmware and a replay is deterministic. The coefficients are instruction
+/// counts measured by `firmware-sim/run.sh` under QEMU `-icount` (one cycle per instruction:
+/// the Cortex-M4F issues most integer and FPU instructions in one cycle; flash wait states on
+/// a real part make a cycle count larger, which a controller covers by granting the sensor
+/// less than the whole period). The firmware checks every tick's measured count against the
+/// model, on a shear-cell and on a silo recording.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct CycleBudget {
     /// Cycles the sensor may spend in one tick (clock frequency times the tick period times
     /// the share of the CPU the controller grants the sensor).
     pub cycles: u32,
+    /// Fixed part of a tick, whatever the grids (calls, the readout's constant work).
+    pub per_tick: u32,
     /// Fixed part of a tick per estimator cell: bilinear map, `prepare_velocity`, estimate.
     pub per_cell: u32,
     /// Fixed part of a tick per sensor point: UART decode (COBS, CRC, postcard), validation,
     /// median / 1-2-1 / EMA filter of one frame.
     pub per_point: u32,
-    /// One substep per estimator cell (`step_percolation` compensated + `carry_own_velocity`).
+    /// One substep, whatever the grid (stable step, books, sums).
+    pub per_substep: u32,
+    /// One substep per estimator cell (`step_percolation` compensated + `carry_own_velocity`
+    /// with its packing cap).
     pub per_cell_substep: u32,
+    /// One substep per boundary face of the estimator (wall, opening and side loops).
+    pub per_face_substep: u32,
 }
 
 impl CycleBudget {
-    /// The cost model of the f32 estimator on the Cortex-M4F (firmware-sim, 32 x 32 estimator,
-    /// 8 x 8 sensor, measured again 2026-12-06): per cell map 60 + `prepare_velocity` 407 +
-    /// estimate 83 = 551 (525 on 2026-11-30, before the carried c's vents and filters grew
-    /// `prepare_velocity`), 1,454 per sensor point (feed, decode, filter), substep 406 / 416
-    /// in the clean / faulted pass (the largest tick needs 425); rounded up so that every
-    /// tick stays inside the model (firmware-sim/run.sh fails when one does not).
+    /// The cost model of the f32 estimator on the Cortex-M4F, fitted on 2026-12-06 to the
+    /// largest tick parts firmware-sim measured over seven recordings (shear cell on 32 x 32,
+    /// 8 x 28 and 8 x 8 estimators with an 8 x 8 sensor; a discharging silo on 32 x 32,
+    /// 16 x 56, 8 x 28 and 4 x 14 with a 2 x 7 sensor), about 5 % above them:
+    /// fixed part 2,250 + 557 per cell (shear cell), feed 1,473 per sensor point and frame,
+    /// substep 760 + 545 per cell + 296 per boundary face (the silo, whose packing cap and
+    /// openings cost 545 - 454 = 91 more per cell than the shear cell's substep).
     pub const CORTEX_M4F: Self = Self {
         cycles: 0,
+        per_tick: 4_000,
         per_cell: 580,
-        per_point: 1_500,
-        per_cell_substep: 440,
+        per_point: 1_520,
+        per_substep: 1_000,
+        per_cell_substep: 575,
+        per_face_substep: 310,
     };
 
     /// This cost model with the budget of a CPU at `clock_hz` granting the sensor the share
@@ -103,51 +121,57 @@ impl CycleBudget {
         Self { cycles, ..self }
     }
 
-    /// A budget that affords exactly `k` substeps of `cells` cells, whatever the sensor grid
+    /// A budget that affords exactly `k` substeps of `cells` cells, whatever the grids
     /// (no fixed part, one cycle per cell and substep): for tests and tools that set the cap
     /// directly.
     pub const fn for_substeps(k: u16, cells: usize) -> Self {
         Self {
             cycles: k as u32 * cells as u32,
+            per_tick: 0,
             per_cell: 0,
             per_point: 0,
+            per_substep: 0,
             per_cell_substep: 1,
+            per_face_substep: 0,
         }
     }
 
-    /// Cycles of the fixed part of a tick with one frame for `cells` estimator cells and
-    /// `points` sensor points.
-    pub fn fixed(&self, cells: usize, points: usize) -> u64 {
-        self.fixed_frames(cells, points, 1)
+    /// Cycles of the fixed part of a tick with one frame for an estimator of `grid` cells
+    /// (x, z) and `points` sensor points.
+    pub fn fixed(&self, grid: [usize; 2], points: usize) -> u64 {
+        self.fixed_frames(grid, points, 1)
     }
 
     /// Cycles of the fixed part of a tick that decoded `frames` frames (at least one is
     /// counted).
-    pub fn fixed_frames(&self, cells: usize, points: usize, frames: u32) -> u64 {
-        self.per_cell as u64 * cells as u64
+    pub fn fixed_frames(&self, grid: [usize; 2], points: usize, frames: u32) -> u64 {
+        self.per_tick as u64
+            + self.per_cell as u64 * (grid[0] as u64 * grid[1] as u64)
             + self.per_point as u64 * points as u64 * frames.max(1) as u64
     }
 
-    /// Cycles of one substep for `cells` estimator cells.
-    pub fn substep(&self, cells: usize) -> u64 {
-        self.per_cell_substep as u64 * cells as u64
+    /// Cycles of one substep for an estimator of `grid` cells (x, z).
+    pub fn substep(&self, grid: [usize; 2]) -> u64 {
+        self.per_substep as u64
+            + self.per_cell_substep as u64 * (grid[0] as u64 * grid[1] as u64)
+            + self.per_face_substep as u64 * 2 * (grid[0] as u64 + grid[1] as u64)
     }
 
     /// Most substeps one tick can afford: `floor((cycles - fixed) / substep)`, 0 if the fixed
     /// part alone exceeds the budget, saturating at `u16::MAX` (a free substep, cost 0, also
     /// gives `u16::MAX`). Integer arithmetic: the same cap on every platform.
-    pub fn substeps(&self, cells: usize, points: usize) -> u16 {
-        self.substeps_frames(cells, points, 1)
+    pub fn substeps(&self, grid: [usize; 2], points: usize) -> u16 {
+        self.substeps_frames(grid, points, 1)
     }
 
     /// [`Self::substeps`] of a tick that decoded `frames` frames.
-    pub fn substeps_frames(&self, cells: usize, points: usize, frames: u32) -> u16 {
-        let fixed = self.fixed_frames(cells, points, frames);
+    pub fn substeps_frames(&self, grid: [usize; 2], points: usize, frames: u32) -> u16 {
+        let fixed = self.fixed_frames(grid, points, frames);
         let cycles = self.cycles as u64;
         if fixed >= cycles {
             return 0;
         }
-        let per = self.substep(cells);
+        let per = self.substep(grid);
         if per == 0 {
             return u16::MAX;
         }
@@ -373,7 +397,12 @@ impl<R: SensorReal> SensorConfig<R> {
     /// Most substeps of one tick: what the cycle budget affords (model, not a clock reading).
     pub fn substep_cap(&self) -> u16 {
         self.budget
-            .substeps(self.cell_count(), self.sensor_points())
+            .substeps(self.estimator_grid(), self.sensor_points())
+    }
+
+    /// Estimator cells along x and z, as the cost model counts them.
+    pub fn estimator_grid(&self) -> [usize; 2] {
+        [self.cells[0] as usize, self.cells[1] as usize]
     }
 
     /// Number of sensor points.

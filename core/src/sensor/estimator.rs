@@ -202,12 +202,7 @@ const fn empty_config<R: SensorReal>() -> SensorConfig<R> {
         courant: R::HALF,
         tick_period: R::ONE,
         max_period_factor: R::TWO,
-        budget: CycleBudget {
-            cycles: 1,
-            per_cell: 0,
-            per_point: 0,
-            per_cell_substep: 1,
-        },
+        budget: CycleBudget::for_substeps(1, 1),
         hold_ticks: 0,
         reject_speed: R::ONE,
         outlier_tol: R::ONE,
@@ -679,7 +674,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         let mut prof = TickProfile::default();
         // The cap of this tick: the budget after the fixed part with the frames it decoded.
         self.cap = self.cfg.budget.substeps_frames(
-            self.cfg.cell_count(),
+            self.cfg.estimator_grid(),
             self.cfg.sensor_points(),
             self.frames,
         );

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 /// File magic.
 pub const RECORDING_MAGIC: [u8; 8] = *b"SIEVEREC";
 /// Current format version.
-pub const RECORDING_VERSION: u32 = 6;
+pub const RECORDING_VERSION: u32 = 7;
 
 /// What the recording says about itself.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -253,8 +253,8 @@ fn budget_for(
     label: &str,
 ) -> Result<CycleBudget> {
     let budget = super::cpu_budget(opts.cpu_hz, opts.cpu_share, period);
-    let (cells, points) = (cfg.cell_count(), cfg.sensor_points());
-    if budget.substeps(cells, points) == 0 {
+    let (grid, cells, points) = (cfg.estimator_grid(), cfg.cell_count(), cfg.sensor_points());
+    if budget.substeps(grid, points) == 0 {
         return Err(Error::at(
             label,
             "",
@@ -263,8 +263,8 @@ fn budget_for(
                 opts.cpu_hz / 1e6,
                 opts.cpu_share,
                 budget.cycles,
-                budget.fixed(cells, points),
-                budget.substep(cells),
+                budget.fixed(grid, points),
+                budget.substep(grid),
                 cells,
                 points
             ),

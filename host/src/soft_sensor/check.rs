@@ -195,11 +195,14 @@ pub fn config(c: &SensorConfig<f32>) -> Result<(), String> {
         return Err(field(
             "config.budget",
             format!(
-                "{} cycles per tick at {} per cell + {} per sensor point + {} per cell and substep ({cap} substeps of {} cells)",
+                "{} cycles per tick at {} + {} per cell + {} per sensor point, and {} + {} per cell + {} per boundary face per substep ({cap} substeps of {} cells)",
                 b.cycles,
+                b.per_tick,
                 b.per_cell,
                 b.per_point,
+                b.per_substep,
                 b.per_cell_substep,
+                b.per_face_substep,
                 c.cell_count()
             ),
             &format!("a budget that affords 1 to {MAX_SUBSTEPS} substeps of {ESTIMATOR_CAPACITY} cells per tick"),
