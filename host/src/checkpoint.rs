@@ -38,7 +38,7 @@ use sieve_core::flow::{Flow, FlowCounters};
 use sieve_core::sum::FixedSum;
 use sieve_core::{Real, Segregation};
 use std::collections::BTreeMap;
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -46,8 +46,9 @@ use std::time::{Duration, Instant};
 pub const MAGIC: &[u8; 8] = b"SIEVECKP";
 /// Version of the layout.
 pub const FORMAT: u32 = 1;
-/// Largest checkpoint file read (16 GiB: a 3D flow at the compiled capacity is ~0.5 GB).
-pub const MAX_FILE: u64 = 1 << 34;
+/// Largest checkpoint file read (16 GiB, every reader's bound: a 3D flow at the compiled
+/// capacity is ~0.5 GB).
+pub const MAX_FILE: u64 = crate::read::MAX_FILE;
 /// Most entries in a file.
 pub const MAX_ENTRIES: u32 = 100_000;
 /// File name of the state inside the checkpoint directory.
@@ -428,21 +429,16 @@ impl Stored {
     pub fn open(target: &Path) -> Result<Self> {
         let dir = dir_of(target);
         let path = dir.join(STATE_FILE);
-        let file = std::fs::File::open(&path).map_err(|e| {
-            Error::Input(format!(
+        if let Err(e) = std::fs::metadata(&path) {
+            return Err(Error::Input(format!(
                 "{}: --resume: no checkpoint at {} ({e}): resume needs a run started with --checkpoint-interval (or run.checkpoint_interval) that has written one; start it afresh with --out",
                 target.display(),
                 path.display()
-            ))
-        })?;
-        let len = file.metadata().map_err(|e| Error::io(&path, e))?.len();
-        if len > MAX_FILE {
-            return Err(refuse(&dir, format!("{len} bytes, at most {MAX_FILE}")));
+            )));
         }
-        let mut bytes = Vec::with_capacity(len as usize);
-        file.take(MAX_FILE + 1)
-            .read_to_end(&mut bytes)
-            .map_err(|e| Error::io(&path, e))?;
+        // Bounded, regular files only: a FIFO there once blocked the open for ever (no signal
+        // handler runs meanwhile), a file larger than memory aborted the allocation.
+        let bytes = crate::read::bytes(&path, MAX_FILE)?;
         let entries = decode(&bytes).map_err(|why| refuse(&dir, why))?;
         Ok(Self { dir, entries })
     }
@@ -627,7 +623,7 @@ fn link_or_copy(src: &Path, dst: &Path) -> Result<()> {
 
 /// CRC-64 and length of a file.
 fn file_sum(path: &Path) -> Result<(u64, u64)> {
-    let b = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let b = crate::read::bytes(path, MAX_FILE)?;
     Ok((b.len() as u64, CRC.checksum(&b)))
 }
 

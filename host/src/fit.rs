@@ -125,6 +125,9 @@ struct LevelOutcome {
     profiles: Profiles,
 }
 
+/// Steps between two looks at the interrupt flag while a fit advances to its next sample.
+const FIT_CHUNK_STEPS: u64 = 10_000;
+
 /// Runs the segregation with `s0` on the frozen flow until Psi crosses the threshold or
 /// `t_max`; returns (segregation time, steps, Psi samples).
 #[allow(clippy::too_many_arguments)]
@@ -142,6 +145,23 @@ fn evaluate<R: Real, const D: usize, const N: usize>(
     sc.s0 = s0;
     load(s, &sc, fields)?;
     hand_over_frozen(s, &sc, fields, frozen)?;
+    // Refused before stepping if the window `4 target` at this S0's stable step would take more
+    // cell updates than a run may (a target of 1e308 s once stepped for ever).
+    let dt = s.stable_dt().to_f64();
+    let cell_steps = (t_max / dt).ceil() * scene.len() as f64;
+    if !(cell_steps <= scene.limits.max_cell_steps) {
+        return Err(Error::range(
+            "command line",
+            "--target-time",
+            target,
+            &format!(
+                "a target whose window of 4 x target takes at most {} cell updates (this one: {} at the stable step {} s with S0 = {s0:.3e}; the scene's re-segregation time sets a sensible target)",
+                crate::text::approx(scene.limits.max_cell_steps),
+                crate::text::approx(cell_steps),
+                crate::text::approx(dt),
+            ),
+        ));
+    }
     let mut timer = SegregationTimer::new(threshold);
     let every = target / 500.0;
     let mut rows = Vec::new();
@@ -149,7 +169,10 @@ fn evaluate<R: Real, const D: usize, const N: usize>(
     loop {
         crate::interrupt::check("sieve fit")?;
         let t = (k as f64 * every).min(t_max);
-        s.advance_to(R::from_f64(t), u64::MAX);
+        // In chunks, so that a signal is seen within a chunk of steps, not only per sample.
+        while s.time().to_f64() < t && s.advance_to(R::from_f64(t), FIT_CHUNK_STEPS) > 0 {
+            crate::interrupt::check("sieve fit")?;
+        }
         let d = diagnose(s);
         let psi = d.psi.to_f64();
         rows.push(SeriesRow {

@@ -31,6 +31,7 @@ pub mod parallel;
 pub mod parallel_mpi;
 pub mod pool;
 pub mod progress;
+pub mod read;
 pub mod run;
 pub mod scene;
 pub mod silo;

@@ -247,6 +247,34 @@ fn fit_reproduces_its_target_time() {
     assert!((t_run / 700.0 - 1.0).abs() <= 0.01, "{t_run}");
 }
 
+/// A target no run can reach is refused before stepping, in one line naming the option (it
+/// once stepped for ever, and a signal was seen only between samples of 2e305 s).
+#[test]
+fn fit_refuses_an_unreachable_target_time() {
+    let d = tmp();
+    let (code, _, err) = run_full(
+        d.path(),
+        &[
+            "fit",
+            "shear-cell",
+            "--levels",
+            "10",
+            "--target-time",
+            "1e308",
+            "--quiet",
+            "--out",
+            "fit",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("--target-time") && err.contains("cell updates"),
+        "{err}"
+    );
+    assert!(!d.path().join("fit/fit.json").exists());
+}
+
 #[test]
 fn fit_rejects_a_prescribed_scene() {
     let d = tmp();

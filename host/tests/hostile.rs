@@ -285,14 +285,19 @@ fn plot_inputs(dir: &Path) -> Vec<std::path::PathBuf> {
         dir.join("series.csv"),
         dir.join("fields/series.pvd"),
     ];
+    v.extend(snapshots(dir).into_iter().take(2));
+    v
+}
+
+/// The `.vti` snapshots of a run directory, in name (= output) order.
+fn snapshots(dir: &Path) -> Vec<std::path::PathBuf> {
     let mut vti: Vec<_> = std::fs::read_dir(dir.join("fields"))
         .expect("fields")
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.extension().is_some_and(|x| x == "vti"))
         .collect();
     vti.sort();
-    v.extend(vti.into_iter().take(2));
-    v
+    vti
 }
 
 /// `sieve plot` on a series.csv whose time runs backwards: a row's t rewritten to
@@ -370,6 +375,61 @@ fn plot_refuses_lying_vti_files() {
     }
     let (code, _, err) = sieve(&["plot", dir.to_str().unwrap()]);
     assert_eq!(code, 0, "restored: {err}");
+}
+
+/// `sieve plot` on a 2D series whose last snapshot is of another grid with the same cell
+/// count (an extent 8 x 1 x 8 rewritten to 2 x 2 x 16: found by a hostile sweep, it indexed
+/// the animation's grid out of bounds, a panic) and whose snapshot is a FIFO (the open
+/// blocked for ever, deaf to SIGTERM) or a device (read without end): each is one line now.
+#[test]
+fn plot_refuses_a_snapshot_of_another_grid_or_not_a_file() {
+    let dir = std::env::temp_dir().join(format!("sieve-hostile-{}-grid2d", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = dir.to_str().expect("utf-8").to_owned();
+    let (code, _, err) = sieve(&[
+        "run",
+        "shear-cell-mixed",
+        "--grid",
+        "8x8",
+        "--t-end",
+        "2",
+        "--out",
+        &out,
+        "--quiet",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let last = snapshots(&dir).pop().expect("snapshots");
+    let good = std::fs::read(&last).expect("read");
+    let text = String::from_utf8_lossy(&good).into_owned();
+    assert!(text.contains("Extent=\"0 8 0 0 0 8\""), "the 2D extent");
+    let bad = text.replace("Extent=\"0 8 0 0 0 8\"", "Extent=\"0 2 0 2 0 16\"");
+    // The appended data are raw bytes: rewrite the header only.
+    let head = text.find("<AppendedData").expect("appended data");
+    let mut b = bad.as_bytes()[..bad.find("<AppendedData").unwrap()].to_vec();
+    b.extend_from_slice(&good[head..]);
+    std::fs::write(&last, &b).expect("write");
+    let (code, _, err) = sieve(&["plot", &out]);
+    assert_eq!(code, 1, "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains(last.file_name().unwrap().to_str().unwrap())
+            && err.contains("in a series of 8 x 1 x 8"),
+        "{err}"
+    );
+    // A FIFO in its place: refused without opening it (exit 2), where mkfifo exists.
+    std::fs::remove_file(&last).expect("remove");
+    let fifo = std::process::Command::new("mkfifo").arg(&last).status();
+    if fifo.is_ok_and(|s| s.success()) {
+        let (code, _, err) = sieve(&["plot", &out]);
+        assert_eq!(code, 2, "{err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(err.contains("not a regular file"), "{err}");
+        std::fs::remove_file(&last).expect("remove the fifo");
+    }
+    std::fs::write(&last, &good).expect("restore");
+    let (code, _, err) = sieve(&["plot", &out]);
+    assert_eq!(code, 0, "restored: {err}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `sieve plot` on a drum run whose radial.csv (drum readouts) is damaged: a value past f64

@@ -146,3 +146,18 @@ fn a_word_in_a_list_and_a_number_list_name_the_element() {
         "scenes/column-a.toml: run.t_end: expected a number, got \"soon\""
     );
 }
+
+/// A `--set` value with a newline and another assignment in it is one value, not two: the
+/// assignment after the newline was once dropped without a word (exit 0), though an unknown
+/// key is an error.
+#[test]
+fn a_set_value_with_a_newline_is_refused_whole() {
+    let err = sieve::scene::load("column-b", &["material.s0=2\nbogus=7".into()])
+        .expect_err("a number followed by a hidden assignment");
+    assert_eq!(err.exit_code(), 2);
+    let text = err.to_string();
+    assert!(text.contains("material.s0"), "{text}");
+    assert_eq!(text.lines().count(), 1, "{text}");
+    // The single value still parses as before.
+    sieve::scene::load("column-b", &["material.s0=2".into()]).expect("a number");
+}

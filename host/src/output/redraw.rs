@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 
 /// Reads `series.csv` (header [`super::csv::SERIES_HEADER`]).
 pub fn read_series(path: &Path) -> Result<Vec<SeriesRow>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::read::text(path, crate::read::MAX_FILE)?;
     let mut lines = text.lines();
     let header = lines.next().unwrap_or_default();
     if header != super::csv::SERIES_HEADER {
@@ -95,7 +95,7 @@ pub fn write_profiles(path: &Path, p: &Profiles) -> Result<()> {
 
 /// Reads `profiles.csv` back; `ratio_theory` is 1 so that the stored ratio is plotted as is.
 fn read_profiles(path: &Path) -> Result<Profiles> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::read::text(path, crate::read::MAX_FILE)?;
     let mut p = Profiles {
         ratio_theory: 1.0,
         ..Profiles::default()
@@ -134,7 +134,7 @@ fn read_profiles(path: &Path) -> Result<Profiles> {
 
 /// `(t, file)` entries of a `.pvd`.
 fn read_pvd(path: &Path) -> Result<Vec<(f64, String)>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::read::text(path, crate::read::MAX_FILE)?;
     let get = |tag: &str, key: &str| -> Option<String> {
         let start = tag.find(&format!("{key}=\""))? + key.len() + 2;
         let end = tag[start..].find('"')? + start;
@@ -149,9 +149,12 @@ fn read_pvd(path: &Path) -> Result<Vec<(f64, String)>> {
 
 /// phihat with empty cells (c <= [`plot::VACUUM`]) as NaN, on the x-z plane (3D: the
 /// mid-plane y slice `ny / 2`).
-fn masked_plane(v: &Vti) -> Result<Vec<f64>> {
+fn masked_plane(v: &Vti, path: &Path) -> Result<Vec<f64>> {
     let (Some(phihat), Some(c)) = (v.array("phihat"), v.array("c")) else {
-        return Err(Error::failure("a .vti without phihat or c"));
+        return Err(Error::failure(format!(
+            "{}: a .vti without phihat or c",
+            path.display()
+        )));
     };
     let [nx, ny, nz] = v.cells;
     // One value per cell, or the file lies about its grid (a hostile extent once indexed out
@@ -159,7 +162,8 @@ fn masked_plane(v: &Vti) -> Result<Vec<f64>> {
     let n = nx.checked_mul(ny).and_then(|m| m.checked_mul(nz));
     if n.is_none_or(|n| phihat.len() != n || c.len() != n) {
         return Err(Error::failure(format!(
-            "a .vti whose arrays ({} phihat, {} c values) do not match its grid of {nx} x {ny} x {nz} cells",
+            "{}: a .vti whose arrays ({} phihat, {} c values) do not match its grid of {nx} x {ny} x {nz} cells",
+            path.display(),
             phihat.len(),
             c.len()
         )));
@@ -184,11 +188,29 @@ fn masked_plane(v: &Vti) -> Result<Vec<f64>> {
     Ok(out)
 }
 
+/// Reads the series' snapshot at `path`, whose grid must be the series' own (`cells`, set by
+/// the first snapshot): the pictures of a series share one grid, and a snapshot of another
+/// grid (a damaged extent, a `series.pvd` naming another run's file) once indexed the
+/// animation's first grid out of bounds.
+fn snapshot(path: &Path, cells: &mut Option<[usize; 3]>) -> Result<Vti> {
+    let v = read_vti(path)?;
+    let first = *cells.get_or_insert(v.cells);
+    if v.cells != first {
+        let [a, b, c] = v.cells;
+        let [d, e, f] = first;
+        return Err(Error::failure(format!(
+            "{}: a snapshot of {a} x {b} x {c} cells in a series of {d} x {e} x {f} (damaged, or series.pvd names another run's file)",
+            path.display()
+        )));
+    }
+    Ok(v)
+}
+
 /// Redraws every picture of the run in `run` into `plots` (which must exist); returns the
 /// file names written.
 pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
     let summary_path = run.join("summary.json");
-    let text = std::fs::read_to_string(&summary_path).map_err(|e| Error::io(&summary_path, e))?;
+    let text = crate::read::text(&summary_path, crate::read::MAX_FILE)?;
     let summary: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| Error::failure(format!("{}: {e}", summary_path.display())))?;
     let name = summary["scene"].as_str().unwrap_or("run").to_string();
@@ -213,10 +235,12 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
         let plan = plot::frame_indices(n, plot::MAX_FRAMES_1D);
         let mut curves = Vec::with_capacity(plan.len());
         let mut geometry = None;
+        let mut cells = None;
         for &k in &plan {
-            let v = read_vti(&fields.join(&entries[k].1))?;
+            let path = fields.join(&entries[k].1);
+            let v = snapshot(&path, &mut cells)?;
             geometry.get_or_insert_with(|| (v.cells[2], v.origin[2], v.spacing[2]));
-            curves.push((v.t, masked_plane(&v)?));
+            curves.push((v.t, masked_plane(&v, &path)?));
         }
         if let Some((nz, z0, h)) = geometry {
             let z: Vec<f64> = (0..nz).map(|i| z0 + (i as f64 + 0.5) * h).collect();
@@ -239,19 +263,21 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
         };
         let mut gif: Option<plot::Animation> = None;
         let gif_name = format!("{prefix}.gif");
+        let mut cells = None;
         for k in 0..n {
             let (still, framed) = (stills.contains(&k), anim.contains(&k));
             if !still && !framed {
                 continue;
             }
-            let v = read_vti(&fields.join(&entries[k].1))?;
+            let path = fields.join(&entries[k].1);
+            let v = snapshot(&path, &mut cells)?;
             let grid = MapGrid {
                 cells: (v.cells[0], v.cells[2]),
                 x: (v.origin[0], v.origin[0] + v.cells[0] as f64 * v.spacing[0]),
                 z: (v.origin[2], v.origin[2] + v.cells[2] as f64 * v.spacing[2]),
                 labels: ("x".into(), "z".into()),
             };
-            let values = masked_plane(&v)?;
+            let values = masked_plane(&v, &path)?;
             let title = format!(
                 "{name}: {what} at t = {} (output {k} of {})",
                 super::num(v.t),
@@ -329,7 +355,7 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
 /// The two radial profiles of `radial.csv` (drum.rs) as curves (r in mm, phihat), empty
 /// rings left out.
 fn read_radial(path: &Path) -> Result<Vec<plot::Curve>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::read::text(path, crate::read::MAX_FILE)?;
     let bad = |line: usize| {
         Error::failure(format!(
             "{}: line {line}: not a radial profile row",
@@ -474,15 +500,15 @@ mod tests {
 
     #[test]
     fn the_solid_of_a_container_is_told_apart_from_empty_cells() {
-        let v = masked_plane(&snapshot(Some(vec![0.0, 1.0, 0.4]))).unwrap();
+        let v = masked_plane(&snapshot(Some(vec![0.0, 1.0, 0.4])), Path::new("t.vti")).unwrap();
         assert_eq!(v[0], plot::SOLID_CELL);
         assert!(v[1].is_nan(), "empty cell: {}", v[1]);
         assert_eq!(v[2], 0.25);
         // Without cut cells there is no solid: empty stays empty.
-        let v = masked_plane(&snapshot(None)).unwrap();
+        let v = masked_plane(&snapshot(None), Path::new("t.vti")).unwrap();
         assert!(v[0].is_nan() && v[1].is_nan());
         // A volume array that does not match the grid is ignored, not indexed.
-        let v = masked_plane(&snapshot(Some(vec![0.0]))).unwrap();
+        let v = masked_plane(&snapshot(Some(vec![0.0])), Path::new("t.vti")).unwrap();
         assert!(v[0].is_nan());
     }
 }

@@ -333,11 +333,10 @@ fn three(s: &str) -> Option<[f64; 3]> {
 /// headers), or a `.pvti` of [`write_pvti`] with its pieces assembled into the whole grid
 /// ([`read_pvti`]).
 pub fn read_vti(path: &Path) -> Result<Vti> {
-    use crate::error::Error;
     if path.extension().is_some_and(|e| e == "pvti") {
         return read_pvti(path);
     }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::read::bytes(path, crate::read::MAX_FILE)?;
     vti_from_bytes(&bytes, &path.display().to_string())
 }
 
@@ -453,7 +452,7 @@ const PVTI_MAX_VALUES: usize = 1 << 30;
 /// reads back as the serial run's snapshot, value for value (`.ci/mpi-check`).
 pub fn read_pvti(path: &Path) -> Result<Vti> {
     use crate::error::Error;
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::read::text(path, crate::read::MAX_FILE)?;
     let bad =
         |why: String| Error::failure(format!("{}: not a sieve .pvti file: {why}", path.display()));
     let numbers = |s: &str| -> Option<[usize; 6]> {

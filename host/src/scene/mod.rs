@@ -718,10 +718,13 @@ pub fn apply_set(label: &str, table: &mut toml::Table, assignment: &str) -> Resu
         ));
     }
     // TOML syntax first (numbers, arrays, booleans, quoted strings); bare text is a string so
-    // that `--set initial.c=0.5*z` works without shell-escaped quotes.
+    // that `--set initial.c=0.5*z` works without shell-escaped quotes. A value that parses to
+    // more than `v` (a newline and another assignment in it) is text too: its rest was once
+    // dropped without a word.
     let value = format!("v = {raw}")
         .parse::<toml::Table>()
         .ok()
+        .filter(|t| t.len() == 1)
         .and_then(|mut t| t.remove("v"))
         .unwrap_or_else(|| toml::Value::String(raw.to_string()));
     let mut node = table;

@@ -521,7 +521,8 @@ pub fn replay_with(
     opts: &ReplayOptions,
     settings: impl FnOnce(&mut SensorConfig<f32>) -> Result<(), String>,
 ) -> Result<ReplayReport, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("cannot read the recording: {e}"))?;
+    let bytes = crate::read::bytes(path, crate::read::MAX_FILE)
+        .map_err(|e| format!("cannot read the recording: {e}"))?;
     replay_bytes_with(&bytes, opts, settings)
 }
 
