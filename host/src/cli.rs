@@ -68,8 +68,9 @@ pub struct SweepArgs {
     /// Print the combinations (index, key=value ...) and run nothing.
     #[arg(long)]
     pub list: bool,
-    /// Run only combination I (a Slurm array task) and write no table.
-    #[arg(long, value_name = "I", env = "SLURM_ARRAY_TASK_ID")]
+    /// Run only combination I (a Slurm array task) and write no table [default: the
+    /// environment's SLURM_ARRAY_TASK_ID, except with --list and --collect].
+    #[arg(long, value_name = "I")]
     pub task: Option<usize>,
     /// Run nothing; build the table and the plot from the runs in DIR.
     #[arg(long, conflicts_with_all = ["list", "task"])]
@@ -584,6 +585,7 @@ fn run_command(a: &RunArgs) -> Result<()> {
         max_steps: a.max_steps,
         max_cell_steps: a.max_cell_steps,
         max_output: a.max_output,
+        flags: true,
     };
     #[cfg(feature = "mpi")]
     {
@@ -822,6 +824,21 @@ pub fn execute(cli: Cli) -> Result<()> {
     }
 }
 
+/// The Slurm array index of this task (`SLURM_ARRAY_TASK_ID`), if the variable is set; a
+/// value that is not an index is refused naming the variable (clap named `--task`, which the
+/// user never typed).
+fn slurm_task() -> Result<Option<usize>> {
+    let Some(v) = std::env::var_os("SLURM_ARRAY_TASK_ID") else {
+        return Ok(None);
+    };
+    let v = v.to_string_lossy();
+    v.trim().parse().map(Some).map_err(|_| {
+        Error::input(format!(
+            "environment variable SLURM_ARRAY_TASK_ID = {v:?} is not a task index: allowed a whole number from 0 (the combinations of `sieve sweep --list`); unset it, or pass --task I"
+        ))
+    })
+}
+
 /// `sieve sweep`: list, one Slurm task, collect, or the whole sweep on the local cores.
 fn sweep(a: &SweepArgs) -> Result<()> {
     use crate::sweep;
@@ -853,7 +870,13 @@ fn sweep(a: &SweepArgs) -> Result<()> {
         jobs: a.jobs.unwrap_or_else(|| {
             std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
         }),
-        task: a.task,
+        task: match a.task {
+            Some(i) => Some(i),
+            // A collect or list job inherits the array's variable when it runs inside the
+            // allocation: it is no task (it was refused as `--task` with `--collect`).
+            None if a.collect => None,
+            None => slurm_task()?,
+        },
         plot: a.plot.clone(),
         quiet: a.quiet,
     };

@@ -113,5 +113,7 @@ impl std::error::Error for Error {}
 /// Scripts parse the message as one line: fold any line breaks a library put in; echo what
 /// the user typed short ([`crate::text::shorten`]: long numbers as `1e300`, long words clipped).
 fn one_line(s: &str) -> String {
-    crate::text::shorten(&s.split_whitespace().collect::<Vec<_>>().join(" "))
+    crate::text::clip_message(&crate::text::shorten(
+        &s.split_whitespace().collect::<Vec<_>>().join(" "),
+    ))
 }

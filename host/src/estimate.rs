@@ -74,12 +74,17 @@ pub fn check_steps(scene: &Scene, dt: f64, seconds_per_step: f64) -> Result<()> 
         &scene.label,
         "run.t_end",
         format!(
-            "t_end = {} with a stable time step of {} would take {} steps ({} cell updates, {rate}), above {flag} = {}: raise {flag} or shorten run.t_end (or check grid.upper, material.s0, material.diffusion, initial.u and initial.T, which set the time step)",
+            "t_end = {} with a stable time step of {} would take {} steps ({} cell updates, {rate}), above {flag} = {}: {} (or check grid.upper, material.s0, material.diffusion, initial.u and initial.T, which set the time step)",
             num(scene.t_end),
             crate::text::approx(dt),
             short(n),
             short(cell_steps),
             num(limit),
+            if lim.flags {
+                format!("raise {flag} or shorten run.t_end")
+            } else {
+                format!("shorten run.t_end or use fewer cells (`sieve run` takes {flag} to raise the limit)")
+            },
         ),
     ))
 }
@@ -162,8 +167,13 @@ pub fn check_output(scene: &Scene, out: &Path) -> Result<()> {
             &scene.label,
             "run.output_interval",
             format!(
-                "{what}, above --max-output = {}: {fix}, or raise --max-output",
-                bytes_text(scene.limits.max_output)
+                "{what}, above --max-output = {}: {fix}{}",
+                bytes_text(scene.limits.max_output),
+                if scene.limits.flags {
+                    ", or raise --max-output"
+                } else {
+                    " (`sieve run` takes --max-output to raise the limit)"
+                }
             ),
         ));
     }

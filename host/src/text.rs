@@ -26,6 +26,21 @@ pub fn shorten(s: &str) -> String {
     out
 }
 
+/// Longest message (characters) before its tail is clipped.
+pub const MAX_MESSAGE: usize = 2_000;
+
+/// `s` with at most [`MAX_MESSAGE`] characters: the rest becomes `... (N chars)`. Words are
+/// clipped one by one by [`shorten`]; this bounds their number (a `series.csv` with CR-only
+/// line endings once echoed its whole 5 MB as the "header" of an error, in short words).
+pub fn clip_message(s: &str) -> String {
+    let n = s.chars().count();
+    if n <= MAX_MESSAGE {
+        return s.to_string();
+    }
+    let head: String = s.chars().take(MAX_MESSAGE).collect();
+    format!("{head}... ({n} chars)")
+}
+
 fn shorten_word(word: &str) -> String {
     let word = short_numbers(word);
     let n = word.chars().count();
@@ -91,5 +106,22 @@ pub fn approx(x: f64) -> String {
             format!("{m}e{exp}")
         }
         None => e,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// Many short words are clipped as a whole: the message of a damaged file that echoes it
+    /// stays a line, not megabytes.
+    #[test]
+    fn a_message_of_many_short_words_is_clipped() {
+        let long = "0,0.5,1 ".repeat(100_000);
+        let e = crate::error::Error::failure(format!("series.csv: unexpected header `{long}`"));
+        let m = e.to_string();
+        assert_eq!(m.lines().count(), 1);
+        assert!(m.chars().count() <= super::MAX_MESSAGE + 30, "{}", m.len());
+        assert!(m.ends_with("... (800032 chars)"), "{}", &m[m.len() - 40..]);
+        // A message within the bound is left as it is.
+        assert_eq!(super::clip_message("short"), "short");
     }
 }

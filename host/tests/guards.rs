@@ -729,3 +729,24 @@ mod helpers {
         sieve::cli::Cli::command().debug_assert();
     }
 }
+
+/// `sieve converge` has no `--max-cell-steps`: its refusal says what it can change (it once
+/// told the user to raise a flag the command does not take).
+#[test]
+fn converge_refusal_names_what_converge_can_change() {
+    let err = refused(
+        &[
+            "converge",
+            "column-b",
+            "--levels",
+            "32768,65536",
+            "--t-end",
+            "1000",
+            "--out",
+            "o",
+        ],
+        &["run.t_end", "use fewer cells", "`sieve run` takes --max-"],
+        20,
+    );
+    assert!(!err.contains("raise --max"), "{err}");
+}

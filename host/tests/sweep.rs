@@ -344,3 +344,32 @@ proptest::proptest! {
         }
     }
 }
+
+/// A collect job inside the array's allocation inherits SLURM_ARRAY_TASK_ID: it is no task
+/// (it was refused as "--collect cannot be used with --task", a flag the user never passed),
+/// and a variable that is not an index is refused naming the variable.
+#[test]
+fn the_slurm_variable_names_itself_and_leaves_collect_alone() {
+    let d = tempfile::tempdir().unwrap();
+    let (code, _, err) = run(sieve(d.path())
+        .env("SLURM_ARRAY_TASK_ID", "0")
+        .args(["sweep", "column-a", "--out", "sw", "--quiet"])
+        .args(SETS));
+    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = run(sieve(d.path())
+        .env("SLURM_ARRAY_TASK_ID", "1")
+        .args(["sweep", "column-a", "--out", "sw", "--collect"])
+        .args(SETS));
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("3 combinations have no run yet"), "{out}");
+    for bad in ["-1", "abc"] {
+        let (code, _, err) = run(sieve(d.path())
+            .env("SLURM_ARRAY_TASK_ID", bad)
+            .args(["sweep", "column-a", "--out", "sw2", "--quiet"])
+            .args(SETS));
+        assert_eq!(code, 2, "{bad}: {err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(err.contains("SLURM_ARRAY_TASK_ID"), "{err}");
+        assert!(!d.path().join("sw2").exists());
+    }
+}

@@ -63,6 +63,21 @@ fn cap_is_the_cost_model_floor() {
     assert_eq!(cpu_budget(DEFAULT_CPU_HZ, 1.0, 0.01).cycles, 1_680_000);
     assert_eq!(cpu_budget(DEFAULT_CPU_HZ, 1.0, 0.01).substeps(G, 64), 1);
     assert_eq!(CycleBudget::for_substeps(3, 1024).substeps(G, 256), 3);
+    // A hostile configuration's largest coefficients and grids saturate, never wrap (a
+    // wrapped sum would read as a cheap tick) and never panic.
+    let huge = CycleBudget {
+        cycles: u32::MAX,
+        per_tick: u32::MAX,
+        per_cell: u32::MAX,
+        per_point: u32::MAX,
+        per_substep: u32::MAX,
+        per_cell_substep: u32::MAX,
+        per_face_substep: u32::MAX,
+    };
+    let g = [usize::from(u16::MAX); 2];
+    assert_eq!(huge.fixed_frames(g, 255 * 255, u32::MAX), u64::MAX);
+    assert_eq!(huge.substep([usize::MAX, usize::MAX]), u64::MAX);
+    assert_eq!(huge.substeps_frames(g, 255 * 255, u32::MAX), 0);
 }
 
 /// The exact shear-cell velocity on an 8 x 8 sensor (divergence-free).

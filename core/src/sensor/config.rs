@@ -145,16 +145,25 @@ impl CycleBudget {
     /// Cycles of the fixed part of a tick that decoded `frames` frames (at least one is
     /// counted).
     pub fn fixed_frames(&self, grid: [usize; 2], points: usize, frames: u32) -> u64 {
-        self.per_tick as u64
-            + self.per_cell as u64 * (grid[0] as u64 * grid[1] as u64)
-            + self.per_point as u64 * points as u64 * frames.max(1) as u64
+        // Saturating: a hostile configuration's coefficients and grids cannot wrap the sum
+        // into a small cost (the configuration is range-checked after its cap is computed).
+        let cells = (grid[0] as u64).saturating_mul(grid[1] as u64);
+        (self.per_tick as u64)
+            .saturating_add((self.per_cell as u64).saturating_mul(cells))
+            .saturating_add(
+                (self.per_point as u64)
+                    .saturating_mul(points as u64)
+                    .saturating_mul(frames.max(1) as u64),
+            )
     }
 
     /// Cycles of one substep for an estimator of `grid` cells (x, z).
     pub fn substep(&self, grid: [usize; 2]) -> u64 {
-        self.per_substep as u64
-            + self.per_cell_substep as u64 * (grid[0] as u64 * grid[1] as u64)
-            + self.per_face_substep as u64 * 2 * (grid[0] as u64 + grid[1] as u64)
+        let cells = (grid[0] as u64).saturating_mul(grid[1] as u64);
+        let faces = 2u64.saturating_mul((grid[0] as u64).saturating_add(grid[1] as u64));
+        (self.per_substep as u64)
+            .saturating_add((self.per_cell_substep as u64).saturating_mul(cells))
+            .saturating_add((self.per_face_substep as u64).saturating_mul(faces))
     }
 
     /// Most substeps one tick can afford: `floor((cycles - fixed) / substep)`, 0 if the fixed

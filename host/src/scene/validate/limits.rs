@@ -13,6 +13,10 @@ pub struct Limits {
     pub max_cell_steps: f64,
     /// Largest estimated output size \[bytes\].
     pub max_output: f64,
+    /// Whether the command that runs takes the flags that raise these (`sieve run`); other
+    /// commands (`converge`, `sweep`, `fit`) use the defaults, and their refusals must not
+    /// tell the user to raise a flag the command does not have.
+    pub flags: bool,
 }
 
 /// Default `--max-steps`: 1e8 steps (430 x the longest built-in run, the 25 s tumbler).
@@ -28,6 +32,7 @@ impl Default for Limits {
             max_steps: MAX_STEPS,
             max_cell_steps: MAX_CELL_STEPS,
             max_output: MAX_OUTPUT,
+            flags: false,
         }
     }
 }
