@@ -117,3 +117,24 @@ fn one_line(s: &str) -> String {
         &s.split_whitespace().collect::<Vec<_>>().join(" "),
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    /// Many short words are clipped as a whole: the message of a damaged file that echoes it
+    /// stays a line, not megabytes (here, not in text.rs: text must not import error).
+    #[test]
+    fn a_message_of_many_short_words_is_clipped() {
+        let long = "0,0.5,1 ".repeat(100_000);
+        let m =
+            super::Error::failure(format!("series.csv: unexpected header `{long}`")).to_string();
+        assert_eq!(m.lines().count(), 1);
+        assert!(
+            m.chars().count() <= crate::text::MAX_MESSAGE + 30,
+            "{}",
+            m.len()
+        );
+        assert!(m.ends_with("... (800032 chars)"), "{}", &m[m.len() - 40..]);
+        // A message within the bound is left as it is.
+        assert_eq!(crate::text::clip_message("short"), "short");
+    }
+}

@@ -108,20 +108,3 @@ pub fn approx(x: f64) -> String {
         None => e,
     }
 }
-
-#[cfg(test)]
-mod tests {
-    /// Many short words are clipped as a whole: the message of a damaged file that echoes it
-    /// stays a line, not megabytes.
-    #[test]
-    fn a_message_of_many_short_words_is_clipped() {
-        let long = "0,0.5,1 ".repeat(100_000);
-        let e = crate::error::Error::failure(format!("series.csv: unexpected header `{long}`"));
-        let m = e.to_string();
-        assert_eq!(m.lines().count(), 1);
-        assert!(m.chars().count() <= super::MAX_MESSAGE + 30, "{}", m.len());
-        assert!(m.ends_with("... (800032 chars)"), "{}", &m[m.len() - 40..]);
-        // A message within the bound is left as it is.
-        assert_eq!(super::clip_message("short"), "short");
-    }
-}
