@@ -908,6 +908,27 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         }
     }
 
+    /// The largest transport rate `sum_a |u_a| / h_a` over the cells \[1/s\]: the Courant
+    /// rate of the transport alone, for a caller that runs transport and percolation as
+    /// separate stages, each on its own limit (the soft sensor's substeps:
+    /// [`Self::step_percolation`], then [`Self::carry_own_velocity`]). A face moves at the
+    /// mean of its two cells' speeds, so a cell can give up to twice this rate, where the
+    /// flow leaves it both ways along an axis; the carry's donor limiter keeps the bounds
+    /// there.
+    pub fn transport_rate(&self) -> R {
+        // a product per cell and axis, not a division (14 cycles on a Cortex-M4F)
+        let inv_h = self.grid.spacing().map(|h| R::ONE / h);
+        let mut rate = R::ZERO;
+        for i in 0..self.grid.len() {
+            let mut r = R::ZERO;
+            for a in 0..D {
+                r += self.u[a][i].abs() * inv_h[a];
+            }
+            rate = rate.max(r);
+        }
+        rate
+    }
+
     /// The percolation stage of one coupled step of length `dt` as `k` equal sub-steps, the
     /// fewest (at most `max_substeps`) that each keep [`Self::stable_dt_percolation`]
     /// (`stable_dt` is its value). Percolation moves phi only, so `c`, `T`, `u` and with them

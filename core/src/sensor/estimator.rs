@@ -80,6 +80,15 @@ pub struct TickProfile {
 /// the drift as well and leave closed boxes as they were).
 pub const PACKING_HEADROOM: f64 = 1.05;
 
+/// Courant number of a substep's carried transport on the cells' speeds
+/// ([`Segregation::transport_rate`]): below 1, so upwinding moves a cell's content without
+/// the donor limiter except where the measured flow diverges from it, with a margin. The
+/// percolation stage keeps the configuration's own `courant` on its own rate. Until
+/// 2026-12-07 one limit took `courant` (0.5) on the sum of both rates, which doubled the
+/// substeps of a flow-dominated discharge for no accuracy (docs/soft-sensor.md "Substep
+/// length").
+pub const TRANSPORT_COURANT: f64 = 0.9;
+
 /// The soft sensor: a [`Segregation`] solver on the estimator grid plus the input filter
 /// state. `N` is the estimator capacity in cells (1024 for 32 x 32).
 ///
@@ -101,7 +110,9 @@ pub const PACKING_HEADROOM: f64 = 1.05;
 ///   were neither received nor held, they are lost: they go to `lag` and
 ///   `Counters::lost_periods`. A late frame whose period a held tick already covered only
 ///   updates the velocity.
-/// * Budget: the advance of `dt` takes `ceil(dt / stable_dt)` equal substeps; if that
+/// * Budget: the advance of `dt` takes `ceil(dt / stable_dt)` equal substeps
+///   ([`Self::stable_dt`]: the percolation stage's and the transport's limits, each on
+///   its own rate); if that
 ///   exceeds what is left of the cap this tick (`floor((budget.cycles - fixed) /
 ///   substep)` of the cost model, [`super::CycleBudget`]), it takes the remaining budget of
 ///   full stable substeps (Courant-limited, so bounded and conservative), adds the shortfall
@@ -142,6 +153,9 @@ pub struct SoftSensor<R: SensorReal, const N: usize> {
     flags: u8,
     /// Substeps taken in the current tick.
     substeps: u16,
+    /// The longest stable substep for the prepared velocity ([`Self::stable_dt`]; not
+    /// state: derived by `prepare_measured`, also on restore).
+    substep_dt: R,
     /// Most substeps of the current tick: what the configuration's cycle budget affords
     /// after the fixed part with `frames` frames decoded.
     cap: u16,
@@ -253,6 +267,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             },
             flags: 0,
             substeps: 0,
+            substep_dt: R::MAX,
             cap: 1,
             frames: 0,
             accepted_this_tick: false,
@@ -344,6 +359,7 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
         self.counters = Counters::default();
         self.flags = 0;
         self.substeps = 0;
+        self.substep_dt = R::MAX;
         self.cap = cfg.substep_cap();
         self.frames = 0;
         self.accepted_this_tick = false;
@@ -601,14 +617,30 @@ impl<R: SensorReal, const N: usize> SoftSensor<R, N> {
             R::ZERO
         };
         self.seg.set_shear_noise(noise);
-        self.seg.prepare_velocity()
+        self.seg.prepare_velocity()?;
+        let rate = self.seg.transport_rate();
+        let transport = if rate > R::ZERO {
+            R::from_f64(TRANSPORT_COURANT) / rate
+        } else {
+            R::MAX
+        };
+        self.substep_dt = self.seg.stable_dt_percolation().min(transport);
+        Ok(())
+    }
+
+    /// The longest substep for the current velocity: the percolation stage's Courant limit
+    /// ([`Segregation::stable_dt_percolation`], the configuration's `courant`) and the
+    /// carried transport's ([`TRANSPORT_COURANT`] over [`Segregation::transport_rate`]),
+    /// each on its own rate; the two stages of a substep run one after the other.
+    pub fn stable_dt(&self) -> R {
+        self.substep_dt
     }
 
     /// Advances by `dt` within what is left of this tick's substep cap (from the cycle
     /// budget, [`SensorConfig::substep_cap`]).
     fn advance(&mut self, dt: R) {
         let left = self.cap.saturating_sub(self.substeps);
-        let sdt = self.seg.stable_dt();
+        let sdt = self.substep_dt;
         let ratio = dt.to_f64() / sdt.to_f64();
         let need = libm::ceil(ratio).max(1.0);
         if need <= left as f64 {

@@ -23,8 +23,8 @@
 //!   shear cells. A scene without shear and with given T cannot be represented (its sensor
 //!   T would be 0) and is rejected.
 //! * **Defaults**: estimator 32 x 32, sensor 8 x 8, 5 % noise, budget 4 substeps per tick;
-//!   the frame period is [`SUBSTEPS_PER_FRAME`] stable estimator substeps (measured on the
-//!   clean velocity, rounded down to two significant digits) and the frames cover `run.t_end`
+//!   the frame period is [`SUBSTEPS_PER_FRAME`] Courant steps of the estimator's combined
+//!   rate (measured on the clean velocity, rounded down to two significant digits) and the frames cover `run.t_end`
 //!   (at most [`MAX_DEFAULT_FRAMES`]).
 //!
 //! A "coupled" scene (issue 9, e.g. `silo`) is recorded by `record_coupled`: the truth is
@@ -49,8 +49,12 @@ const HEATING: f64 = 1.5;
 const ETA0: f64 = 1.3e-4;
 const EPS0: f64 = 1477.15;
 
-/// Default frame period in stable estimator substeps (with the budget of 4 substeps per tick
-/// this leaves room for the noise, which raises the measured shear and so T).
+/// Default frame period in Courant steps of the estimator's combined rate
+/// (`Segregation::stable_dt`: velocity plus segregation speed over the cell size at the
+/// configuration's courant 0.5), about the time the fastest grains take to cross one
+/// estimator cell: frames that resolve the flow's changes cell by cell. (Until 2026-12-07 this
+/// was also the estimator's substep; it now takes longer ones, `SoftSensor::stable_dt`, so a
+/// default frame costs about one substep, not two.)
 pub const SUBSTEPS_PER_FRAME: f64 = 2.0;
 
 /// Most frames of a default recording (about 10 MB with an 8 x 8 sensor).
@@ -67,7 +71,7 @@ pub struct SceneRecordOptions {
     pub noise: f64,
     /// Noise seed.
     pub seed: u64,
-    /// Frame period \[s\]; `None`: [`SUBSTEPS_PER_FRAME`] stable estimator substeps.
+    /// Frame period \[s\]; `None`: [`SUBSTEPS_PER_FRAME`] Courant steps of the estimator.
     pub period: Option<f64>,
     /// Frames; `None`: enough to cover `run.t_end` (at most [`MAX_DEFAULT_FRAMES`]).
     pub frames: Option<u32>,
@@ -274,8 +278,9 @@ fn budget_for(
 }
 
 /// The stable substep of the soft sensor (f32, the firmware's estimator) with the clean
-/// sensor velocity: one tick of a tiny period, then its Courant step.
-fn estimator_dt(cfg: &SensorConfig<f32>, clean: &[f32]) -> Result<f64> {
+/// sensor velocity, and the Courant step of its combined rate that sets the default frame
+/// period ([`SUBSTEPS_PER_FRAME`]): one tick of a tiny period, then both steps.
+fn estimator_dt(cfg: &SensorConfig<f32>, clean: &[f32]) -> Result<(f64, f64)> {
     let mut probe = cfg.clone();
     probe.tick_period = 1e-6;
     probe.budget = CycleBudget::for_substeps(1, probe.cell_count());
@@ -301,7 +306,10 @@ fn estimator_dt(cfg: &SensorConfig<f32>, clean: &[f32]) -> Result<f64> {
         .submit(&frame)
         .map_err(|e| Error::failure(format!("probe frame rejected: {e}")))?;
     sensor.finish_tick();
-    Ok(sensor.segregation().stable_dt() as f64)
+    Ok((
+        sensor.stable_dt() as f64,
+        sensor.segregation().stable_dt() as f64,
+    ))
 }
 
 fn record_loop<R: Real, const D: usize, const N: usize>(
@@ -505,10 +513,12 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
     let clean: Vec<f32> = (0..ns[0] * ns[1])
         .flat_map(|i| [sx[i] as f32, sz[i] as f32])
         .collect();
-    let dt = estimator_dt(&cfg, &clean)?;
+    let (dt, courant_dt) = estimator_dt(&cfg, &clean)?;
     let period = match opts.period {
         Some(p) => p,
-        None if dt.is_finite() && dt < f32::MAX as f64 => round_down_2(SUBSTEPS_PER_FRAME * dt),
+        None if courant_dt.is_finite() && courant_dt < f32::MAX as f64 => {
+            round_down_2(SUBSTEPS_PER_FRAME * courant_dt)
+        }
         None => scene.output_interval,
     };
     let frames = match opts.frames {
@@ -942,7 +952,7 @@ fn record_coupled<R: Real, const D: usize, const N: usize>(
     let dt = if fastest.is_empty() {
         f64::INFINITY
     } else {
-        estimator_dt(&cfg, &fastest)?
+        estimator_dt(&cfg, &fastest)?.0
     };
     cfg.budget = budget_for(&cfg, opts, period, label)?;
     if dt.is_finite() && dt > 0.0 {
