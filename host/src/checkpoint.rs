@@ -24,11 +24,21 @@
 //! a CRC-64/XZ of all
 //! preceding bytes. Tags: 1 u64, 2 f64 (raw bits), 3 f64 array, 4 u64 array, 5 UTF-8 text.
 //! Floats are stored as their bits (f32 solvers widen exactly). Written atomically: a
-//! temporary file in the same directory (`.checkpoint.XXXXXX.part`, six ASCII letters or
-//! digits), `fsync`, rename, `fsync` of the directory; the kept VTK files are `fsync`ed
+//! temporary file in the same directory (`.checkpoint.XXXXXX.part`, six random ASCII letters
+//! or digits), `fsync`, rename, `fsync` of the directory; the kept VTK files are `fsync`ed
 //! before. A SIGKILL during the write leaves the temporary file, which is never read (the
-//! checkpoint is `checkpoint.bin` only); `--resume` removes such files, exactly that pattern. The reader checks the size of the file, the checksum, and
-//! every count against the bytes left before it allocates; any damage is one line, exit 2.
+//! checkpoint is `checkpoint.bin` only). The reader checks the size of the file, the
+//! checksum, and every count against the bytes left before it allocates; any damage is one
+//! line, exit 2.
+//!
+//! **Removal: names recorded, never patterns.** A name pattern cannot tell sieve's file from
+//! a user's of the same shape, so sieve removes a temporary file only under the name a
+//! checkpoint recorded for it: each checkpoint stores (`part.next`) the name the next write
+//! will use, drawn before that file exists; `--resume` removes that one file if it is a
+//! regular file, and the resumed run writes under it again. The temporary file of a run's
+//! first checkpoint is recorded nowhere: a kill during that write leaves it, and the clean-up
+//! keeps the directory with a note. (The kept snapshots in `fields/`, a directory sieve
+//! creates, are still recognised by their names.)
 
 use crate::data::{output_times, FlowSummary, Frozen, LoopStats, SeriesRow};
 use crate::error::{Error, Result};
@@ -501,36 +511,44 @@ const PART_SUFFIX: &str = ".part";
 /// See [`PART_PREFIX`].
 const PART_RANDOM: usize = 6;
 
-/// True for exactly the names [`write_durably`] gives its temporary files.
+/// True for exactly the names [`write_durably`] gives its temporary files (a recorded name
+/// is checked with it before it is used: a damaged checkpoint cannot name `../x`).
 fn is_part_name(name: &str) -> bool {
     name.strip_prefix(PART_PREFIX)
         .and_then(|r| r.strip_suffix(PART_SUFFIX))
         .is_some_and(|r| r.len() == PART_RANDOM && r.bytes().all(|b| b.is_ascii_alphanumeric()))
 }
 
-/// Removes the temporary files that writes killed before their rename (SIGKILL) left in the
-/// checkpoint directory `dir`: regular files with [`write_durably`]'s name pattern, at the
-/// top of `dir` only; nothing else. Best effort (such a file is never read: the checkpoint is
-/// `checkpoint.bin` only). Returns the names removed.
-fn remove_stale_parts(dir: &Path) -> Vec<String> {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return Vec::new();
-    };
-    let mut removed = Vec::new();
-    for entry in entries.flatten() {
-        let Some(name) = entry.file_name().to_str().map(str::to_string) else {
-            continue;
-        };
-        // the entry's own type: a symbolic link is not followed, a directory is not ours
-        if is_part_name(&name)
-            && entry.file_type().is_ok_and(|t| t.is_file())
-            && std::fs::remove_file(entry.path()).is_ok()
-        {
-            removed.push(name);
-        }
+/// A fresh random name of [`is_part_name`]'s pattern (std's randomly keyed hasher and the
+/// clock as the randomness: the name is recorded, not guessed, so it need not be secret).
+fn new_part_name() -> String {
+    use std::hash::{BuildHasher, Hasher};
+    const DIGITS: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789";
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    let mut x = h.finish();
+    let mut name = String::from(PART_PREFIX);
+    for _ in 0..PART_RANDOM {
+        name.push(char::from(DIGITS[(x % DIGITS.len() as u64) as usize]));
+        x /= DIGITS.len() as u64;
     }
-    removed.sort();
-    removed
+    name.push_str(PART_SUFFIX);
+    name
+}
+
+/// Removes the temporary file `name` from the checkpoint directory `dir` if it is a regular
+/// file (a symbolic link is not followed): the one a checkpoint recorded for the write after
+/// it, left by a SIGKILL during that write. Best effort (such a file is never read: the
+/// checkpoint is `checkpoint.bin` only). True if it was removed.
+fn remove_part(dir: &Path, name: &str) -> bool {
+    let path = dir.join(name);
+    is_part_name(name)
+        && std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file())
+        && std::fs::remove_file(&path).is_ok()
 }
 
 /// True for the names of the snapshots a checkpoint keeps in its `fields/` ([`snapshot_name`],
@@ -552,11 +570,11 @@ fn is_snapshot_name(name: &str) -> bool {
     }
 }
 
-/// Removes a checkpoint directory's own files (the state file, stale temporary files, the
-/// kept snapshots in `fields/`) and then the directories if they are empty. Anything else
-/// (a file sieve did not write) is left where it is, with its directory; the returned
-/// message says so. Never follows a symbolic link.
-fn remove_checkpoint_dir(dir: &Path) -> Result<Option<String>> {
+/// Removes a checkpoint directory's own files (the state file, the temporary file `part` its
+/// checkpoint recorded, the kept snapshots in `fields/`) and then the directories if they
+/// are empty. Anything else (a file sieve did not write) is left where it is, with its
+/// directory; the returned message says so. Never follows a symbolic link.
+fn remove_checkpoint_dir(dir: &Path, part: Option<&str>) -> Result<Option<String>> {
     let fields = dir.join("fields");
     if let Ok(entries) = std::fs::read_dir(&fields) {
         for entry in entries.flatten() {
@@ -574,7 +592,9 @@ fn remove_checkpoint_dir(dir: &Path) -> Result<Option<String>> {
     if std::fs::symlink_metadata(&state).is_ok_and(|m| m.is_file()) {
         std::fs::remove_file(&state).map_err(|e| Error::io(&state, e))?;
     }
-    remove_stale_parts(dir);
+    if let Some(name) = part {
+        remove_part(dir, name);
+    }
     if !dir.exists() || std::fs::remove_dir(dir).is_ok() {
         return Ok(None);
     }
@@ -584,7 +604,8 @@ fn remove_checkpoint_dir(dir: &Path) -> Result<Option<String>> {
     )))
 }
 
-/// A new temporary file in `dir`, named by the pattern [`remove_stale_parts`] matches.
+/// A new temporary file in `dir` with a random name of [`is_part_name`]'s pattern (when the
+/// recorded name is taken).
 fn part_file(dir: &Path) -> std::io::Result<tempfile::NamedTempFile> {
     tempfile::Builder::new()
         .prefix(PART_PREFIX)
@@ -593,10 +614,32 @@ fn part_file(dir: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         .tempfile_in(dir)
 }
 
-/// Writes `bytes` to `path` atomically and durably: temporary file, fsync, rename, fsync of
+/// Writes `bytes` to `path` atomically and durably: temporary file `part` beside it (the name
+/// the checkpoint on disk recorded; a random one if that is taken), fsync, rename, fsync of
 /// the directory.
-fn write_durably(path: &Path, bytes: &[u8]) -> Result<()> {
+fn write_durably(path: &Path, bytes: &[u8], part: &str) -> Result<()> {
     let dir = path.parent().unwrap_or(Path::new("."));
+    let named = dir.join(part);
+    let opened = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&named);
+    match opened {
+        Ok(mut file) => {
+            let done = file
+                .write_all(bytes)
+                .and_then(|()| file.sync_all())
+                .and_then(|()| std::fs::rename(&named, path));
+            if let Err(e) = done {
+                let _ = std::fs::remove_file(&named); // created above: sieve's own
+                return Err(Error::io(path, e));
+            }
+            sync_dir(dir);
+            return Ok(());
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+        Err(e) => return Err(Error::io(&named, e)),
+    }
     let mut tmp = part_file(dir).map_err(|e| Error::io(dir, e))?;
     tmp.write_all(bytes).map_err(|e| Error::io(tmp.path(), e))?;
     tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
@@ -660,6 +703,9 @@ pub struct Session {
     /// Snapshot writes in flight ([`crate::output::writer`]): a checkpoint keeps copies of
     /// the snapshots written before it, so it waits for them first.
     writes: Option<std::sync::Arc<crate::output::writer::Pending>>,
+    /// Name of the temporary file of the next write, and whether the checkpoint on disk
+    /// records it (only then may a clean-up remove a file of that name).
+    part: (String, bool),
 }
 
 impl Session {
@@ -692,15 +738,25 @@ impl Session {
             resumed: None,
             written: 0,
             writes: None,
+            part: (new_part_name(), false),
             dir,
         };
         match resume {
             Some(stored) => {
                 stored.check_identity(scene, fields)?;
+                // a run killed while it wrote the checkpoint after this one left the
+                // temporary file this one recorded (one writer: a Session exists on rank 0
+                // only under mpirun); the next write uses that name again
+                if let Some(name) = stored
+                    .entries
+                    .text("part.next")
+                    .ok()
+                    .filter(|n| is_part_name(n))
+                {
+                    remove_part(&s.dir, name);
+                    s.part = (name.to_string(), true);
+                }
                 s.adopt(stored.entries)?;
-                // a run killed while it wrote a checkpoint left its temporary file (one
-                // writer: a Session exists on rank 0 only under mpirun)
-                remove_stale_parts(&s.dir);
             }
             None => {
                 if s.dir.join(STATE_FILE).exists() {
@@ -711,7 +767,7 @@ impl Session {
                         target.display()
                     )));
                 }
-                if let Some(note) = remove_checkpoint_dir(&s.dir)? {
+                if let Some(note) = remove_checkpoint_dir(&s.dir, None)? {
                     eprintln!("{note}");
                 }
             }
@@ -1047,7 +1103,13 @@ impl Session {
             }
         }
         solvers(&mut e);
-        write_durably(&self.dir.join(STATE_FILE), &encode(&e))?;
+        // the name of the next write's temporary file, recorded before that file exists
+        let next = std::iter::repeat_with(new_part_name)
+            .find(|n| *n != self.part.0)
+            .unwrap_or_default();
+        e.put("part.next", Value::Text(next.clone()));
+        write_durably(&self.dir.join(STATE_FILE), &encode(&e), &self.part.0)?;
+        self.part = (next, true);
         self.written += 1;
         self.last = Instant::now();
         Ok(())
@@ -1055,7 +1117,8 @@ impl Session {
 
     /// After DIR has been committed: the checkpoint is no longer needed.
     pub fn finish(self) -> Result<()> {
-        if let Some(note) = remove_checkpoint_dir(&self.dir)? {
+        let part = self.part.1.then_some(self.part.0.as_str());
+        if let Some(note) = remove_checkpoint_dir(&self.dir, part)? {
             eprintln!("{note}");
         }
         Ok(())
@@ -1423,13 +1486,14 @@ mod tests {
         assert_eq!(e.u64s("kept.piece.crc", 2).unwrap(), &[p0.1, p1.1]);
 
         // resumed into a new staging directory: the kept files linked, the names as written,
-        // a stale temporary file of sieve's removed and nothing else
+        // the stale temporary file the checkpoint recorded removed and nothing else
         let ckdir = dir_of(&target);
-        put(&ckdir, ".checkpoint.Ab12Cd.part", "SIEVECKP half");
+        let recorded = e.text("part.next").unwrap().to_string();
+        put(&ckdir, &recorded, "SIEVECKP half");
         put(&ckdir, "notes.txt", "the user's");
         let stage2 = d.path().join("stage2");
         let r = session(&target, &stage2, Some(stored)).unwrap();
-        assert!(!ckdir.join(".checkpoint.Ab12Cd.part").exists());
+        assert!(!ckdir.join(&recorded).exists());
         assert_eq!(
             std::fs::read_to_string(ckdir.join("notes.txt")).unwrap(),
             "the user's"
@@ -1508,67 +1572,98 @@ mod tests {
             ".checkpoint.aZ09xY.bin",
             ".checkpoint.äZ09x.part",
             "checkpoint.bin",
+            "../.checkpoint.aZ09xY.part",
         ] {
             assert!(!is_part_name(name), "{name}");
         }
         let d = tempfile::tempdir().unwrap();
         let dir = d.path();
         put(dir, ".checkpoint.Ab12Cd.part", "half a checkpoint");
-        put(dir, ".checkpoint.zzzzzz.part", "");
-        put(dir, ".checkpoint.notes.part", "the user's");
         put(dir, "notes.txt", "the user's");
-        // a directory and a symbolic link with the pattern: not files sieve wrote
+        assert!(remove_part(dir, ".checkpoint.Ab12Cd.part"));
+        assert!(!dir.join(".checkpoint.Ab12Cd.part").exists());
+        // not a name of the pattern, a directory, a symbolic link: not files sieve wrote
+        assert!(!remove_part(dir, "notes.txt"));
         std::fs::create_dir_all(dir.join(".checkpoint.Dir123.part")).unwrap();
-        std::fs::create_dir_all(dir.join("fields")).unwrap();
-        put(
-            &dir.join("fields"),
-            ".checkpoint.Ab12Cd.part",
-            "not at the top",
-        );
+        assert!(!remove_part(dir, ".checkpoint.Dir123.part"));
         std::os::unix::fs::symlink("notes.txt", dir.join(".checkpoint.Link12.part")).unwrap();
-        assert_eq!(
-            remove_stale_parts(dir),
-            [".checkpoint.Ab12Cd.part", ".checkpoint.zzzzzz.part"]
-        );
-        let mut left: Vec<String> = std::fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        left.sort();
-        assert_eq!(
-            left,
-            [
-                ".checkpoint.Dir123.part",
-                ".checkpoint.Link12.part",
-                ".checkpoint.notes.part",
-                "fields",
-                "notes.txt"
-            ]
-        );
-        assert!(dir.join("fields/.checkpoint.Ab12Cd.part").exists());
+        assert!(!remove_part(dir, ".checkpoint.Link12.part"));
+        assert!(dir.join(".checkpoint.Link12.part").exists());
         assert_eq!(
             std::fs::read_to_string(dir.join("notes.txt")).unwrap(),
             "the user's"
         );
-        assert!(remove_stale_parts(&dir.join("absent")).is_empty());
+        assert!(!remove_part(&dir.join("absent"), ".checkpoint.Ab12Cd.part"));
     }
 
+    /// A user's file whose name has the temporary files' pattern survives a resume and the
+    /// end of the resumed run (once every file of that pattern was removed on resume): only
+    /// the name a checkpoint recorded goes.
     #[test]
-    fn the_temporary_files_have_the_pattern_removed_on_resume() {
+    fn a_users_file_of_the_temporary_pattern_survives_a_resume() {
         let d = tempfile::tempdir().unwrap();
+        let (target, stage) = (d.path().join("run"), d.path().join("stage"));
+        std::fs::create_dir_all(&stage).unwrap();
+        put(&stage, "state_0000.vti", "snapshot 0");
+        let progress = Progress {
+            next: 1,
+            ..Progress::default()
+        };
+        let mut s = session(&target, &stage, None).unwrap();
+        s.save(&progress, |_| {}).unwrap();
+        s.save(&progress, |_| {}).unwrap();
+        let ck = dir_of(&target);
+        // two writes, nothing left beside the state but the kept snapshot
+        let mut names: Vec<String> = std::fs::read_dir(&ck)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, [STATE_FILE, "fields"]);
+        let stored = Stored::open(&target).unwrap();
+        let recorded = stored.entries.text("part.next").unwrap().to_string();
+        assert!(is_part_name(&recorded), "{recorded}");
+        let users = ".checkpoint.Ab12Cd.part";
+        assert_ne!(recorded, users);
+        put(&ck, users, "the user's");
+        put(
+            &ck,
+            &recorded,
+            "SIEVECKP, half written when the run was killed",
+        );
+        let mut r = session(&target, &d.path().join("stage2"), Some(stored)).unwrap();
+        assert!(!ck.join(&recorded).exists(), "the recorded .part is left");
+        assert_eq!(
+            std::fs::read_to_string(ck.join(users)).unwrap(),
+            "the user's"
+        );
+        // the resumed run writes under the recorded name again, records a new one, and at
+        // its end removes its own files only
+        r.save(&progress, |_| {}).unwrap();
+        let again = Stored::open(&target).unwrap();
+        assert_ne!(again.entries.text("part.next").unwrap(), recorded);
+        r.finish().unwrap();
+        assert!(!ck.join(STATE_FILE).exists() && !ck.join("fields").exists());
+        assert_eq!(
+            std::fs::read_to_string(ck.join(users)).unwrap(),
+            "the user's"
+        );
+
+        // write_durably: the recorded name, or a random one when that is taken
         let path = d.path().join(STATE_FILE);
-        write_durably(&path, b"abc").unwrap();
+        write_durably(&path, b"abc", ".checkpoint.Ab12Cd.part").unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), b"abc");
-        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1);
-        // the names write_durably's temporary files get match the pattern removed on resume
+        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 4);
+        put(d.path(), ".checkpoint.Taken1.part", "the user's");
+        write_durably(&path, b"def", ".checkpoint.Taken1.part").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"def");
+        let taken = d.path().join(".checkpoint.Taken1.part");
+        assert_eq!(std::fs::read_to_string(taken).unwrap(), "the user's");
         for _ in 0..200 {
-            let t = part_file(d.path()).unwrap();
-            let name = t.path().file_name().unwrap().to_str().unwrap().to_string();
-            assert!(is_part_name(&name), "{name}");
-            assert_eq!(remove_stale_parts(d.path()), [name]);
-            assert!(path.exists());
+            assert!(is_part_name(&new_part_name()));
         }
     }
+
     #[test]
     fn removing_the_checkpoint_directory_keeps_what_sieve_did_not_write() {
         for name in ["state_0001.vti", "state_0012.pvti", "state_0002_3.vti"] {
@@ -1599,15 +1694,20 @@ mod tests {
         // only sieve's files: the directory goes
         let own = d.path().join(".a.checkpoint");
         fill(&own);
-        assert_eq!(remove_checkpoint_dir(&own).unwrap(), None);
+        assert_eq!(
+            remove_checkpoint_dir(&own, Some(".checkpoint.Ab12Cd.part")).unwrap(),
+            None
+        );
         assert!(!own.exists());
-        assert_eq!(remove_checkpoint_dir(&own).unwrap(), None);
+        assert_eq!(remove_checkpoint_dir(&own, None).unwrap(), None);
         // a user's files beside them: those stay, with their directories, and a note says so
         let mixed = d.path().join(".b.checkpoint");
         fill(&mixed);
         std::fs::write(mixed.join("notes.txt"), "the user's").unwrap();
         std::fs::write(mixed.join("fields/plot.png"), "the user's").unwrap();
-        let note = remove_checkpoint_dir(&mixed).unwrap().unwrap();
+        let note = remove_checkpoint_dir(&mixed, Some(".checkpoint.Ab12Cd.part"))
+            .unwrap()
+            .unwrap();
         assert!(note.contains(".b.checkpoint"), "{note}");
         assert!(!mixed.join(STATE_FILE).exists());
         assert!(!mixed.join(".checkpoint.Ab12Cd.part").exists());
@@ -1620,5 +1720,10 @@ mod tests {
             std::fs::read_to_string(mixed.join("fields/plot.png")).unwrap(),
             "the user's"
         );
+        // no checkpoint records a temporary file (a run killed during its first one): kept
+        let unrecorded = d.path().join(".c.checkpoint");
+        fill(&unrecorded);
+        assert!(remove_checkpoint_dir(&unrecorded, None).unwrap().is_some());
+        assert!(unrecorded.join(".checkpoint.Ab12Cd.part").exists());
     }
 }

@@ -384,9 +384,10 @@ fn refusals_name_the_checkpoint_and_what_to_do() {
     assert!(!d.path().join(".run.checkpoint").exists());
 }
 
-/// A name sieve gives the temporary file of a checkpoint write (checkpoint.rs,
-/// `write_durably`): `.checkpoint.`, six ASCII letters or digits, `.part`.
-const STALE_PART: &str = ".checkpoint.Ab12Cd.part";
+/// A name of the pattern sieve's temporary checkpoint files have (checkpoint.rs,
+/// `write_durably`): `.checkpoint.`, six ASCII letters or digits, `.part`. Sieve removes only
+/// the one name a checkpoint recorded (`part.next`), so a user's file of this name stays.
+const PATTERN_PART: &str = ".checkpoint.Ab12Cd.part";
 
 #[test]
 fn a_stale_temporary_file_is_removed_on_resume_and_never_read() {
@@ -410,11 +411,20 @@ fn a_stale_temporary_file_is_removed_on_resume_and_never_read() {
     let state = kill_after_checkpoint(d.path(), &args, None);
     let ck = state.parent().unwrap().to_path_buf();
     let good = std::fs::read(&state).unwrap();
-    // what a SIGKILL during a checkpoint write leaves: the start of a checkpoint
-    std::fs::write(ck.join(STALE_PART), &good[..good.len() / 2]).unwrap();
-    // not sieve's: a user's file and names close to the pattern
+    // what a SIGKILL during the next checkpoint write leaves: the start of a checkpoint,
+    // under the name this one recorded for it
+    let recorded = decode(&good)
+        .unwrap()
+        .text("part.next")
+        .unwrap()
+        .to_string();
+    assert_ne!(recorded, PATTERN_PART);
+    let stale = ck.join(&recorded);
+    std::fs::write(&stale, &good[..good.len() / 2]).unwrap();
+    // not sieve's: a user's file, one of the pattern and names close to it
     let users = [
         "notes.txt",
+        PATTERN_PART,
         ".checkpoint.mine.part",
         ".checkpoint.Ab12Cd.part.bak",
         ".checkpoint.Ab12Cde.part",
@@ -427,14 +437,14 @@ fn a_stale_temporary_file_is_removed_on_resume_and_never_read() {
     std::fs::write(ck.join(".checkpoint.Whole1.part"), &good).unwrap();
     let resume = ["run", "--resume", "run", "-q"];
     one_line_refusal(d.path(), &resume, &["no checkpoint", "checkpoint.bin"]);
-    assert!(ck.join(STALE_PART).exists(), "a refused resume changed it");
+    assert!(stale.exists(), "a refused resume changed it");
     std::fs::write(&state, &good).unwrap();
 
-    // resumed, and killed after its next checkpoint: sieve's stale files are gone, the
-    // user's are untouched
+    // resumed, and killed after its next checkpoint: sieve's stale file is gone, the
+    // user's are untouched (a whole checkpoint under a name no checkpoint recorded, too)
     kill_after_checkpoint(d.path(), &resume, Some(&good));
-    assert!(!ck.join(STALE_PART).exists(), "the stale .part is left");
-    assert!(!ck.join(".checkpoint.Whole1.part").exists());
+    assert!(!stale.exists(), "the stale .part is left");
+    assert!(ck.join(".checkpoint.Whole1.part").exists());
     for name in users {
         assert_eq!(
             std::fs::read_to_string(ck.join(name)).unwrap(),
