@@ -437,6 +437,13 @@ impl Stored {
     /// Reads and checks the checkpoint of target `target` (exit 2 with one line if there is
     /// none or it is damaged).
     pub fn open(target: &Path) -> Result<Self> {
+        // `dir_of` needs the run's own name: without one (`/`, `..`) it would look in `.`
+        if target.file_name().is_none() {
+            return Err(Error::Input(format!(
+                "{}: --resume takes the --out DIR of the checkpointed run, a path that ends in its name (not `/`, `.` or `..`), e.g. --resume runs/NAME",
+                target.display()
+            )));
+        }
         let dir = dir_of(target);
         let path = dir.join(STATE_FILE);
         if let Err(e) = std::fs::metadata(&path) {

@@ -12,6 +12,7 @@ mod flow_cli;
 mod frame_equivalence;
 mod guards;
 mod hostile;
+mod hostile_input;
 mod house;
 mod isa;
 mod outsafe;

@@ -105,9 +105,10 @@ pub fn stem_of(target: &Path) -> String {
         .unwrap_or_else(|| "run".into())
 }
 
-/// Refuses `.`, `..`, `/` and any directory that holds the current one.
+/// Refuses `.`, `..`, `/`, any directory that holds the current one, and a path below a file.
 pub fn refuse_ancestor(target: &Path) -> Result<()> {
     let shown = target.display();
+    refuse_file_parent(target)?;
     let lexical = target.file_name().is_none(); // ".", "..", "/", "a/.."
     let Ok(canon) = std::fs::canonicalize(target) else {
         if lexical {
@@ -121,11 +122,40 @@ pub fn refuse_ancestor(target: &Path) -> Result<()> {
         .ok()
         .and_then(|d| std::fs::canonicalize(d).ok());
     let holds_cwd = cwd.as_deref().is_some_and(|c| c.starts_with(&canon));
-    if lexical || holds_cwd || canon.parent().is_none() {
+    if holds_cwd || canon.parent().is_none() {
         return Err(Error::Input(format!(
             "{shown}: is the current directory or one of its parents ({}), which sieve never replaces; choose a new directory, e.g. --out runs/NAME",
             canon.display()
         )));
+    }
+    if lexical {
+        // `a/..`: sieve writes beside DIR under DIR's name, which this path does not give
+        return Err(Error::Input(format!(
+            "{shown}: ends in `..`, not in a directory's name; name the directory itself ({}) or choose a new one, e.g. --out runs/NAME",
+            canon.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Refuses (exit 2) a `target` below an existing file (`file.txt/sub`): creating its parent
+/// would fail with a bare "File exists", exit 1.
+fn refuse_file_parent(target: &Path) -> Result<()> {
+    for up in target.ancestors().skip(1) {
+        if up.as_os_str().is_empty() {
+            break;
+        }
+        match std::fs::metadata(up) {
+            Ok(m) if m.is_dir() => break,
+            Ok(_) => {
+                return Err(Error::Input(format!(
+                    "{}: its parent {} is a file, not a directory; choose another --out",
+                    target.display(),
+                    up.display()
+                )))
+            }
+            Err(_) => {}
+        }
     }
     Ok(())
 }
@@ -365,6 +395,7 @@ pub fn claim(target: &Path) -> Result<Lock> {
 /// before); exit 2 otherwise. The file itself is then written atomically.
 pub fn claim_file(path: &Path, magic: &[u8]) -> Result<()> {
     use std::io::Read;
+    refuse_file_parent(path)?;
     if path.is_dir() || path.file_name().is_none() {
         return Err(Error::Input(format!(
             "{}: is a directory; --out takes a file name, e.g. --out runs/NAME.rec",
