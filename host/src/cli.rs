@@ -449,6 +449,20 @@ fn grid_array(grid: &str) -> Result<String> {
             "--grid {grid}: expected cells per axis as NXxNY[xNZ], e.g. 128x64"
         )));
     }
+    // Checked here: past 2^63 the number is no TOML integer, and the scene would be blamed
+    // for a list it cannot read.
+    let max = scene::validate::MAX_AXIS_CELLS;
+    if parts
+        .iter()
+        .any(|p| !p.parse::<usize>().is_ok_and(|n| (1..=max).contains(&n)))
+    {
+        return Err(Error::range(
+            "command line",
+            "--grid",
+            grid,
+            &format!("1..={max} cells per axis, NXxNY[xNZ]"),
+        ));
+    }
     Ok(format!("[{}]", parts.join(",")))
 }
 
@@ -476,6 +490,15 @@ fn run_overrides(a: &RunArgs, spec: &str) -> Result<Vec<String>> {
         sets.push(format!("numerics.courant={c}"));
     }
     if !a.fields.is_empty() {
+        use crate::scene::validate::output::ARRAYS;
+        if a.fields.iter().any(|f| !ARRAYS.contains(&f.trim())) {
+            return Err(Error::range(
+                "command line",
+                "--fields",
+                a.fields.join(","),
+                &format!("names among {}, comma separated", ARRAYS.join(", ")),
+            ));
+        }
         let quoted: Vec<String> = a.fields.iter().map(|f| format!("{:?}", f.trim())).collect();
         sets.push(format!("output.fields=[{}]", quoted.join(",")));
     }

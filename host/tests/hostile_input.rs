@@ -30,6 +30,43 @@ fn names(dir: &Path) -> Vec<String> {
 }
 
 #[test]
+fn a_box_past_the_plots_range_is_refused_before_the_run() {
+    let d = tempfile::tempdir().unwrap();
+    fn run(set: &str) -> [&str; 7] {
+        ["run", "shear-cell-mixed", "-q", "--set", set, "--out", "r"]
+    }
+    // Once: the whole run, then exit 1 at the first plot ("values out of the plottable
+    // range (0e0 .. 1e151)").
+    refused(
+        d.path(),
+        &run("grid.upper=[1e151,0.025]"),
+        &["grid.upper[0] = 1e151", "1e150"],
+    );
+    refused(
+        d.path(),
+        &run("grid.lower=[-1e200,0]"),
+        &["grid.lower[0] = -1e200", "1e150"],
+    );
+    // a span lost against its coordinates: no plot can tell it from a point
+    refused(
+        d.path(),
+        &[
+            "run",
+            "shear-cell-mixed",
+            "-q",
+            "--set",
+            "grid.lower=[1e6,0]",
+            "--set",
+            "grid.upper=[1000000.0000000001,0.025]",
+            "--out",
+            "r",
+        ],
+        &["grid.upper[0]", "1e-15"],
+    );
+    assert!(names(d.path()).is_empty(), "{:?}", names(d.path()));
+}
+
+#[test]
 fn resume_of_a_path_without_a_name_is_refused() {
     let d = tempfile::tempdir().unwrap();
     // a checkpoint of a run into `./run` must not be taken for `/`'s
@@ -99,4 +136,50 @@ fn an_out_path_below_a_file_is_refused_in_words() {
         "the user's"
     );
     assert_eq!(names(d.path()), ["file.txt"]);
+}
+
+#[test]
+fn grid_and_fields_options_are_named_with_their_range() {
+    let d = tempfile::tempdir().unwrap();
+    // Once: `grid.cells: expected a list, got "[1e20,1]"`.
+    for grid in ["99999999999999999999x1", "65537x2", "0x4"] {
+        refused(
+            d.path(),
+            &[
+                "run",
+                "shear-cell-mixed",
+                "-q",
+                "--grid",
+                grid,
+                "--out",
+                "r",
+            ],
+            &["--grid = ", "1..=65536 cells per axis"],
+        );
+    }
+    // Once: the same line twice, blaming output.fields of the scene file.
+    for fields in [",", "phihat,,c", "bogus,bogus"] {
+        let err = refused(
+            d.path(),
+            &["run", "column-a", "-q", "--fields", fields, "--out", "r"],
+            &["--fields", "phihat, phi, c, T, u, p, volume"],
+        );
+        assert!(!err.contains("column-a.toml"), "{err}");
+    }
+    assert!(names(d.path()).is_empty());
+}
+
+#[test]
+fn a_hopper_centre_outside_the_box_is_one_line() {
+    let d = tempfile::tempdir().unwrap();
+    // Once: a second line, outlet_width "< -2e300 [m]", measured from the refused centre.
+    for center in ["[1e300,0.25]", "[-1,-1]", "[100,100]"] {
+        let set = format!("geometry.center={center}");
+        let err = refused(
+            d.path(),
+            &["run", "hopper", "-q", "--set", &set, "--out", "r"],
+            &["geometry.center[0]", "the outlet's centre inside the box"],
+        );
+        assert!(!err.contains("outlet_width"), "{err}");
+    }
 }

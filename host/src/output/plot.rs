@@ -298,7 +298,7 @@ fn near_axis(v: f64, (lo, hi): (f64, f64)) -> f64 {
 
 /// The largest magnitude an axis may reach: beyond it the plotting library's tick
 /// computation overflows or loops (values read from a damaged file).
-pub const MAX_PLOTTABLE: f64 = 1e150;
+pub const MAX_PLOTTABLE: f64 = crate::scene::validate::MAX_COORDINATE;
 
 /// Why the axis ranges `axes` (low, high) cannot be drawn, if they cannot: the plotting
 /// library's tick computation overflows or loops on spans that are not finite, vanish against

@@ -493,7 +493,8 @@ pub(super) fn check(
             }
         }
         ShapeKind::Hopper => {
-            if !(center[0] > lower[0] && center[0] < upper[0]) {
+            let inside = center[0] > lower[0] && center[0] < upper[0];
+            if !inside {
                 ok = false;
                 p.push(Error::range(
                     l,
@@ -522,7 +523,9 @@ pub(super) fn check(
                 }
             };
             let width = positive(p, l, "geometry.outlet_width", g.outlet_width, "hopper");
-            if let Some(w) = width {
+            // the room for the outlet is measured from the centre: none to report (a second,
+            // nonsensical line) when the centre is refused above
+            if let Some(w) = width.filter(|_| inside) {
                 let room_x = (center[0] - lower[0]).min(upper[0] - center[0]);
                 if w / 2.0 >= room_x || w < h_min {
                     ok = false;

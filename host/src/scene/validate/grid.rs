@@ -1,6 +1,6 @@
 //! `[grid]`: cells per axis within the compiled capacity, a box with upper > lower.
 
-use super::{axis_names, vector, Problems, CAPACITY, MAX_AXIS_CELLS};
+use super::{axis_names, vector, Problems, CAPACITY, MAX_AXIS_CELLS, MAX_COORDINATE};
 use crate::error::Error;
 use crate::scene::GridSpec;
 
@@ -65,6 +65,40 @@ pub(super) fn check(p: &mut Problems, l: &str, g: &GridSpec, dim: usize) -> Opti
                 &format!("grid.upper[{a}]"),
                 upper[a],
                 &format!("a number > grid.lower[{a}] = {}", lower[a]),
+            ));
+        }
+    }
+    for a in 0..dim {
+        // what the plots can draw (`output::plot::unplottable`): a finite span, not lost
+        // against the coordinates' magnitude, within MAX_COORDINATE
+        let mag = lower[a].abs().max(upper[a].abs());
+        let key = if upper[a].abs() >= lower[a].abs() {
+            "grid.upper"
+        } else {
+            "grid.lower"
+        };
+        let value = if key == "grid.upper" {
+            upper[a]
+        } else {
+            lower[a]
+        };
+        if mag > MAX_COORDINATE {
+            boxed = false;
+            p.push(Error::range(
+                l,
+                &format!("{key}[{a}]"),
+                value,
+                &format!("-{MAX_COORDINATE:e} to {MAX_COORDINATE:e} in m (the plots' range)"),
+            ));
+        } else if boxed && upper[a] - lower[a] < 1e-15 * mag {
+            boxed = false;
+            p.push(Error::range(
+                l,
+                &format!("grid.upper[{a}]"),
+                upper[a],
+                &format!(
+                    "at least grid.lower[{a}] + 1e-15 x {mag:e} in m (a box the plots can tell from a point)"
+                ),
             ));
         }
     }

@@ -41,6 +41,10 @@ use sieve_core::{Boundary, Phase, Scheme, Transport};
 pub const CAPACITY: [usize; 3] = [65536, 262_144, 262_144];
 /// Largest number of cells along one axis.
 pub const MAX_AXIS_CELLS: usize = 65536;
+/// Largest magnitude of a box corner (`grid.lower`, `grid.upper`) in m: the plots drawn at
+/// the end of a run cannot draw an axis past it (`output::plot::MAX_PLOTTABLE`), so a box
+/// beyond it is refused before the run instead of after.
+pub const MAX_COORDINATE: f64 = 1e150;
 
 /// Physical axis index (0 = x, 1 = y, 2 = z) of each solver axis, per dimension.
 pub fn physical_axes(dim: usize) -> &'static [usize] {

@@ -54,9 +54,11 @@ pub(super) fn check(p: &mut Problems, l: &str, spec: Option<&OutputSpec>) -> Opt
     let mut model = OutputModel::default();
     if let Some(list) = &spec.fields {
         let mut fields = vec!["phihat", "c"];
-        for name in list {
+        for (i, name) in list.iter().enumerate() {
             match ARRAYS.iter().find(|a| **a == name.as_str()) {
                 Some(a) => fields.push(a),
+                // one line per wrong name, however often it is listed
+                None if list[..i].contains(name) => {}
                 None => {
                     ok = false;
                     p.push(Error::range(
