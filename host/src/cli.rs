@@ -870,6 +870,7 @@ fn sweep(a: &SweepArgs) -> Result<()> {
         crate::out!("{}", sweep::list(&axes))?;
         return Ok(());
     }
+    sweep::check_plot(&a.plot)?;
     // The scene must exist and every combination's keys must apply before anything runs.
     let src = scene::locate(&a.scene)?;
     for i in 0..sweep::combinations(&axes) {

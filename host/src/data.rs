@@ -258,7 +258,7 @@ impl Snapshot {
 }
 
 /// The `geometry` block of summary.json (scenes with cut cells).
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct GeometrySummary {
     /// "drum", "square-drum", "drum-baffle" or "hopper".
     pub shape: String,
@@ -283,7 +283,7 @@ pub struct GeometrySummary {
 }
 
 /// The `frame` block of summary.json (scenes with `[frame]`).
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct FrameSummary {
     /// "lab" or "rotating".
     pub kind: String,
@@ -347,7 +347,7 @@ pub struct Frozen {
 }
 
 /// The `flow` block of summary.json.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct FlowSummary {
     /// "frozen-flow" or "coupled".
     pub equations: String,
@@ -430,7 +430,7 @@ pub struct RadialBin {
 }
 
 /// The `drum` block of summary.json.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct DrumSummary {
     /// Time window of the averages \[s\] (the last revolution, or the second half of the run
     /// if it is shorter than one revolution).

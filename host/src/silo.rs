@@ -271,7 +271,7 @@ pub const FLOWING: f64 = 0.1;
 pub const SURFACE_LEVEL: f64 = 0.2;
 
 /// The `flow.outlet` block of summary.json.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct DischargeSummary {
     /// Grains in the box at t = 0.
     pub mass_initial: f64,

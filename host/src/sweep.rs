@@ -93,13 +93,102 @@ pub fn parse_sets(sets: &[String]) -> Result<(Vec<Axis>, Vec<String>)> {
             });
         }
     }
-    let n = combinations(&axes);
-    if n > MAX_COMBINATIONS {
+    // A fixed value of a swept key would be overridden by the swept ones without a word.
+    for f in &fixed {
+        let key = f.split_once('=').map_or(f.as_str(), |(k, _)| k);
+        if axes.iter().any(|a| a.key == key) {
+            return Err(Error::input(format!(
+                "--set {key}: given both a fixed value and swept values; give it in one --set, KEY=V or KEY=V1,V2,..."
+            )));
+        }
+    }
+    if combinations(&axes) > MAX_COMBINATIONS {
+        // `combinations` saturates: the exact count where it fits in a u128
+        let count = axes
+            .iter()
+            .try_fold(1u128, |n, a| n.checked_mul(a.values.len() as u128))
+            .map_or_else(|| "more than 1e38".to_string(), |n| n.to_string());
         return Err(Error::input(format!(
-            "--set: {n} combinations; at most {MAX_COMBINATIONS} per sweep (split it into several sweeps)"
+            "--set: {count} combinations; at most {MAX_COMBINATIONS} per sweep (split it into several sweeps)"
         )));
     }
     Ok((axes, fixed))
+}
+
+/// The summary.json keys `--plot` may name: the dotted keys (as sweep.csv names its columns)
+/// whose value is a number, read off a summary with every optional part present.
+pub fn plottable_keys() -> Vec<String> {
+    use crate::data::{FlowSummary, FrameSummary};
+    use output::summary::{Stopped, Summary};
+    let mut s = Summary {
+        stopped: Some(Stopped {
+            cell: Some(0),
+            ..Stopped::default()
+        }),
+        dt_min: Some(0.0),
+        dt_max: Some(0.0),
+        dt_last: Some(0.0),
+        segregation_time: Some(0.0),
+        exact: Some(Default::default()),
+        flow: Some(FlowSummary {
+            flow_steps_to_steady: Some(0),
+            outlet: Some(Default::default()),
+            ..FlowSummary::default()
+        }),
+        geometry: Some(Default::default()),
+        frame: Some(FrameSummary {
+            period: Some(0.0),
+            ..FrameSummary::default()
+        }),
+        drum: Some(Default::default()),
+        ..Summary::default()
+    };
+    for side in ["x_low", "x_high", "y_low", "y_high", "z_low", "z_high"] {
+        s.mass_out_sides.insert(side.into(), 0.0);
+    }
+    let mut flat = BTreeMap::new();
+    flatten("", &serde_json::to_value(&s).unwrap_or_default(), &mut flat);
+    flat.into_iter()
+        .filter(|(_, v)| v.is_number())
+        .map(|(k, _)| k)
+        .collect()
+}
+
+/// Refuses (exit 2, before any run) a `--plot` key that no summary holds as a number: the plot
+/// was silently left out. Lists the keys of its section (`flow.`, ...), or else the top-level
+/// keys and the sections.
+pub fn check_plot(key: &str) -> Result<()> {
+    let keys = plottable_keys();
+    if keys.iter().any(|k| k == key) {
+        return Ok(());
+    }
+    let section = key.split_once('.').map(|(s, _)| format!("{s}."));
+    let inside: Vec<&str> = keys
+        .iter()
+        .filter(|k| section.as_deref().is_some_and(|s| k.starts_with(s)))
+        .map(String::as_str)
+        .collect();
+    let allowed = if inside.is_empty() {
+        let mut top: Vec<String> = Vec::new();
+        for k in &keys {
+            let name = match k.split_once('.') {
+                Some((s, _)) => format!("{s}.*"),
+                None => k.clone(),
+            };
+            if !top.contains(&name) {
+                top.push(name);
+            }
+        }
+        top.join(", ")
+    } else {
+        inside.join(", ")
+    };
+    Err(Error::range(
+        "command line",
+        "--plot",
+        key,
+        &format!("a number of summary.json: {allowed}"),
+    ))
 }
 
 /// Splits at commas outside brackets, parentheses and quotes.
@@ -734,5 +823,38 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("15625 combinations"));
+    }
+
+    /// The keys `--plot` may name are the numbers of summary.json, nested ones included (a
+    /// key missing here would be refused before a sweep).
+    #[test]
+    fn plottable_keys_are_the_summarys_numbers() {
+        let keys = plottable_keys();
+        for k in [
+            "psi_final",
+            "segregation_time",
+            "dt_min",
+            "mass_out_sides.z_high",
+            "exact.l1_phihat",
+            "flow.max_packing",
+            "flow.flow_steps_to_steady",
+            "flow.outlet.steady_rate",
+            "geometry.open_fraction",
+            "frame.period",
+            "drum.angle_of_repose_deg",
+            "stopped.t",
+        ] {
+            assert!(keys.iter().any(|x| x == k), "{k} missing in {keys:?}");
+            assert!(check_plot(k).is_ok(), "{k}");
+        }
+        for k in [
+            "scene",
+            "state_hash",
+            "cells",
+            "flow.outlet.emptied",
+            "flow.equations",
+        ] {
+            assert!(!keys.iter().any(|x| x == k), "{k} is no number");
+        }
     }
 }

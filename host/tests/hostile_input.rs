@@ -183,3 +183,79 @@ fn a_hopper_centre_outside_the_box_is_one_line() {
         assert!(!err.contains("outlet_width"), "{err}");
     }
 }
+
+#[test]
+fn sweep_counts_conflicts_and_plot_keys_are_refused_before_running() {
+    let d = tempfile::tempdir().unwrap();
+    let hundred = (1..=100)
+        .map(|i| i.to_string())
+        .collect::<Vec<_>>()
+        .join(",");
+    // `axes` swept keys of 100 values each
+    let sweep = |axes: usize| -> Vec<String> {
+        let mut a: Vec<String> = ["sweep", "column-a", "--out", "s"].map(String::from).into();
+        for i in 0..axes {
+            a.extend(["--set".to_string(), format!("k{i}={hundred}")]);
+        }
+        a
+    };
+    // Once: 18446744073709551615 (the saturated count) for both.
+    for (axes, count) in [(11, "1e22"), (20, "more than 1e38")] {
+        let args = sweep(axes);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        refused(
+            d.path(),
+            &args,
+            &[&format!("{count} combinations"), "at most 10000"],
+        );
+    }
+    // Once: the fixed value silently replaced by the swept ones.
+    for order in [
+        ["run.t_end=0.1", "run.t_end=0.2,0.3"],
+        ["run.t_end=0.2,0.3", "run.t_end=0.1"],
+    ] {
+        refused(
+            d.path(),
+            &[
+                "sweep", "column-a", "--set", order[0], "--set", order[1], "-q", "--out", "s",
+            ],
+            &["--set run.t_end", "fixed value and swept values"],
+        );
+    }
+    // Once: two runs, then no sweep.png and exit 0.
+    refused(
+        d.path(),
+        &[
+            "sweep",
+            "column-a",
+            "--set",
+            "run.t_end=0.1,0.2",
+            "--plot",
+            "bogus",
+            "-q",
+            "--out",
+            "s",
+        ],
+        &["--plot = bogus", "psi_final", "mass_rel_drift", "flow.*"],
+    );
+    refused(
+        d.path(),
+        &[
+            "sweep",
+            "column-a",
+            "--set",
+            "run.t_end=0.1,0.2",
+            "--plot",
+            "flow.bogus",
+            "--collect",
+            "--out",
+            "s",
+        ],
+        &[
+            "--plot = flow.bogus",
+            "flow.max_packing",
+            "flow.outlet.steady_rate",
+        ],
+    );
+    assert!(names(d.path()).is_empty(), "{:?}", names(d.path()));
+}

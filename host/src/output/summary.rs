@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 /// Comparison with a closed-form solution at `t_end`.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct ExactComparison {
     /// Which solution (`column-a`).
     pub kind: String,
@@ -20,7 +20,7 @@ pub struct ExactComparison {
 }
 
 /// Where and why a run stopped before `t_end` (`stopped` in summary.json).
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct Stopped {
     /// One line, as printed on stderr.
     pub reason: String,
@@ -74,7 +74,7 @@ impl Stopped {
 }
 
 /// The contents of `summary.json`.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct Summary {
     /// `"complete"`: ran to `t_end` (or until a silo emptied); `"interrupted"`: stopped by
     /// SIGINT/SIGTERM; `"failed"`: stopped by a non-finite time step or state. The files of a
