@@ -127,8 +127,8 @@ pub struct RecordArgs {
         allow_negative_numbers = true
     )]
     pub noise: f64,
-    /// Frame rate in Hz [default: 2 stable estimator substeps per frame; 100 for the legacy
-    /// scenes].
+    /// Frame rate in Hz, at least 1e-30 and at most what a tick's cycle budget affords
+    /// [default: 2 stable estimator substeps per frame; 100 for the legacy scenes].
     #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
     pub rate: Option<f64>,
     /// Number of frames [default: cover the scene's run.t_end, at most 20000].
@@ -200,7 +200,7 @@ pub struct ReplayArgs {
     /// Changes the estimate (and the state hash).
     #[arg(long = "noise-term", value_name = "L", allow_negative_numbers = true)]
     pub noise_term: Option<f64>,
-    /// Weight W of a new frame in the moving average of the measured velocity (0 < W <= 1;
+    /// Weight W of a new frame in the moving average of the measured velocity (1e-38 <= W <= 1;
     /// 1 = no averaging; the recording's value otherwise): the filter a controls engineer
     /// tunes against the sensor's noise and the flow's changes (docs/soft-sensor.md "Sensor
     /// grid, filter and gain on the silo").
@@ -749,8 +749,10 @@ pub fn execute(cli: Cli) -> Result<()> {
                 )?;
             }
             if let Some(w) = a.smoothing {
-                let allowed = "0 < W <= 1 (1: no averaging)";
-                number_in("--smoothing", w, |w| w > 0.0 && w <= 1.0, allowed)?;
+                // the sensor keeps W as a 32-bit float: below ~1e-45 it would be 0, and the
+                // recording's configuration blamed
+                let allowed = "1e-38 <= W <= 1 (1: no averaging)";
+                number_in("--smoothing", w, |w| (1e-38..=1.0).contains(&w), allowed)?;
             }
             if let Some(b) = a.kinematic {
                 number_in("--kinematic", b, |b| b > 0.0 && b <= 1.0, "0 < B <= 1 m")?;
@@ -978,6 +980,10 @@ pub fn record_scene_names() -> Vec<String> {
     names
 }
 
+/// Lowest `sieve record --rate` in Hz: the recording keeps times and the period as 32-bit
+/// floats (frames x period must stay far below f32::MAX = 3.4e38 s).
+const MIN_RATE: f64 = 1e-30;
+
 /// `sieve record`: checks the options, records in memory, writes the file atomically.
 fn record(a: &RecordArgs) -> Result<()> {
     let sensor = two_axes("--sensor-grid", &a.sensor_grid, 2, 16)?;
@@ -992,14 +998,32 @@ fn record(a: &RecordArgs) -> Result<()> {
     }
     let unit = |x: f64| (0.0..=1.0).contains(&x);
     number_in("--noise", a.noise, unit, "0 <= SIGMA <= 1")?;
-    if let Some(hz) = a.rate {
-        number_in("--rate", hz, |hz| hz > 0.0, "HZ > 0")?;
-    }
-    let period = a.rate.map(|hz| 1.0 / hz);
     let mhz = |m: f64| (1.0..=10_000.0).contains(&m);
     number_in("--cpu-mhz", a.cpu_mhz, mhz, "1 <= MHZ <= 10000")?;
     let share = |s: f64| s > 0.0 && s <= 1.0;
     number_in("--cpu-share", a.cpu_share, share, "0 < SHARE <= 1")?;
+    if let Some(hz) = a.rate {
+        // Both ends checked here, naming --rate: a recording keeps times as 32-bit floats,
+        // and a tick must afford the estimator's fixed part and one substep (else the
+        // sensor configuration or the truth was blamed, after the work).
+        let (cpu_hz, grid) = (a.cpu_mhz * 1e6, [est[0] as usize, est[1] as usize]);
+        let points = (sensor[0] * sensor[1]) as usize;
+        let budget = |hz: f64| soft_sensor::cpu_budget(cpu_hz, a.cpu_share, 1.0 / hz);
+        let need = budget(1.0).fixed(grid, points) + budget(1.0).substep(grid);
+        let max_hz = cpu_hz * a.cpu_share / need.max(1) as f64;
+        number_in(
+            "--rate",
+            hz,
+            |hz| hz >= MIN_RATE && budget(hz).substeps(grid, points) > 0,
+            &format!(
+                "{MIN_RATE:e} <= HZ <= {max_hz:.4e} (above it a tick cannot afford the {need} cycles of a {}-cell estimator with {points} sensor points on a {} MHz CPU at share {}; --estimator-grid, --sensor-grid, --cpu-mhz and --cpu-share move it)",
+                grid[0] * grid[1],
+                a.cpu_mhz,
+                a.cpu_share
+            ),
+        )?;
+    }
+    let period = a.rate.map(|hz| 1.0 / hz);
     if let Some(n) = a.frames {
         if !(1..=100_000).contains(&n) {
             return Err(Error::range("command line", "--frames", n, "1..=100000"));

@@ -4,6 +4,7 @@
 //! allowed, before anything is run or written.
 
 use crate::common::run_full;
+use sieve::soft_sensor::{record_to_bytes, RecordOptions, Scene};
 use std::path::Path;
 
 /// Runs `sieve args` in `dir` and asserts exit 2 with one `error:` line holding each of
@@ -258,4 +259,47 @@ fn sweep_counts_conflicts_and_plot_keys_are_refused_before_running() {
         ],
     );
     assert!(names(d.path()).is_empty(), "{:?}", names(d.path()));
+}
+
+#[test]
+fn replay_and_record_name_smoothing_and_rate() {
+    let d = tempfile::tempdir().unwrap();
+    let mut o = RecordOptions::new(Scene::ShearCell);
+    o.frames = 30;
+    std::fs::write(d.path().join("a.rec"), record_to_bytes(&o).unwrap().0).unwrap();
+    // Once: "a.rec: config: the smoothing factor must be in (0, 1]" (1e-300 as f32 is 0).
+    for w in ["1e-300", "0", "1.5"] {
+        let err = refused(
+            d.path(),
+            &["replay", "a.rec", "--smoothing", w],
+            &["--smoothing", "1e-38 <= W <= 1"],
+        );
+        assert!(!err.contains("a.rec"), "{err}");
+    }
+    // Once: 1e-300 Hz stepped the truth, then exit 1 ("the truth did not reach t =
+    // 9.999999999999999e299 s"); 1e9 Hz blamed the scene file without naming --rate.
+    let record = |scene: &'static str, hz: &'static str| {
+        [
+            "record", scene, "--frames", "3", "--rate", hz, "--out", "r.rec",
+        ]
+    };
+    for scene in ["shear-cell-mixed", "idealised-shear-cell"] {
+        for hz in ["1e-300", "1e9", "0", "-1"] {
+            refused(
+                d.path(),
+                &record(scene, hz),
+                &["--rate", "1e-30 <= HZ <=", "--cpu-mhz"],
+            );
+        }
+    }
+    // Within those bounds but too slow for the scene's truth (2^24 steps per frame): refused
+    // before the truth steps (it once stepped for minutes).
+    let start = std::time::Instant::now();
+    refused(
+        d.path(),
+        &record("shear-cell-mixed", "1e-6"),
+        &["--rate", "for this scene", "at most 16777216 a frame"],
+    );
+    assert!(start.elapsed().as_secs() < 30, "{:?}", start.elapsed());
+    assert_eq!(names(d.path()), ["a.rec"]);
 }

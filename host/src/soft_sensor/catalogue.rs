@@ -536,6 +536,28 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
     };
     cfg.tick_period = f(period);
     cfg.budget = budget_for(&cfg, opts, period, label)?;
+    // The truth's step is fixed (its flow is prescribed or frozen): a frame longer than
+    // `cap` of them is refused before stepping, not after (a 1e-30 Hz rate stepped 90 s).
+    let cap = 1u64 << 24;
+    let truth_dt = s.stable_dt().to_f64();
+    if period / truth_dt >= cap as f64 {
+        let why = format!(
+            "its truth takes steps of {truth_dt:.4e} s, at most {cap} a frame (frames of at most {:.4e} s)",
+            cap as f64 * truth_dt
+        );
+        return Err(match opts.period {
+            Some(_) => Error::range(
+                "command line",
+                "--rate",
+                1.0 / period,
+                &format!(
+                    "HZ > {:.4e} for this scene: {why}",
+                    1.0 / (cap as f64 * truth_dt)
+                ),
+            ),
+            None => fail(format!("a frame of {period} s is too long: {why}")),
+        });
+    }
     // Frames and truth.
     let mut writer = Writer::new(opts.sensor, period, sigma, opts.seed).map_err(fail)?;
     let mut final_psi = 0.0;
@@ -545,7 +567,6 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
             .frame(k, |ix, iz| [sx[ix + ns[0] * iz], sz[ix + ns[0] * iz]])
             .map_err(fail)?;
         let target = R::from_f64(k as f64 * period);
-        let cap = 1u64 << 24;
         if s.advance_to(target, cap) >= cap {
             return Err(fail(format!(
                 "the truth did not reach t = {} s in {cap} steps",
