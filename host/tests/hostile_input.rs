@@ -300,6 +300,15 @@ fn replay_and_record_name_smoothing_and_rate() {
         &record("shear-cell-mixed", "1e-6"),
         &["--rate", "for this scene", "at most 16777216 a frame"],
     );
+    refused(
+        d.path(),
+        &record("idealised-shear-cell", "1e-20"),
+        &[
+            "--rate = 1e-20",
+            "for this scene",
+            "at most 1048576 a frame",
+        ],
+    );
     assert!(start.elapsed().as_secs() < 30, "{:?}", start.elapsed());
     assert_eq!(names(d.path()), ["a.rec"]);
 }

@@ -270,6 +270,17 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
         .validate(super::ESTIMATOR_CAPACITY)
         .map_err(|e| format!("sensor configuration: {e}"))?;
     let mut truth = scene.truth(opts.truth_cells)?;
+    // The truth's step is fixed: a frame longer than `cap` of them is refused before
+    // stepping, naming the rate (it was "truth did not reach the frame time", after it).
+    let cap = 1u64 << 20;
+    let dt = truth.stable_dt();
+    if opts.period / dt >= cap as f64 {
+        return Err(format!(
+            "--rate = {:e} is out of range: allowed HZ > {:.4e} for this scene: its truth takes steps of {dt:.4e} s, at most {cap} a frame",
+            1.0 / opts.period,
+            1.0 / (cap as f64 * dt)
+        ));
+    }
     let nf = [opts.truth_cells[0] as usize, opts.truth_cells[1] as usize];
     let e = scene.extent();
     let mut final_psi = 0.0;
@@ -281,8 +292,8 @@ pub fn record_to_bytes(opts: &RecordOptions) -> Result<(Vec<u8>, RecordReport), 
             let z = (iz as f64 + 0.5) * e[1] / ns[1] as f64;
             scene.velocity(x, z)
         })?;
-        let steps = truth.advance_to(k as f64 * opts.period, 1 << 20);
-        if steps >= 1 << 20 {
+        let steps = truth.advance_to(k as f64 * opts.period, cap);
+        if steps >= cap {
             return Err("truth did not reach the frame time".into());
         }
         let d = diagnose(&*truth);
