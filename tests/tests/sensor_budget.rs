@@ -115,7 +115,7 @@ fn tick_takes_what_the_stable_step_asks_up_to_the_cap() {
         let mut s: Box<SoftSensor<f32, N>> = Box::default();
         s.configure(&cfg).unwrap();
         let e = s.tick(Some(&frame(1, period)));
-        let sdt = s.segregation().stable_dt();
+        let sdt = s.stable_dt();
         (e, sdt, s.lag(), s.state_hash())
     };
     let (free, sdt, lag, h) = run(1000);
@@ -151,7 +151,10 @@ fn shear_cell_mixed(cpu_hz: f64) -> Vec<u8> {
 /// Issue 9: at 10 Hz, 16 x 16 sensor, 5 % noise, the cap of 4 substeps fell 1.7 s behind;
 /// the budget of a 168 MHz Cortex-M4F affords 25 and the sensor keeps up (measured when
 /// written: 9 to 12 substeps a tick, lag 0, max psi error 0.074 against 0.084 with the cap
-/// of 4, which also shifts the estimate 1.73 s behind the truth).
+/// of 4, which also shifts the estimate 1.73 s behind the truth). Since each substep stage
+/// keeps its own Courant limit (2026-12-07): at most 11 substeps, 0.0736; the cap of 4 lags
+/// 1.57 s at 0.0722, so on this slowly segregating scene the lag is what the cap costs,
+/// not the max psi error.
 #[test]
 fn m4f_budget_keeps_up_with_shear_cell_mixed_at_10_hz() {
     let fast = replay_bytes(&shear_cell_mixed(DEFAULT_CPU_HZ), &ReplayOptions::default()).unwrap();
@@ -163,10 +166,14 @@ fn m4f_budget_keeps_up_with_shear_cell_mixed_at_10_hz() {
     assert!(fast.max_psi_error < 0.08, "{}", fast.max_psi_error);
     // 36 MHz affords (3,600,000 - 987,040) / 629,480 = 4 substeps: the old cap.
     let slow = replay_bytes(&shear_cell_mixed(36e6), &ReplayOptions::default()).unwrap();
+    println!(
+        "168 MHz: most {most}, psi error {}; 36 MHz: lag {}, psi error {}",
+        fast.max_psi_error, slow.lag, slow.max_psi_error
+    );
     assert!(slow.rows.iter().all(|r| r.substeps <= 4));
     assert_eq!(slow.counters.budget_limited, 30);
     assert!(slow.lag > 1.5, "{}", slow.lag);
-    assert!(slow.max_psi_error > fast.max_psi_error);
+    assert!(slow.max_psi_error < 0.08, "{}", slow.max_psi_error);
 }
 
 /// The alarms latch: with persistence p a band the fraction is far outside of raises the
