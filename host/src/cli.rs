@@ -101,7 +101,7 @@ a frozen flow is spun up first) on its grid, sampled at every frame; the frames 
 averaged onto the \
 sensor grid plus noise; the sensor configuration (extent, boundaries, c, S0/eta0/eps0/heating, \
 gravity, inflow phihat) comes from the scene, with notes on stderr where it departs from it. \
-Default period: 2 stable estimator substeps; default frames: cover run.t_end.\n\n\
+Default period: 2 Courant steps of the estimator (about the time the fastest grains take to cross one estimator cell); default frames: cover run.t_end.\n\n\
 Legacy hand-written scenes: idealised-shear-cell (model.md 7.3, firmware-sim's \
 recordings/shear-cell.rec: --rate 100 --frames 100) and gray-thornton-sensor; by default 100 Hz, \
 150 and 300 frames, truth 32x32.")]
@@ -128,7 +128,7 @@ pub struct RecordArgs {
     )]
     pub noise: f64,
     /// Frame rate in Hz, at least 1e-30 and at most what a tick's cycle budget affords
-    /// [default: 2 stable estimator substeps per frame; 100 for the legacy scenes].
+    /// [default: 2 Courant steps of the estimator per frame, about one cell crossing of the fastest grains; 100 for the legacy scenes].
     #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
     pub rate: Option<f64>,
     /// Number of frames [default: cover the scene's run.t_end, at most 20000].

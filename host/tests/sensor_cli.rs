@@ -296,7 +296,7 @@ fn record_and_replay_the_flow_shear_cell() {
 }
 
 /// A prescribed built-in with its defaults (truth 64x64, estimator 32x32, sensor 8x8, 5 %
-/// noise, period = 2 stable estimator substeps, frames covering t_end = 3 s). Measured: 120
+/// noise, period = 2 Courant steps of the estimator, frames covering t_end = 3 s). Measured: 120
 /// frames, max |psi error| 0.033, mean L1 0.0067.
 #[test]
 fn record_and_replay_a_prescribed_scene_with_defaults() {

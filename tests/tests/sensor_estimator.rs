@@ -438,3 +438,65 @@ fn a_burst_of_frames_costs_one_prepare_and_catches_up_within_budget() {
     assert_eq!((e.substeps, e.lag), (need, 0.0));
     assert!((s.segregation().time() - 0.05).abs() < 1e-6);
 }
+
+/// A substep is as long as both of its stages allow, each on its own rate
+/// (docs/soft-sensor.md "Substep length"): the percolation stage at the configured Courant
+/// number on its rate, the carried transport at 0.9 on the cells' speeds `sum_a |u_a| / h_a`
+/// (computed here by hand). The shear cell's own frames are percolation-limited; a plug flow
+/// added along the periodic x axis makes them transport-limited without changing the shear.
+/// A restored sensor derives the same step.
+#[test]
+fn each_substep_stage_keeps_its_own_courant_limit() {
+    let plug = |seq: u32, add: f32| {
+        let mut f = frame(seq, 0.01);
+        for v in f.u.iter_mut().step_by(2) {
+            *v += add;
+        }
+        f
+    };
+    let fast = || {
+        let mut cfg = config::<f32>(1000, 5);
+        cfg.reject_speed = 1.0;
+        let mut s: Box<SoftSensor<f32, N>> = Box::default();
+        s.configure(&cfg).unwrap();
+        s
+    };
+    for (add, transport_limited) in [(0.0f32, false), (0.2, true)] {
+        let mut s = fast();
+        s.tick(Some(&plug(1, add)));
+        let g = s.segregation();
+        let h = g.grid().spacing();
+        let speed = (0..g.len())
+            .map(|i| {
+                let u = g.velocity(i);
+                u[0].abs() as f64 / h[0] as f64 + u[1].abs() as f64 / h[1] as f64
+            })
+            .fold(0.0f64, f64::max);
+        let rate = g.transport_rate();
+        assert!((rate as f64 / speed - 1.0).abs() < 1e-6, "{rate} {speed}");
+        let dt = s.stable_dt();
+        let percolation = g.stable_dt_percolation();
+        assert_eq!(dt, (0.9 / rate).min(percolation));
+        assert_eq!(
+            dt < percolation,
+            transport_limited,
+            "add {add}: {dt} {percolation}"
+        );
+        // never shorter than the single limit it replaced (0.5 on the sum of both rates)
+        assert!(dt > g.stable_dt(), "add {add}: {dt} {}", g.stable_dt());
+        if transport_limited {
+            // 0.9 on the speeds against 0.5 on speeds plus percolation: 1.8x longer, less
+            // the percolation's share
+            assert!(dt > 1.6 * g.stable_dt(), "{dt} {}", g.stable_dt());
+        }
+        let mut snap = vec![0u8; snapshot_capacity(N)];
+        let n = s.snapshot(&mut snap).unwrap();
+        let mut other = fast();
+        other.restore(&snap[..n]).unwrap();
+        assert_eq!(other.stable_dt().to_bits(), dt.to_bits());
+        // the next tick takes ceil(period / dt) substeps of it
+        let e = s.tick(Some(&plug(2, add)));
+        assert_eq!(e.substeps as f64, (0.01 / s.stable_dt() as f64).ceil());
+        assert_eq!(e.health & health::BUDGET_LIMITED, 0);
+    }
+}

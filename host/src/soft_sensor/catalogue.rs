@@ -23,7 +23,7 @@
 //!   shear cells. A scene without shear and with given T cannot be represented (its sensor
 //!   T would be 0) and is rejected.
 //! * **Defaults**: estimator 32 x 32, sensor 8 x 8, 5 % noise, budget 4 substeps per tick;
-//!   the frame period is [`SUBSTEPS_PER_FRAME`] Courant steps of the estimator's combined
+//!   the frame period is [`COURANT_STEPS_PER_FRAME`] Courant steps of the estimator's combined
 //!   rate (measured on the clean velocity, rounded down to two significant digits) and the frames cover `run.t_end`
 //!   (at most [`MAX_DEFAULT_FRAMES`]).
 //!
@@ -55,7 +55,7 @@ const EPS0: f64 = 1477.15;
 /// estimator cell: frames that resolve the flow's changes cell by cell. (Until 2026-12-07 this
 /// was also the estimator's substep; it now takes longer ones, `SoftSensor::stable_dt`, so a
 /// default frame costs about one substep, not two.)
-pub const SUBSTEPS_PER_FRAME: f64 = 2.0;
+pub const COURANT_STEPS_PER_FRAME: f64 = 2.0;
 
 /// Most frames of a default recording (about 10 MB with an 8 x 8 sensor).
 pub const MAX_DEFAULT_FRAMES: u32 = 20_000;
@@ -71,7 +71,7 @@ pub struct SceneRecordOptions {
     pub noise: f64,
     /// Noise seed.
     pub seed: u64,
-    /// Frame period \[s\]; `None`: [`SUBSTEPS_PER_FRAME`] Courant steps of the estimator.
+    /// Frame period \[s\]; `None`: [`COURANT_STEPS_PER_FRAME`] Courant steps of the estimator.
     pub period: Option<f64>,
     /// Frames; `None`: enough to cover `run.t_end` (at most [`MAX_DEFAULT_FRAMES`]).
     pub frames: Option<u32>,
@@ -279,7 +279,7 @@ fn budget_for(
 
 /// The stable substep of the soft sensor (f32, the firmware's estimator) with the clean
 /// sensor velocity, and the Courant step of its combined rate that sets the default frame
-/// period ([`SUBSTEPS_PER_FRAME`]): one tick of a tiny period, then both steps.
+/// period ([`COURANT_STEPS_PER_FRAME`]): one tick of a tiny period, then both steps.
 fn estimator_dt(cfg: &SensorConfig<f32>, clean: &[f32]) -> Result<(f64, f64)> {
     let mut probe = cfg.clone();
     probe.tick_period = 1e-6;
@@ -517,7 +517,7 @@ fn record_loop<R: Real, const D: usize, const N: usize>(
     let period = match opts.period {
         Some(p) => p,
         None if courant_dt.is_finite() && courant_dt < f32::MAX as f64 => {
-            round_down_2(SUBSTEPS_PER_FRAME * courant_dt)
+            round_down_2(COURANT_STEPS_PER_FRAME * courant_dt)
         }
         None => scene.output_interval,
     };
