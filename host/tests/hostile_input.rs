@@ -3,7 +3,7 @@
 //! must now end with exit code 2 and one line that names the option or key and what is
 //! allowed, before anything is run or written.
 
-use crate::common::run_full;
+use crate::common::{names, run_full};
 use sieve::soft_sensor::{record_to_bytes, RecordOptions, Scene};
 use std::path::Path;
 
@@ -18,16 +18,6 @@ fn refused(dir: &Path, args: &[&str], needles: &[&str]) -> String {
         assert!(err.contains(n), "{args:?}: `{n}` missing in {err}");
     }
     err
-}
-
-/// The names in `dir`, sorted.
-fn names(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    v.sort();
-    v
 }
 
 #[test]

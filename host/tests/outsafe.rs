@@ -4,7 +4,7 @@
 //! 130/143/3); what a SIGKILL leaves is removed by the next run into the same DIR.
 //! docs/outputs.md, "Where sieve writes and what it never touches".
 
-use crate::common::run_full;
+use crate::common::{names, run_full};
 
 use assert_cmd::cargo::CommandCargoExt;
 use std::path::{Path, PathBuf};
@@ -20,16 +20,6 @@ fn sieve_in(dir: &Path) -> Command {
 fn summary(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json");
     serde_json::from_str(&text).expect("valid JSON")
-}
-
-/// The names in `dir`, sorted.
-fn names(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    v.sort();
-    v
 }
 
 /// No staging, set-aside or lock file left in `dir`.

@@ -24,6 +24,16 @@ pub fn run_env(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> (i32, String,
     )
 }
 
+/// The names in `dir`, sorted.
+pub fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
 /// Runs `sieve args...` in `dir`; returns the exit code, stdout and stderr.
 pub fn run_full(dir: &Path, args: &[&str]) -> (i32, String, String) {
     run_env(dir, args, &[])
