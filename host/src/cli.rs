@@ -79,6 +79,12 @@ pub struct SweepArgs {
     /// nested ones dotted, e.g. flow.max_packing).
     #[arg(long, value_name = "KEY", default_value = "psi_final")]
     pub plot: String,
+    /// Fit y = A (x - x0)^n to the --plot value against the first swept key with numeric
+    /// values, one fit per curve: `power` (n fitted; at least 4 values) or `power:N` (n = N
+    /// given; at least 3), e.g. --plot flow.outlet.steady_rate --fit power:1.5 for Beverloo's
+    /// law of a silo's orifice width (printed, in sweep.json and drawn in sweep.png).
+    #[arg(long, value_name = "MODEL")]
+    pub fit: Option<String>,
     /// No per-run lines on stderr.
     #[arg(long, short)]
     pub quiet: bool,
@@ -873,6 +879,10 @@ fn sweep(a: &SweepArgs) -> Result<()> {
         return Ok(());
     }
     sweep::check_plot(&a.plot)?;
+    let fit = a.fit.as_deref().map(sweep::parse_fit).transpose()?;
+    if let Some(fit) = fit {
+        sweep::check_fit(&axes, fit)?;
+    }
     // The scene must exist and every combination's keys must apply before anything runs.
     let src = scene::locate(&a.scene)?;
     for i in 0..sweep::combinations(&axes) {
@@ -904,6 +914,7 @@ fn sweep(a: &SweepArgs) -> Result<()> {
             None => slurm_task()?,
         },
         plot: a.plot.clone(),
+        fit,
         quiet: a.quiet,
     };
     if a.collect {

@@ -30,6 +30,7 @@ pub mod parallel;
 #[cfg(feature = "mpi")]
 pub mod parallel_mpi;
 pub mod pool;
+pub mod power_law;
 pub mod progress;
 pub mod read;
 pub mod run;

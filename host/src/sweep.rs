@@ -9,6 +9,7 @@
 
 use crate::error::{Error, Result};
 use crate::output::{self, plot};
+use crate::power_law::{self, Exponent, PowerFit};
 use serde_json::{Map, Value};
 use std::collections::BTreeMap;
 use std::io::Read;
@@ -49,6 +50,8 @@ pub struct SweepOptions {
     pub task: Option<usize>,
     /// Summary value plotted against the first swept key.
     pub plot: String,
+    /// A power law fitted to the plotted value against that key (`--fit`), one per curve.
+    pub fit: Option<Exponent>,
     /// No per-run lines.
     pub quiet: bool,
 }
@@ -189,6 +192,48 @@ pub fn check_plot(key: &str) -> Result<()> {
         key,
         &format!("a number of summary.json: {allowed}"),
     ))
+}
+
+/// `--fit MODEL`: `power` (free exponent) or `power:N` (exponent N given, e.g. `power:1.5`,
+/// Beverloo's 2D law).
+pub fn parse_fit(model: &str) -> Result<Exponent> {
+    let allowed = format!(
+        "`power` (y = A (x - x0)^n, n fitted) or `power:N` with 0 < N <= {} (n given, e.g. power:1.5 for Beverloo's 2D law)",
+        power_law::MAX_EXPONENT
+    );
+    match model.trim().split_once(':') {
+        None if model.trim() == "power" => Ok(Exponent::Free),
+        Some(("power", n)) => match n.trim().parse::<f64>() {
+            Ok(n) if n > 0.0 && n <= power_law::MAX_EXPONENT => Ok(Exponent::Fixed(n)),
+            _ => Err(Error::range("command line", "--fit", model, &allowed)),
+        },
+        _ => Err(Error::range("command line", "--fit", model, &allowed)),
+    }
+}
+
+/// Refuses (exit 2, before any run) a `--fit` that the sweep cannot feed: the fit is of the
+/// plotted value against the first swept key with numeric values, so that key must have the
+/// points the fit needs.
+pub fn check_fit(axes: &[Axis], fit: Exponent) -> Result<()> {
+    let need = match fit {
+        Exponent::Free => power_law::MIN_POINTS_FREE,
+        Exponent::Fixed(_) => power_law::MIN_POINTS_FIXED,
+    };
+    let first = axes
+        .iter()
+        .find(|a| a.values.iter().all(|v| v.trim().parse::<f64>().is_ok()));
+    match first {
+        Some(a) if a.values.len() >= need => Ok(()),
+        Some(a) => Err(Error::input(format!(
+            "command line: --fit fits the plotted value against {}, which has {} values; allowed: at least {need} (--set {}=v1,v2,...)",
+            a.key,
+            a.values.len(),
+            a.key
+        ))),
+        None => Err(Error::input(format!(
+            "command line: --fit needs a swept key with numeric values (at least {need}), e.g. --set boundary.flow.z_low.outlet.width=0.03,0.04,0.05,0.06"
+        ))),
+    }
 }
 
 /// Splits at commas outside brackets, parentheses and quotes.
@@ -592,11 +637,24 @@ pub fn collect(opts: &SweepOptions) -> Result<usize> {
         ),
     );
     doc.insert("runs".into(), Value::from(json_rows));
+    let curves = curves(opts, &rows)?;
+    let fits = match (opts.fit, &curves) {
+        (Some(exponent), Some((ax, curves))) => fit_curves(opts, *ax, curves, exponent)?,
+        _ => Vec::new(),
+    };
+    if let (Some(exponent), Some((ax, _))) = (opts.fit, &curves) {
+        doc.insert(
+            "fit".into(),
+            fits_json(opts, &opts.axes[*ax].key, exponent, &fits),
+        );
+    }
     let mut text = serde_json::to_string_pretty(&Value::Object(doc)).map_err(Error::failure)?;
     text.push('\n');
     output::write_file_atomically(&opts.out.join("sweep.csv"), csv.as_bytes())?;
     output::write_file_atomically(&opts.out.join("sweep.json"), text.as_bytes())?;
-    draw(opts, &rows)?;
+    if let Some((ax, curves)) = &curves {
+        draw(opts, *ax, curves, &fits)?;
+    }
     draw_psi(opts, &rows)?;
     Ok(missing)
 }
@@ -653,10 +711,10 @@ fn draw_psi(opts: &SweepOptions, rows: &Rows) -> Result<()> {
     )
 }
 
-/// `sweep.png`: the chosen summary value against the first swept key with numeric values,
-/// one curve per combination of the other keys. Skipped (with no error) when no swept key is
-/// numeric or the chosen value is not a number in any run.
-fn draw(opts: &SweepOptions, rows: &Rows) -> Result<()> {
+/// The chosen summary value against the first swept key with numeric values (that key's
+/// index and one curve per combination of the other keys, each sorted by x). None when no
+/// swept key is numeric or the chosen value is not a number in any run.
+fn curves(opts: &SweepOptions, rows: &Rows) -> Result<Option<(usize, Vec<plot::Curve>)>> {
     let numeric =
         |a: &Axis| -> Option<Vec<f64>> { a.values.iter().map(|v| v.parse().ok()).collect() };
     let Some((ax, xs)) = opts
@@ -665,7 +723,7 @@ fn draw(opts: &SweepOptions, rows: &Rows) -> Result<()> {
         .enumerate()
         .find_map(|(j, a)| numeric(a).map(|xs| (j, xs)))
     else {
-        return Ok(());
+        return Ok(None);
     };
     let others: Vec<Axis> = opts
         .axes
@@ -707,8 +765,35 @@ fn draw(opts: &SweepOptions, rows: &Rows) -> Result<()> {
             curves.push((label, pts));
         }
     }
-    if curves.is_empty() {
-        return Ok(());
+    Ok((!curves.is_empty()).then_some((ax, curves)))
+}
+
+/// `sweep.png`: the curves, and each fitted law drawn over its curve's x range.
+fn draw(
+    opts: &SweepOptions,
+    ax: usize,
+    curves: &[plot::Curve],
+    fits: &[(String, std::result::Result<PowerFit, String>)],
+) -> Result<()> {
+    let mut fitted = Vec::with_capacity(fits.len());
+    for ((_, pts), (label, fit)) in curves.iter().zip(fits) {
+        let Ok(f) = fit else {
+            // An empty curve keeps the colours of the fits that follow paired with theirs.
+            fitted.push((String::new(), Vec::new()));
+            continue;
+        };
+        let (lo, hi) = (pts[0].0, pts[pts.len() - 1].0);
+        let line: Vec<(f64, f64)> = (0..=64)
+            .map(|k| lo + (hi - lo) * k as f64 / 64.0)
+            .map(|x| (x, f.at(x)))
+            .filter(|p| p.1.is_finite())
+            .collect();
+        let name = if label.is_empty() {
+            format!("fit: {}", law_text(f))
+        } else {
+            format!("fit {label}: {}", law_text(f))
+        };
+        fitted.push((name, line));
     }
     let key = &opts.axes[ax].key;
     plot::xy_curves(
@@ -716,8 +801,96 @@ fn draw(opts: &SweepOptions, rows: &Rows) -> Result<()> {
         &format!("{}: {} against {key}", opts.scene, opts.plot),
         key,
         &opts.plot,
-        &curves,
+        curves,
+        &fitted,
     )
+}
+
+/// `A (x - x0)^n` with the fitted numbers, as the plot legend and the stdout line give it.
+fn law_text(f: &PowerFit) -> String {
+    let offset = if f.x0 < 0.0 {
+        format!("x + {:.4e}", -f.x0)
+    } else {
+        format!("x - {:.4e}", f.x0)
+    };
+    format!("{:.4e} ({offset})^{:.4}", f.a, f.n)
+}
+
+/// Fits every curve that has the points the law needs; prints one line per curve on stdout
+/// (a curve that cannot be fitted says why there, and the sweep goes on: its table is
+/// written either way).
+fn fit_curves(
+    opts: &SweepOptions,
+    ax: usize,
+    curves: &[plot::Curve],
+    exponent: Exponent,
+) -> Result<Vec<(String, std::result::Result<PowerFit, String>)>> {
+    let key = &opts.axes[ax].key;
+    let mut out = Vec::with_capacity(curves.len());
+    for (label, pts) in curves {
+        let fit = power_law::fit(pts, exponent);
+        let at = if label.is_empty() {
+            String::new()
+        } else {
+            format!(" ({label})")
+        };
+        match &fit {
+            Ok(f) => crate::outln!(
+                "fit{at}: {} = A ({key} - x0)^n with A = {:.6e}, x0 = {:.6e}, n = {:.6}{}; largest residual {:.3} % over {} runs",
+                opts.plot,
+                f.a,
+                f.x0,
+                f.n,
+                if exponent == Exponent::Free { " (fitted)" } else { " (given)" },
+                100.0 * f.max_residual,
+                pts.len()
+            )?,
+            Err(why) => crate::outln!("fit{at}: {} against {key} not fitted: {why}", opts.plot)?,
+        }
+        out.push((label.clone(), fit));
+    }
+    Ok(out)
+}
+
+/// sweep.json's `fit`: the law, its x and y, and per curve the constants or why not.
+fn fits_json(
+    opts: &SweepOptions,
+    key: &str,
+    exponent: Exponent,
+    fits: &[(String, std::result::Result<PowerFit, String>)],
+) -> Value {
+    let mut m = Map::new();
+    m.insert("law".into(), Value::from("y = a (x - x0)^n"));
+    m.insert("x".into(), Value::from(key));
+    m.insert("y".into(), Value::from(opts.plot.clone()));
+    m.insert(
+        "exponent".into(),
+        match exponent {
+            Exponent::Free => Value::from("fitted"),
+            Exponent::Fixed(n) => Value::from(n),
+        },
+    );
+    let curves = fits
+        .iter()
+        .map(|(label, fit)| {
+            let mut c = Map::new();
+            c.insert("curve".into(), Value::from(label.clone()));
+            match fit {
+                Ok(f) => {
+                    c.insert("a".into(), Value::from(f.a));
+                    c.insert("x0".into(), Value::from(f.x0));
+                    c.insert("n".into(), Value::from(f.n));
+                    c.insert("max_residual".into(), Value::from(f.max_residual));
+                }
+                Err(why) => {
+                    c.insert("error".into(), Value::from(why.clone()));
+                }
+            }
+            Value::Object(c)
+        })
+        .collect::<Vec<_>>();
+    m.insert("curves".into(), Value::from(curves));
+    Value::Object(m)
 }
 
 /// The index of the combination with value `k` on axis `ax` and the other axes as `fixed`

@@ -326,6 +326,7 @@ proptest::proptest! {
             jobs: 1,
             task: None,
             plot: "psi_final".into(),
+            fit: None,
             quiet: true,
         };
         let r = std::panic::catch_unwind(|| sieve::sweep::collect(&opts));
@@ -372,4 +373,120 @@ fn the_slurm_variable_names_itself_and_leaves_collect_alone() {
         assert!(err.contains("SLURM_ARRAY_TASK_ID"), "{err}");
         assert!(!d.path().join("sw2").exists());
     }
+}
+
+/// `--fit power:1.5` on four orifice widths of the 5 mm silo gives Beverloo's constants of
+/// docs/silo.md section 4 (C = 1.20, W0 = 4.5 mm, residuals below 0.3 %), and a `--collect`
+/// with `--fit power` fits the exponent from the same runs (measured 1.527 at W0 = 3.8 mm).
+/// The fit is of the runs' own summaries: each run's rate is within the reported residual.
+#[test]
+fn a_width_sweep_fits_beverloos_law() {
+    let d = tempfile::tempdir().unwrap();
+    let widths = ["0.03", "0.04", "0.05", "0.06"];
+    let args = |fit: &str| {
+        [
+            "sweep".to_string(),
+            "silo".into(),
+            "--set".into(),
+            "run.t_end=1.5".into(),
+            "--set".into(),
+            format!("boundary.flow.z_low.outlet.width={}", widths.join(",")),
+            "--plot".into(),
+            "flow.outlet.steady_rate".into(),
+            "--fit".into(),
+            fit.into(),
+            "--out".into(),
+            "sw".into(),
+            "-q".into(),
+        ]
+    };
+    let (code, out, err) = run(sieve(d.path()).args(args("power:1.5")).args(["-j", "2"]));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        out.lines().filter(|l| l.starts_with("fit: ")).count(),
+        1,
+        "{out}"
+    );
+    let sw = d.path().join("sw");
+    assert!(sw.join("sweep.png").is_file());
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sw.join("sweep.json")).unwrap()).unwrap();
+    let f = &doc["fit"]["curves"][0];
+    let (a, x0, n, res) = (
+        f["a"].as_f64().unwrap(),
+        f["x0"].as_f64().unwrap(),
+        f["n"].as_f64().unwrap(),
+        f["max_residual"].as_f64().unwrap(),
+    );
+    assert_eq!(n, 1.5);
+    assert_eq!(doc["fit"]["x"], "boundary.flow.z_low.outlet.width");
+    let c = a / (0.6 * 9.81f64.sqrt());
+    assert!((c - 1.20).abs() < 0.02, "Beverloo C = {c}");
+    assert!((x0 - 0.0045).abs() < 0.001, "W0 = {x0}");
+    assert!(res < 0.005, "largest residual {res}");
+    // The fit's residual is the runs' own: the largest of |fit / rate - 1|.
+    let rows = table(&sw);
+    let worst = rows
+        .iter()
+        .zip(widths)
+        .map(|(r, w)| {
+            let q = r["summary"]["flow.outlet.steady_rate"].as_f64().unwrap();
+            let w: f64 = w.parse().unwrap();
+            (a * (w - x0).powf(n) / q - 1.0).abs()
+        })
+        .fold(0.0, f64::max);
+    assert!((worst - res).abs() < 1e-12, "{worst} against {res}");
+    // The exponent fitted from the same runs, without running them again.
+    let (code, out, err) = run(sieve(d.path()).args(args("power")).arg("--collect"));
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("(fitted)"), "{out}");
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sw.join("sweep.json")).unwrap()).unwrap();
+    let f = &doc["fit"]["curves"][0];
+    let n = f["n"].as_f64().unwrap();
+    assert!((1.45..1.6).contains(&n), "fitted exponent {n}");
+    assert!(f["max_residual"].as_f64().unwrap() < 0.005, "{f}");
+}
+
+/// A `--fit` the sweep cannot feed is refused before anything runs, in one line.
+#[test]
+fn a_fit_that_cannot_be_made_is_refused_before_the_runs() {
+    let d = tempfile::tempdir().unwrap();
+    let cases: [(&[&str], &str); 5] = [
+        (&["--fit", "beverloo"], "--fit"),
+        (&["--fit", "power:0"], "0 < N <= 100"),
+        (&["--fit", "power:1e9"], "0 < N <= 100"),
+        // two values of the only numeric key: a fixed exponent needs 3
+        (
+            &["--set", "material.s0=0.5,2", "--fit", "power:1.5"],
+            "at least 3",
+        ),
+        (
+            &["--set", "material.s0=0.5,1,2", "--fit", "power"],
+            "at least 4",
+        ),
+    ];
+    for (extra, says) in cases {
+        let (code, _, err) = run(sieve(d.path())
+            .args(["sweep", "column-a", "--out", "sw", "--set", "run.t_end=0.1"])
+            .args(["--set", "grid.cells=[40],[80]"])
+            .args(extra));
+        assert_eq!(code, 2, "{extra:?}: {err}");
+        assert_eq!(err.lines().count(), 1, "{extra:?}: {err}");
+        assert!(err.contains(says), "{extra:?}: {err}");
+        assert!(!d.path().join("sw").exists(), "{extra:?} ran");
+    }
+    // No swept key with numeric values at all.
+    let (code, _, err) = run(sieve(d.path()).args([
+        "sweep",
+        "column-a",
+        "--out",
+        "sw",
+        "--set",
+        "numerics.scheme=modified,classical",
+        "--fit",
+        "power",
+    ]));
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("numeric values"), "{err}");
 }

@@ -374,7 +374,9 @@ fn the_orifice_is_resolved_on_coarse_grids() {
 /// `Q = C c sqrt(g) (W - W0)^(3/2)` and the free exponent of `W - W0`. Measured (since `p = 0`
 /// sits on the orifice face, 2026-12-04; 244 s with the CI build beside it): 9.236e-3,
 /// 1.509e-2, 2.203e-2, 2.970e-2 m^2/s; C = 1.21, W0 = 0.0046 m (0.9 cells), exponent of
-/// W - W0 1.498 (the CLI's runs: C = 1.20, W0 = 0.0045 m, residuals < 0.21 %). Before: 4.73e-3 .. 2.574e-2,
+/// W - W0 1.498 with that W0 (the CLI's runs: C = 1.20, W0 = 0.0045 m, residuals < 0.21 %;
+/// the free fit of `sieve sweep --fit power`, which this study uses since 2026-12-07, gives
+/// these four rates 1.567 at its own W0 = 2.9 mm). Before: 4.73e-3 .. 2.574e-2,
 /// W0 = 0.0154 m (3.1 cells), residuals < 3 %. docs/silo.md section 4.
 #[test]
 #[ignore]
@@ -391,28 +393,16 @@ fn beverloo_study() {
                 silo(s).series.summary().steady_rate
             })
             .collect();
-        let slope = |x: &[f64], y: &[f64]| {
-            let n = x.len() as f64;
-            let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
-            let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
-            let sxx: f64 = x.iter().map(|a| (a - mx) * (a - mx)).sum();
-            (sxy / sxx, my - sxy / sxx * mx)
-        };
-        // Beverloo with 3/2: Q^(2/3) is linear in W, zero at W0
-        let y: Vec<f64> = rates.iter().map(|q| q.powf(2.0 / 3.0)).collect();
-        let (s, b) = slope(&widths, &y);
-        let w0 = -b / s;
-        let c = s.powf(1.5) / (9.81f64.sqrt() * 0.6);
-        let lx: Vec<f64> = widths.iter().map(|w| (w - w0).ln()).collect();
-        let ly: Vec<f64> = rates.iter().map(|q| q.ln()).collect();
-        let (e, _) = slope(&lx, &ly);
+        // The fits of `sieve sweep --fit` (host/src/power_law.rs): 3/2 given, then free.
+        use sieve::power_law::{fit, Exponent};
+        let pts: Vec<(f64, f64)> = widths.iter().copied().zip(rates.iter().copied()).collect();
+        let law = fit(&pts, Exponent::Fixed(1.5)).expect("Beverloo fit");
+        let (c, w0) = (law.a / (9.81f64.sqrt() * 0.6), law.x0);
+        let e = fit(&pts, Exponent::Free).expect("free fit").n;
         println!("widths {widths:?}, rates {rates:?}: Beverloo C = {c:.3}, W0 = {w0:.4} m; exponent of W - W0: {e:.3}");
         // the Beverloo form holds within 1 %, with W0 below two cells (it was 3.1 cells
         // while the outlet's p = 0 sat half a cell below the face)
-        for (w, q) in widths.iter().zip(&rates) {
-            let fit = c * 9.81f64.sqrt() * 0.6 * (w - w0).powf(1.5);
-            assert!((fit / q - 1.0).abs() < 0.01, "W = {w}: {q} vs {fit}");
-        }
+        assert!(law.max_residual < 0.01, "{law:?}");
         assert!(w0 > 0.0 && w0 < 0.01, "{w0}");
     });
 }

@@ -1057,11 +1057,17 @@ pub fn xy_curves(
     x_desc: &str,
     y_desc: &str,
     curves: &[Curve],
+    fitted: &[Curve],
 ) -> Result<()> {
     ensure_font()?;
     let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(fail(path))?;
-    let pts = || curves.iter().flat_map(|(_, v)| v.iter().copied());
+    let pts = || {
+        curves
+            .iter()
+            .chain(fitted)
+            .flat_map(|(_, v)| v.iter().copied())
+    };
     let (x0, x1) = pts().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
     let (y0, y1) = pts().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
     // A flat range still needs a visible axis.
@@ -1092,20 +1098,33 @@ pub fn xy_curves(
         .axis_desc_style((FONT_NAME, 17))
         .draw()
         .map_err(fail(path))?;
-    let labelled = curves.len() > 1;
+    let labelled = curves.len() > 1 || !fitted.is_empty();
     for (j, (label, v)) in curves.iter().enumerate() {
         let colour = PALETTE[j % PALETTE.len()];
         let series = chart
             .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(2)))
             .map_err(fail(path))?;
         if labelled {
+            let label = if label.is_empty() { "runs" } else { label };
             series
-                .label(label.clone())
+                .label(label.to_string())
                 .legend(swatch(colour.stroke_width(2)));
         }
         chart
             .draw_series(v.iter().map(|&p| Circle::new(p, 4, colour.filled())))
             .map_err(fail(path))?;
+    }
+    // A fitted law in its curve's colour, thin and without markers: the law, not runs.
+    for (j, (label, v)) in fitted.iter().enumerate() {
+        if v.is_empty() {
+            continue;
+        }
+        let colour = PALETTE[j % PALETTE.len()].mix(0.6);
+        chart
+            .draw_series(LineSeries::new(v.iter().copied(), colour.stroke_width(1)))
+            .map_err(fail(path))?
+            .label(label.clone())
+            .legend(swatch(colour.stroke_width(1)));
     }
     if labelled {
         legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(fail(path))?;

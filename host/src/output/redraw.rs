@@ -316,6 +316,7 @@ pub fn redraw(run: &Path, plots: &Path) -> Result<Vec<String>> {
                 "distance r [mm] (ring midpoint)",
                 "mean phihat of the dense cells (c >= 0.3)",
                 &curves,
+                &[],
             )?;
             written.push("radial.png".into());
         }
