@@ -4,6 +4,7 @@
 
 use assert_cmd::Command;
 use std::path::Path;
+use std::time::{Duration, Instant};
 
 /// Runs `sieve args...` in `dir` with the extra environment `env` (and without a progress
 /// interval inherited from the caller's shell, which would add lines to stderr); returns the
@@ -22,6 +23,70 @@ pub fn run_env(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> (i32, String,
         String::from_utf8_lossy(&out.stdout).into_owned(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
+}
+
+/// Runs `cmd` with stdout and stderr captured; kills it and fails the test if it has not
+/// ended within `limit`, so that a regression that blocks (on a FIFO, say) fails the test
+/// instead of hanging CI for its whole time limit.
+pub fn output_within(mut cmd: std::process::Command, limit: Duration) -> std::process::Output {
+    use std::process::Stdio;
+    fn drain(mut r: impl std::io::Read + Send + 'static) -> std::thread::JoinHandle<Vec<u8>> {
+        std::thread::spawn(move || {
+            let mut b = Vec::new();
+            let _ = r.read_to_end(&mut b);
+            b
+        })
+    }
+    let mut child = cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    let out = drain(child.stdout.take().expect("stdout"));
+    let err = drain(child.stderr.take().expect("stderr"));
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status;
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{cmd:?}: still running after {limit:?}: killed");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    std::process::Output {
+        status,
+        stdout: out.join().expect("stdout"),
+        stderr: err.join().expect("stderr"),
+    }
+}
+
+/// [`run_full`] with a deadline ([`output_within`]): for a case that once blocked sieve.
+pub fn run_within(dir: &Path, args: &[&str], limit: Duration) -> (i32, String, String) {
+    use assert_cmd::cargo::CommandCargoExt;
+    let mut cmd = std::process::Command::cargo_bin("sieve").expect("binary sieve");
+    cmd.current_dir(dir)
+        .args(args)
+        .env_remove("SIEVE_PROGRESS_SECONDS");
+    let out = output_within(cmd, limit);
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// The deadline itself: a child that outlives it is killed and the test fails, at once.
+#[cfg(unix)]
+#[test]
+#[should_panic(expected = "still running after 1s: killed")]
+fn a_child_past_its_deadline_is_killed_and_fails_the_test() {
+    let mut sleep = std::process::Command::new("sleep");
+    sleep.arg("30");
+    output_within(sleep, Duration::from_secs(1));
 }
 
 /// The names in `dir`, sorted.
