@@ -24,8 +24,8 @@
 //! a CRC-64/XZ of all
 //! preceding bytes. Tags: 1 u64, 2 f64 (raw bits), 3 f64 array, 4 u64 array, 5 UTF-8 text.
 //! Floats are stored as their bits (f32 solvers widen exactly). Written atomically: a
-//! temporary file in the same directory (`.checkpoint.XXXXXX.part`, six random ASCII letters
-//! or digits), `fsync`, rename, `fsync` of the directory; the kept VTK files are `fsync`ed
+//! temporary file in the same directory (`.checkpoint.XXXXXX.part`, six ASCII letters or
+//! digits), `fsync`, rename, `fsync` of the directory; the kept VTK files are `fsync`ed
 //! before. A SIGKILL during the write leaves the temporary file, which is never read (the
 //! checkpoint is `checkpoint.bin` only). The reader checks the size of the file, the
 //! checksum, and every count against the bytes left before it allocates; any damage is one
@@ -35,10 +35,14 @@
 //! a user's of the same shape, so sieve removes a temporary file only under the name a
 //! checkpoint recorded for it: each checkpoint stores (`part.next`) the name the next write
 //! will use, drawn before that file exists; `--resume` removes that one file if it is a
-//! regular file, and the resumed run writes under it again. The temporary file of a run's
-//! first checkpoint is recorded nowhere: a kill during that write leaves it, and the clean-up
-//! keeps the directory with a note. (The kept snapshots in `fields/`, a directory sieve
-//! creates, are still recognised by their names.)
+//! regular file, and the resumed run writes under it again. That name is derived from a
+//! CRC-64 of the checkpoint's other entries, so the same state always encodes to the same
+//! bytes (a random name was once the only difference between two checkpoints of one state);
+//! it is random when the derived name is the current write's or already exists, and a write
+//! never replaces a file (`create_new`; a random name if the recorded one is taken). The
+//! temporary file of a run's first checkpoint is recorded nowhere: a kill during that write
+//! leaves it, and the clean-up keeps the directory with a note. (The kept snapshots in
+//! `fields/`, a directory sieve creates, are still recognised by their names.)
 
 use crate::data::{output_times, FlowSummary, Frozen, LoopStats, SeriesRow};
 use crate::error::{Error, Result};
@@ -147,13 +151,29 @@ impl Entries {
 /// Encodes entries (module docs).
 pub fn encode(e: &Entries) -> Vec<u8> {
     let mut out = Vec::new();
-    out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&FORMAT.to_le_bytes());
-    out.extend_from_slice(&(e.0.len() as u32).to_le_bytes());
+    encode_to(e, &mut |b| out.extend_from_slice(b));
+    let crc = CRC.checksum(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out
+}
+
+/// CRC-64 of [`encode`]'s bytes before the checksum (the one it appends), computed without
+/// building them.
+fn entries_sum(e: &Entries) -> u64 {
+    let mut d = CRC.digest();
+    encode_to(e, &mut |b| d.update(b));
+    d.finalize()
+}
+
+/// Hands the bytes of [`encode`] before the checksum to `out`, in order.
+fn encode_to(e: &Entries, out: &mut impl FnMut(&[u8])) {
+    out(MAGIC);
+    out(&FORMAT.to_le_bytes());
+    out(&(e.0.len() as u32).to_le_bytes());
     for (name, v) in &e.0 {
         let name = &name.as_bytes()[..name.len().min(255)];
-        out.push(name.len() as u8);
-        out.extend_from_slice(name);
+        out(&[name.len() as u8]);
+        out(name);
         let (tag, count) = match v {
             Value::U64(_) => (1u8, 1usize),
             Value::F64(_) => (2, 1),
@@ -161,23 +181,16 @@ pub fn encode(e: &Entries) -> Vec<u8> {
             Value::U64s(x) => (4, x.len()),
             Value::Text(t) => (5, t.len()),
         };
-        out.push(tag);
-        out.extend_from_slice(&(count as u64).to_le_bytes());
+        out(&[tag]);
+        out(&(count as u64).to_le_bytes());
         match v {
-            Value::U64(x) => out.extend_from_slice(&x.to_le_bytes()),
-            Value::F64(x) => out.extend_from_slice(&x.to_bits().to_le_bytes()),
-            Value::F64s(x) => x
-                .iter()
-                .for_each(|x| out.extend_from_slice(&x.to_bits().to_le_bytes())),
-            Value::U64s(x) => x
-                .iter()
-                .for_each(|x| out.extend_from_slice(&x.to_le_bytes())),
-            Value::Text(t) => out.extend_from_slice(t.as_bytes()),
+            Value::U64(x) => out(&x.to_le_bytes()),
+            Value::F64(x) => out(&x.to_bits().to_le_bytes()),
+            Value::F64s(x) => x.iter().for_each(|x| out(&x.to_bits().to_le_bytes())),
+            Value::U64s(x) => x.iter().for_each(|x| out(&x.to_le_bytes())),
+            Value::Text(t) => out(t.as_bytes()),
         }
     }
-    let crc = CRC.checksum(&out);
-    out.extend_from_slice(&crc.to_le_bytes());
-    out
 }
 
 /// A cursor over the bytes of a checkpoint that never reads past the end.
@@ -530,14 +543,19 @@ fn is_part_name(name: &str) -> bool {
 /// clock as the randomness: the name is recorded, not guessed, so it need not be secret).
 fn new_part_name() -> String {
     use std::hash::{BuildHasher, Hasher};
-    const DIGITS: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789";
     let mut h = std::collections::hash_map::RandomState::new().build_hasher();
     h.write_u128(
         std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos()),
     );
-    let mut x = h.finish();
+    part_name(h.finish())
+}
+
+/// The name of [`is_part_name`]'s pattern whose letters and digits are the low base-62
+/// digits of `x`.
+fn part_name(mut x: u64) -> String {
+    const DIGITS: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789";
     let mut name = String::from(PART_PREFIX);
     for _ in 0..PART_RANDOM {
         name.push(char::from(DIGITS[(x % DIGITS.len() as u64) as usize]));
@@ -1110,9 +1128,14 @@ impl Session {
             }
         }
         solvers(&mut e);
-        // the name of the next write's temporary file, recorded before that file exists
-        let next = std::iter::repeat_with(new_part_name)
-            .find(|n| *n != self.part.0)
+        // the name of the next write's temporary file, recorded before that file exists:
+        // drawn from the checkpoint's own entries (the same entries, the same bytes: no
+        // randomness in the file), random as before if that name is this write's or is taken
+        let free =
+            |n: &String| *n != self.part.0 && std::fs::symlink_metadata(self.dir.join(n)).is_err();
+        let next = Some(part_name(entries_sum(&e)))
+            .filter(free)
+            .or_else(|| std::iter::repeat_with(new_part_name).find(free))
             .unwrap_or_default();
         e.put("part.next", Value::Text(next.clone()));
         write_durably(&self.dir.join(STATE_FILE), &encode(&e), &self.part.0)?;
@@ -1669,6 +1692,62 @@ mod tests {
         for _ in 0..200 {
             assert!(is_part_name(&new_part_name()));
         }
+    }
+
+    /// Two sessions that save the same state write the same bytes (once `part.next` was drawn
+    /// at random, so no two checkpoint files were alike), and one session's successive
+    /// checkpoints still record different names.
+    #[test]
+    fn the_same_state_makes_the_same_checkpoint_bytes() {
+        let d = tempfile::tempdir().unwrap();
+        let stage = d.path().join("stage");
+        std::fs::create_dir_all(&stage).unwrap();
+        put(&stage, "state_0000.vti", "snapshot 0");
+        let (one, two) = (d.path().join("one"), d.path().join("two"));
+        let mut a = session(&one, &stage, None).unwrap();
+        let mut b = session(&two, &stage, None).unwrap();
+        let state = |t: &Path| std::fs::read(dir_of(t).join(STATE_FILE)).unwrap();
+        let mut recorded = Vec::new();
+        for steps in [10, 20] {
+            let progress = Progress {
+                next: 1,
+                stats: LoopStats {
+                    steps,
+                    ..LoopStats::default()
+                },
+                ..Progress::default()
+            };
+            a.save(&progress, |_| {}).unwrap();
+            b.save(&progress, |_| {}).unwrap();
+            // (not assert_eq: a failure would print two kilobytes of numbers)
+            let same = state(&one) == state(&two);
+            assert!(same, "the checkpoints at {steps} steps differ");
+            let stored = Stored::open(&one).unwrap();
+            let next = stored.entries.text("part.next").unwrap().to_string();
+            assert!(is_part_name(&next), "{next}");
+            recorded.push(next);
+        }
+        assert_ne!(recorded[0], recorded[1]);
+        // the derived name taken (by a user's file, say): a random one is recorded instead,
+        // and the file is left as it was
+        let mut c = session(&d.path().join("three"), &stage, None).unwrap();
+        let progress = Progress {
+            next: 1,
+            stats: LoopStats {
+                steps: 10,
+                ..LoopStats::default()
+            },
+            ..Progress::default()
+        };
+        let ck = dir_of(&d.path().join("three"));
+        std::fs::create_dir_all(&ck).unwrap();
+        put(&ck, &recorded[0], "the user's");
+        c.save(&progress, |_| {}).unwrap();
+        let stored = Stored::open(&d.path().join("three")).unwrap();
+        let next = stored.entries.text("part.next").unwrap();
+        assert!(is_part_name(next) && next != recorded[0], "{next}");
+        let users = std::fs::read_to_string(ck.join(&recorded[0])).unwrap();
+        assert_eq!(users, "the user's");
     }
 
     #[test]
