@@ -37,6 +37,18 @@ pub fn steps(scene: &Scene, dt: f64) -> f64 {
     }
 }
 
+/// Cell updates of `steps` steps on `cells` cells: `Ok` when within `limits.max_cell_steps`,
+/// `Err` with the number when above it. The one comparison that `sieve run` ([`check_steps`])
+/// and `sieve fit` refuse by; a NaN is refused too (it is not within any limit).
+pub fn cell_steps(steps: f64, cells: usize, limits: &Limits) -> std::result::Result<f64, f64> {
+    let n = steps * cells as f64;
+    if n <= limits.max_cell_steps {
+        Ok(n)
+    } else {
+        Err(n)
+    }
+}
+
 /// Refuses a run whose first stable step `dt` asks for more steps or cell updates than the
 /// scene's limits; `seconds_per_step` (the measured first step) turns the estimate into hours.
 pub fn check_steps(scene: &Scene, dt: f64, seconds_per_step: f64) -> Result<()> {
@@ -51,11 +63,13 @@ pub fn check_steps(scene: &Scene, dt: f64, seconds_per_step: f64) -> Result<()> 
     }
     let n = steps(scene, dt);
     let cells = scene.len() as f64;
-    let cell_steps = n * cells;
     let lim = scene.limits;
+    // n is finite or +inf (t_end is finite and positive, dt too): no NaN reaches this
+    let within = self::cell_steps(n, scene.len(), &lim);
+    let cell_steps = within.unwrap_or_else(|n| n);
     let (flag, limit) = if n > lim.max_steps {
         ("--max-steps", lim.max_steps)
-    } else if cell_steps > lim.max_cell_steps {
+    } else if within.is_err() {
         ("--max-cell-steps", lim.max_cell_steps)
     } else {
         return Ok(());
@@ -330,4 +344,22 @@ pub fn bounds_warning(
         scene.label,
         crate::text::approx(amount),
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The guard `sieve run` and `sieve fit` share: steps x cells against the limit.
+    #[test]
+    fn cell_steps_refuses_above_the_limit_and_nan() {
+        let lim = Limits {
+            max_cell_steps: 1e6,
+            ..Limits::default()
+        };
+        assert_eq!(cell_steps(1e3, 1000, &lim), Ok(1e6)); // at the limit: within
+        assert_eq!(cell_steps(1001.0, 1000, &lim), Err(1.001e6));
+        assert_eq!(cell_steps(f64::INFINITY, 1, &lim), Err(f64::INFINITY));
+        assert!(cell_steps(f64::NAN, 1, &lim).is_err_and(f64::is_nan));
+    }
 }

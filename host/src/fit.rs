@@ -148,8 +148,8 @@ fn evaluate<R: Real, const D: usize, const N: usize>(
     // Refused before stepping if the window `4 target` at this S0's stable step would take more
     // cell updates than a run may (a target of 1e308 s once stepped for ever).
     let dt = s.stable_dt().to_f64();
-    let cell_steps = (t_max / dt).ceil() * scene.len() as f64;
-    if !(cell_steps <= scene.limits.max_cell_steps) {
+    let steps = (t_max / dt).ceil();
+    if let Err(cell_steps) = crate::estimate::cell_steps(steps, scene.len(), &scene.limits) {
         return Err(Error::range(
             "command line",
             "--target-time",
