@@ -376,7 +376,7 @@ fn the_orifice_is_resolved_on_coarse_grids() {
 /// 1.509e-2, 2.203e-2, 2.970e-2 m^2/s; C = 1.21, W0 = 0.0046 m (0.9 cells), exponent of
 /// W - W0 1.498 with that W0 (the CLI's runs: C = 1.20, W0 = 0.0045 m, residuals < 0.21 %;
 /// the free fit of `sieve sweep --fit power`, which this study uses since 2026-12-07, gives
-/// these four rates 1.567 at its own W0 = 2.9 mm). Before: 4.73e-3 .. 2.574e-2,
+/// these four rates 1.568 at its own W0, run 2026-12-07 with C = 1.211, W0 = 4.6 mm). Before: 4.73e-3 .. 2.574e-2,
 /// W0 = 0.0154 m (3.1 cells), residuals < 3 %. docs/silo.md section 4.
 #[test]
 #[ignore]
