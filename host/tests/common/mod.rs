@@ -2,22 +2,27 @@
 
 #![allow(dead_code)]
 
-use assert_cmd::Command;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+/// Longest any CLI test's run of sieve may take before it is killed and the test fails: far
+/// above the slowest (about a minute), far below CI's limit, so a regression that hangs fails
+/// one test instead of the whole CI run.
+pub const RUN_LIMIT: Duration = Duration::from_secs(900);
+
 /// Runs `sieve args...` in `dir` with the extra environment `env` (and without a progress
-/// interval inherited from the caller's shell, which would add lines to stderr); returns the
-/// exit code (-1 if killed by a signal), stdout and stderr.
+/// interval inherited from the caller's shell, which would add lines to stderr), within
+/// [`RUN_LIMIT`]; returns the exit code (-1 if killed by a signal), stdout and stderr.
 pub fn run_env(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> (i32, String, String) {
-    let mut cmd = Command::cargo_bin("sieve").expect("binary sieve");
+    use assert_cmd::cargo::CommandCargoExt;
+    let mut cmd = std::process::Command::cargo_bin("sieve").expect("binary sieve");
     cmd.current_dir(dir)
         .args(args)
         .env_remove("SIEVE_PROGRESS_SECONDS");
     for (k, v) in env {
         cmd.env(k, v);
     }
-    let out = cmd.output().expect("run sieve");
+    let out = output_within(cmd, RUN_LIMIT);
     (
         out.status.code().unwrap_or(-1),
         String::from_utf8_lossy(&out.stdout).into_owned(),
