@@ -642,6 +642,12 @@ pub fn collect(opts: &SweepOptions) -> Result<usize> {
         (Some(exponent), Some((ax, curves))) => fit_curves(opts, *ax, curves, exponent)?,
         _ => Vec::new(),
     };
+    if opts.fit.is_some() && curves.is_none() {
+        crate::outln!(
+            "fit: not made: no run's summary.json has a number at {} (sweep.png not drawn either)",
+            opts.plot
+        )?;
+    }
     if let (Some(exponent), Some((ax, _))) = (opts.fit, &curves) {
         doc.insert(
             "fit".into(),

@@ -489,4 +489,28 @@ fn a_fit_that_cannot_be_made_is_refused_before_the_runs() {
     ]));
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("numeric values"), "{err}");
+    // A value the scene's summaries do not hold (a column has no outlet): the runs are
+    // made, and the fit says it was not.
+    let (code, out, err) = run(sieve(d.path()).args([
+        "sweep",
+        "column-a",
+        "--out",
+        "sw",
+        "-q",
+        "--set",
+        "run.t_end=0.1",
+        "--set",
+        "material.s0=0.5,1,2",
+        "--plot",
+        "flow.outlet.steady_rate",
+        "--fit",
+        "power:1.5",
+    ]));
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains(
+            "fit: not made: no run's summary.json has a number at flow.outlet.steady_rate"
+        ),
+        "{out}"
+    );
 }
