@@ -219,9 +219,7 @@ pub fn check_fit(axes: &[Axis], fit: Exponent) -> Result<()> {
         Exponent::Free => power_law::MIN_POINTS_FREE,
         Exponent::Fixed(_) => power_law::MIN_POINTS_FIXED,
     };
-    let first = axes
-        .iter()
-        .find(|a| a.values.iter().all(|v| v.trim().parse::<f64>().is_ok()));
+    let first = axes.iter().find(|a| numeric(a).is_some());
     match first {
         Some(a) if a.values.len() >= need => Ok(()),
         Some(a) => Err(Error::input(format!(
@@ -234,6 +232,12 @@ pub fn check_fit(axes: &[Axis], fit: Exponent) -> Result<()> {
             "command line: --fit needs a swept key with numeric values (at least {need}), e.g. --set boundary.flow.z_low.outlet.width=0.03,0.04,0.05,0.06"
         ))),
     }
+}
+
+/// The axis's values as numbers, if every one is a number (`--set w=0.03, 0.04`: spaces
+/// allowed). The plot and the fit take the first swept key for which this is `Some`.
+fn numeric(a: &Axis) -> Option<Vec<f64>> {
+    a.values.iter().map(|v| v.trim().parse().ok()).collect()
 }
 
 /// Splits at commas outside brackets, parentheses and quotes.
@@ -721,8 +725,6 @@ fn draw_psi(opts: &SweepOptions, rows: &Rows) -> Result<()> {
 /// index and one curve per combination of the other keys, each sorted by x). None when no
 /// swept key is numeric or the chosen value is not a number in any run.
 fn curves(opts: &SweepOptions, rows: &Rows) -> Result<Option<(usize, Vec<plot::Curve>)>> {
-    let numeric =
-        |a: &Axis| -> Option<Vec<f64>> { a.values.iter().map(|v| v.parse().ok()).collect() };
     let Some((ax, xs)) = opts
         .axes
         .iter()
@@ -935,6 +937,22 @@ mod tests {
         assert_eq!(axes[1].values, ["min(c,0.3)", "c/2"]);
         assert_eq!(axes[2].values, ["\"a,b\"", "\"c\""]);
         assert_eq!(fixed, ["material.s0=2"]);
+    }
+
+    /// The plot and the fit read a swept key as numbers by one rule, spaces allowed, so the
+    /// fit is refused up front exactly when the plot would have no numeric key.
+    #[test]
+    fn a_key_is_numeric_when_every_value_is_a_number() {
+        let axis = |v: &[&str]| Axis {
+            key: "k".into(),
+            values: v.iter().map(|s| s.to_string()).collect(),
+        };
+        assert_eq!(numeric(&axis(&["0.03", " 0.04 "])), Some(vec![0.03, 0.04]));
+        assert_eq!(numeric(&axis(&["[40]", "[80]"])), None);
+        assert_eq!(numeric(&axis(&["1", "two"])), None);
+        let axes = [axis(&["[40]", "[80]"]), axis(&["1", " 2", "3 "])];
+        assert!(check_fit(&axes, Exponent::Fixed(1.5)).is_ok());
+        assert!(check_fit(&axes, Exponent::Free).is_err());
     }
 
     #[test]
