@@ -21,6 +21,16 @@ pub enum Exponent {
     Fixed(f64),
 }
 
+impl Exponent {
+    /// Points a fit needs: one more than the constants it fits, to check them.
+    pub fn min_points(self) -> usize {
+        match self {
+            Exponent::Free => MIN_POINTS_FREE,
+            Exponent::Fixed(_) => MIN_POINTS_FIXED,
+        }
+    }
+}
+
 /// Points a fit with a fixed exponent needs: two constants and one point to check them.
 pub const MIN_POINTS_FIXED: usize = 3;
 /// Points a fit with a free exponent needs: three constants and one point to check them.
@@ -70,10 +80,7 @@ fn line(x: impl Iterator<Item = f64> + Clone, y: impl Iterator<Item = f64> + Clo
 /// there are too few, when a value is not a positive finite number, when `y` does not grow
 /// with `x`, or when no offset below the smallest `x` fits.
 pub fn fit(points: &[(f64, f64)], exponent: Exponent) -> Result<PowerFit, String> {
-    let need = match exponent {
-        Exponent::Free => MIN_POINTS_FREE,
-        Exponent::Fixed(_) => MIN_POINTS_FIXED,
-    };
+    let need = exponent.min_points();
     if points.len() < need {
         return Err(format!(
             "{} points; a fit with {} exponent needs at least {need}",

@@ -215,10 +215,7 @@ pub fn parse_fit(model: &str) -> Result<Exponent> {
 /// plotted value against the first swept key with numeric values, so that key must have the
 /// points the fit needs.
 pub fn check_fit(axes: &[Axis], fit: Exponent) -> Result<()> {
-    let need = match fit {
-        Exponent::Free => power_law::MIN_POINTS_FREE,
-        Exponent::Fixed(_) => power_law::MIN_POINTS_FIXED,
-    };
+    let need = fit.min_points();
     let first = axes.iter().find(|a| numeric(a).is_some());
     match first {
         Some(a) if a.values.len() >= need => Ok(()),
