@@ -203,11 +203,16 @@ pub fn parse_fit(model: &str) -> Result<Exponent> {
     );
     match model.trim().split_once(':') {
         None if model.trim() == "power" => Ok(Exponent::Free),
-        Some(("power", n)) => match n.trim().parse::<f64>() {
+        Some((name, n)) if name.trim() == "power" => match n.trim().parse::<f64>() {
             Ok(n) if n > 0.0 && n <= power_law::MAX_EXPONENT => Ok(Exponent::Fixed(n)),
             _ => Err(Error::range("command line", "--fit", model, &allowed)),
         },
-        _ => Err(Error::range("command line", "--fit", model, &allowed)),
+        // Not a number out of range but a model sieve does not know: say so.
+        _ => Err(Error::at(
+            "command line",
+            "--fit",
+            format!("`{model}` is not a model sieve fits: allowed {allowed}"),
+        )),
     }
 }
 
@@ -841,12 +846,17 @@ fn fit_curves(
         };
         match &fit {
             Ok(f) => crate::outln!(
-                "fit{at}: {} = A ({key} - x0)^n with A = {:.6e}, x0 = {:.6e}, n = {:.6}{}; largest residual {:.3} % over {} runs",
+                "fit{at}: {} = A ({key} - x0)^n with A = {:.6e}{}, x0 = {:.6e}{}, n = {:.6}{}; largest residual {:.3} % over {} runs",
                 opts.plot,
                 f.a,
+                plus_minus(f.se[0]),
                 f.x0,
+                plus_minus(f.se[1]),
                 f.n,
-                if exponent == Exponent::Free { " (fitted)" } else { " (given)" },
+                match exponent {
+                    Exponent::Free => format!("{} (fitted)", plus_minus(f.se[2])),
+                    Exponent::Fixed(_) => " (given)".into(),
+                },
                 100.0 * f.max_residual,
                 pts.len()
             )?,
@@ -855,6 +865,16 @@ fn fit_curves(
         out.push((label.clone(), fit));
     }
     Ok(out)
+}
+
+/// ` ± 1.23e-2`: a standard error as the stdout line gives it (`± n/a` when it could not be
+/// estimated).
+fn plus_minus(se: f64) -> String {
+    if se.is_finite() {
+        format!(" ± {se:.2e}")
+    } else {
+        " ± n/a".into()
+    }
 }
 
 /// sweep.json's `fit`: the law, its x and y, and per curve the constants or why not.
@@ -886,6 +906,10 @@ fn fits_json(
                     c.insert("x0".into(), Value::from(f.x0));
                     c.insert("n".into(), Value::from(f.n));
                     c.insert("max_residual".into(), Value::from(f.max_residual));
+                    // null when not estimated (serde_json writes NaN as null)
+                    c.insert("a_se".into(), Value::from(f.se[0]));
+                    c.insert("x0_se".into(), Value::from(f.se[1]));
+                    c.insert("n_se".into(), Value::from(f.se[2]));
                 }
                 Err(why) => {
                     c.insert("error".into(), Value::from(why.clone()));
@@ -919,6 +943,23 @@ fn index_of(axes: &[Axis], ax: usize, k: usize, fixed: &[(String, String)]) -> u
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `--fit`: the two models, spaces allowed around their parts; an unknown model is named
+    /// as such, a bad exponent as out of range.
+    #[test]
+    fn fit_models_parse_and_say_what_is_wrong() {
+        assert_eq!(parse_fit(" power ").unwrap(), Exponent::Free);
+        assert_eq!(parse_fit("power : 1.5").unwrap(), Exponent::Fixed(1.5));
+        let e = parse_fit("beverloo").unwrap_err().to_string();
+        assert!(
+            e.contains("`beverloo` is not a model sieve fits: allowed `power`"),
+            "{e}"
+        );
+        let e = parse_fit("powr:1.5").unwrap_err().to_string();
+        assert!(e.contains("is not a model"), "{e}");
+        let e = parse_fit("power:-1").unwrap_err().to_string();
+        assert!(e.contains("= power:-1 is out of range"), "{e}");
+    }
 
     #[test]
     fn value_lists_split_at_top_level_commas_only() {

@@ -424,6 +424,14 @@ fn a_width_sweep_fits_beverloos_law() {
     assert!((c - 1.20).abs() < 0.02, "Beverloo C = {c}");
     assert!((x0 - 0.0045).abs() < 0.001, "W0 = {x0}");
     assert!(res < 0.005, "largest residual {res}");
+    // Standard errors from the scatter about the law (power_law's unit test checks them
+    // against repeated fits): present, positive, and small beside the constants.
+    let (a_se, x0_se) = (f["a_se"].as_f64().unwrap(), f["x0_se"].as_f64().unwrap());
+    println!("{out}");
+    assert!(a_se > 0.0 && a_se < 0.02 * a, "A = {a} +- {a_se}");
+    assert!(x0_se > 0.0 && x0_se < 0.001, "W0 = {x0} +- {x0_se}");
+    assert_eq!(f["n_se"].as_f64(), Some(0.0));
+    assert!(out.contains(&format!("A = {a:.6e} ± {a_se:.2e}")), "{out}");
     // The fit's residual is the runs' own: the largest of |fit / rate - 1|.
     let rows = table(&sw);
     let worst = rows
@@ -445,6 +453,9 @@ fn a_width_sweep_fits_beverloos_law() {
     let f = &doc["fit"]["curves"][0];
     let n = f["n"].as_f64().unwrap();
     assert!((1.45..1.6).contains(&n), "fitted exponent {n}");
+    let n_se = f["n_se"].as_f64().unwrap();
+    println!("{out}");
+    assert!(n_se > 0.0 && n_se < 0.2, "n = {n} +- {n_se}");
     assert!(f["max_residual"].as_f64().unwrap() < 0.005, "{f}");
 }
 
@@ -453,7 +464,10 @@ fn a_width_sweep_fits_beverloos_law() {
 fn a_fit_that_cannot_be_made_is_refused_before_the_runs() {
     let d = tempfile::tempdir().unwrap();
     let cases: [(&[&str], &str); 5] = [
-        (&["--fit", "beverloo"], "--fit"),
+        (
+            &["--fit", "beverloo"],
+            "`beverloo` is not a model sieve fits: allowed `power`",
+        ),
         (&["--fit", "power:0"], "0 < N <= 100"),
         (&["--fit", "power:1e9"], "0 < N <= 100"),
         // two values of the only numeric key: a fixed exponent needs 3
