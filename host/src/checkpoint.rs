@@ -35,7 +35,9 @@
 //! a user's of the same shape, so sieve removes a temporary file only under the name a
 //! checkpoint recorded for it: each checkpoint stores (`part.next`) the name the next write
 //! will use, drawn before that file exists; `--resume` removes that one file if it is a
-//! regular file, and the resumed run writes under it again. That name is derived from a
+//! regular file that begins as a checkpoint does (`SIEVECKP`, or the start of it: a file a
+//! user put under that name since holds something else and stays), and the resumed run
+//! writes under it again. That name is derived from a
 //! CRC-64 of the checkpoint's other entries, so the same state always encodes to the same
 //! bytes (a random name was once the only difference between two checkpoints of one state);
 //! it is random when the derived name is the current write's or already exists, and a write
@@ -566,14 +568,23 @@ fn part_name(mut x: u64) -> String {
 }
 
 /// Removes the temporary file `name` from the checkpoint directory `dir` if it is a regular
-/// file (a symbolic link is not followed): the one a checkpoint recorded for the write after
-/// it, left by a SIGKILL during that write. Best effort (such a file is never read: the
-/// checkpoint is `checkpoint.bin` only). True if it was removed.
+/// file (a symbolic link is not followed) that begins as a checkpoint does: the one a
+/// checkpoint recorded for the write after it, left by a SIGKILL during that write. A file
+/// that took the recorded name after it was recorded and holds anything else is a user's
+/// and stays. Best effort (such a file is never read as a checkpoint: the checkpoint is
+/// `checkpoint.bin` only). True if it was removed.
 fn remove_part(dir: &Path, name: &str) -> bool {
     let path = dir.join(name);
     is_part_name(name)
         && std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file())
+        && begins_as_a_checkpoint(&path)
         && std::fs::remove_file(&path).is_ok()
+}
+
+/// True if the file's first bytes are [`MAGIC`], or the start of it (a write killed before
+/// its first eight bytes reached the disk: empty or shorter).
+fn begins_as_a_checkpoint(path: &Path) -> bool {
+    crate::read::head(path, MAGIC.len() as u64).is_ok_and(|head| MAGIC.starts_with(&head))
 }
 
 /// True for the names of the snapshots a checkpoint keeps in its `fields/` ([`snapshot_name`],
@@ -1421,6 +1432,43 @@ mod tests {
         )
     }
 
+    /// The recorded temporary file goes only when it holds the start of a checkpoint (what a
+    /// kill during the write leaves, from nothing to all but the end); a file a user put
+    /// under that name keeps, and so does a directory or a link of that name.
+    #[test]
+    fn a_recorded_part_is_removed_only_if_it_begins_as_a_checkpoint() {
+        let d = tempfile::tempdir().unwrap();
+        let name = part_name(12345);
+        let path = d.path().join(&name);
+        let mut whole = encode(&Entries::default());
+        whole.extend_from_slice(b"and more");
+        for cut in [0, 1, 3, 8, 9, whole.len()] {
+            std::fs::write(&path, &whole[..cut]).unwrap();
+            assert!(remove_part(d.path(), &name), "{cut} bytes of a checkpoint");
+            assert!(!path.exists());
+        }
+        for users in [&b"the user's"[..], b"SIEVECKQ", b"xSIEVECKP", b"SIEVE\n"] {
+            std::fs::write(&path, users).unwrap();
+            assert!(!remove_part(d.path(), &name), "{users:?}");
+            assert_eq!(std::fs::read(&path).unwrap(), users);
+        }
+        std::fs::remove_file(&path).unwrap();
+        std::fs::create_dir(&path).unwrap();
+        assert!(!remove_part(d.path(), &name) && path.is_dir());
+        std::fs::remove_dir(&path).unwrap();
+        #[cfg(unix)]
+        {
+            let target = d.path().join("target");
+            std::fs::write(&target, MAGIC).unwrap();
+            std::os::unix::fs::symlink(&target, &path).unwrap();
+            assert!(!remove_part(d.path(), &name));
+            assert!(target.exists() && path.symlink_metadata().is_ok());
+        }
+        // a name a damaged checkpoint could record is never used
+        std::fs::write(d.path().join("x"), MAGIC).unwrap();
+        assert!(!remove_part(d.path(), "x"));
+    }
+
     #[test]
     fn kept_pieces_round_trip_through_the_encoding() {
         let mut e = Entries::default();
@@ -1608,7 +1656,11 @@ mod tests {
         }
         let d = tempfile::tempdir().unwrap();
         let dir = d.path();
-        put(dir, ".checkpoint.Ab12Cd.part", "half a checkpoint");
+        put(
+            dir,
+            ".checkpoint.Ab12Cd.part",
+            "SIEVECKP and half a checkpoint",
+        );
         put(dir, "notes.txt", "the user's");
         assert!(remove_part(dir, ".checkpoint.Ab12Cd.part"));
         assert!(!dir.join(".checkpoint.Ab12Cd.part").exists());
@@ -1774,7 +1826,7 @@ mod tests {
                 "fields/state_0001.pvti",
                 "fields/state_0001_0.vti",
             ] {
-                std::fs::write(dir.join(name), "sieve's").unwrap();
+                std::fs::write(dir.join(name), "SIEVECKP, sieve's").unwrap();
             }
         };
         // only sieve's files: the directory goes

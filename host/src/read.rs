@@ -24,23 +24,7 @@ pub const MAX_FILE: u64 = 1 << 34;
 /// Errors (one line each): no such file or unreadable (exit 1, the system's reason), not a
 /// regular file or larger than `max` (exit 2), not enough memory for it (exit 1).
 pub fn bytes(path: &Path, max: u64) -> Result<Vec<u8>> {
-    let not_a_file = || {
-        Error::input(format!(
-            "{}: not a regular file (a directory, FIFO, socket or device); sieve reads only files it wrote",
-            path.display()
-        ))
-    };
-    if !std::fs::metadata(path)
-        .map_err(|e| Error::io(path, e))?
-        .is_file()
-    {
-        return Err(not_a_file());
-    }
-    let file = open(path).map_err(|e| Error::io(path, e))?;
-    let meta = file.metadata().map_err(|e| Error::io(path, e))?;
-    if !meta.is_file() {
-        return Err(not_a_file()); // replaced since the check above
-    }
+    let (file, meta) = open_file(path)?;
     let len = meta.len();
     if len > max {
         return Err(Error::input(format!(
@@ -65,6 +49,41 @@ pub fn bytes(path: &Path, max: u64) -> Result<Vec<u8>> {
         )));
     }
     Ok(out)
+}
+
+/// The first bytes of the regular file `path`, at most `n` of them (fewer if the file is
+/// shorter): enough to recognise a file's format without reading it all. Errors as
+/// [`bytes`].
+pub fn head(path: &Path, n: u64) -> Result<Vec<u8>> {
+    let (file, _) = open_file(path)?;
+    let mut out = Vec::new();
+    file.take(n)
+        .read_to_end(&mut out)
+        .map_err(|e| Error::io(path, e))?;
+    Ok(out)
+}
+
+/// `path` opened for reading if it is a regular file, checked by name and then on the open
+/// handle (module doc), with that handle's metadata.
+fn open_file(path: &Path) -> Result<(std::fs::File, std::fs::Metadata)> {
+    let not_a_file = || {
+        Error::input(format!(
+            "{}: not a regular file (a directory, FIFO, socket or device); sieve reads only files it wrote",
+            path.display()
+        ))
+    };
+    if !std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .is_file()
+    {
+        return Err(not_a_file());
+    }
+    let file = open(path).map_err(|e| Error::io(path, e))?;
+    let meta = file.metadata().map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(not_a_file()); // replaced since the check above
+    }
+    Ok((file, meta))
 }
 
 /// Opens `path` for reading without waiting for a writer: a FIFO put in place of a checked

@@ -452,12 +452,25 @@ fn a_stale_temporary_file_is_removed_on_resume_and_never_read() {
             "{name}"
         );
     }
+    // a user's file put under the name the checkpoint now on disk recorded for the next
+    // write, before that write: it holds no checkpoint, so it is not sieve's and stays
+    let taken = decode(&std::fs::read(&state).unwrap())
+        .unwrap()
+        .text("part.next")
+        .unwrap()
+        .to_string();
+    std::fs::write(ck.join(&taken), "the user's").unwrap();
     // resumed to the end: the uninterrupted run's bits; the checkpoint's own files go, the
     // user's stay, with their directory, and a note says so
     let (code, _, err) = run_full(d.path(), &resume);
     assert_eq!(code, 0, "{err}");
     assert!(err.contains("holds files sieve did not write"), "{err}");
     assert!(!state.exists() && !ck.join("fields").exists());
+    assert_eq!(
+        std::fs::read_to_string(ck.join(&taken)).unwrap(),
+        "the user's",
+        "the user's file under the recorded name {taken}"
+    );
     for name in users {
         assert_eq!(
             std::fs::read_to_string(ck.join(name)).unwrap(),
