@@ -22,6 +22,18 @@
 //! of the serial sum ([`block_partials`]) and one place folds them in block order: the same
 //! bits for 1, 2 or 64 workers. `tests/tests/flow_cg.rs` asserts it.
 //!
+//! Cut anywhere: a distributed driver whose parts are whole grid rows cannot choose its cuts
+//! (a row of 29 or 58 cells is no multiple of [`BLOCK`]), and a part may be shorter than a
+//! block. The serial bits survive any cut, with two small exchanges: a block that begins in
+//! one part and ends in later ones is summed by the part where it begins, which borrows the
+//! missing terms (at most `BLOCK - 1`) from the parts after it ([`lent`], [`borrowed`],
+//! [`cut_partials`]); and the fold of the partials in block order runs along the parts, each
+//! continuing from the running total of the parts before it ([`fold_from`]). The terms are
+//! the serial terms (each part computes its own products), so each block is the serial
+//! block, and the fold is the serial fold: the same bits as [`reduce`] over `0..n`, for any
+//! number and placement of cuts, at the price of one message of at most `BLOCK - 1` terms per
+//! cut and a chain of one number through the parts (docs/parallel.md).
+//!
 //! # Against an exact accumulator
 //! An exact (superaccumulator, xsum) or binned (ReproBLAS) sum is independent of *any* order
 //! and decomposition, not only of splits at block boundaries, and correctly rounded. Its
@@ -105,11 +117,86 @@ pub fn block_partials<R: Real>(
 
 /// Adds block partials in order, from 0: the last stage of [`reduce`].
 pub fn fold<R: Real>(partials: &[R]) -> R {
-    let mut total = R::ZERO;
+    fold_from(R::ZERO, partials)
+}
+
+/// `((prefix + p0) + p1) + ...`: [`fold`] continued from the running total of the partials
+/// before these (`fold_from(0, p)` is `fold(p)`, bit for bit: `0 + p0` is `p0`). Parts of a sum
+/// cut anywhere pass the total along: each folds its own partials from the total of the
+/// parts before it, and the last one holds the serial sum.
+pub fn fold_from<R: Real>(prefix: R, partials: &[R]) -> R {
+    let mut total = prefix;
     for p in partials {
         total += *p;
     }
     total
+}
+
+/// The first index of the first block that begins at or after `i`.
+fn block_start_from(i: usize) -> usize {
+    i.div_ceil(BLOCK) * BLOCK
+}
+
+/// The terms at the head of the part `start..end` that belong to a block begun in an earlier
+/// part (0 when `start` is a block boundary): the part hands these, in index order, to the
+/// part where that block begins, which sums the block ([`cut_partials`]).
+pub fn lent(start: usize, end: usize) -> usize {
+    block_start_from(start).min(end) - start.min(end)
+}
+
+/// The terms past `end` that the part `start..end` of a sum over `0..n` needs to complete the
+/// last block that begins in it: the [`lent`] terms of the parts after it, concatenated in
+/// part order (0 if no block begins in it or its last block ends inside it).
+pub fn borrowed(start: usize, end: usize, n: usize) -> usize {
+    let first = block_start_from(start);
+    if first >= end {
+        return 0;
+    }
+    let last = first + (end - 1 - first) / BLOCK * BLOCK;
+    (last + BLOCK).min(n).saturating_sub(end)
+}
+
+/// How many blocks begin in `start..end`: the partials [`cut_partials`] writes.
+pub fn blocks_begun(start: usize, end: usize) -> usize {
+    (block_start_from(end) - block_start_from(start).min(block_start_from(end))) / BLOCK
+}
+
+/// The partials of the blocks that begin in the part `start..end` of a sum over `0..n`, cut at
+/// any point (module docs): `term(i)` for the part's own indices, called in increasing order
+/// from the first block boundary in the part; `borrowed` holds the [`borrowed`] terms past
+/// `end` (a shorter slice reads as zeros there, which no driver should rely on). Writes
+/// [`blocks_begun`] partials into `out` and returns that number. [`fold_from`] of them,
+/// continued part after part, is bit-identical to [`reduce`] over `0..n`.
+pub fn cut_partials<R: Real>(
+    start: usize,
+    end: usize,
+    n: usize,
+    mut term: impl FnMut(usize) -> R,
+    borrowed: &[R],
+    out: &mut [R],
+) -> usize {
+    let mut k = 0;
+    let mut s = block_start_from(start);
+    while s < end {
+        let e = (s + BLOCK).min(n);
+        let partial = if e <= end {
+            block(s, e, &mut term)
+        } else {
+            block(s, e, &mut |i: usize| {
+                if i < end {
+                    term(i)
+                } else {
+                    borrowed.get(i - end).copied().unwrap_or(R::ZERO)
+                }
+            })
+        };
+        if let Some(o) = out.get_mut(k) {
+            *o = partial;
+        }
+        k += 1;
+        s = e;
+    }
+    k
 }
 
 /// `sum_i x_i`.

@@ -7,6 +7,12 @@
 //! pieces, which must cover the grid exactly once) and exits 0 if they hold the same grid,
 //! time and arrays to the bit, 1 if not.
 //!
+//! `mpirun -np K target/release/examples/mpi_check --sums`: dot products over vectors cut
+//! among the K ranks at row boundaries (rows of 1 to 1000 cells, parts shorter than a sum
+//! block, empty parts, f64 and f32) by `sieve::rank_sum::reduce_across`, each against the
+//! serial `sum::reduce` on every rank: exits 0 if all have the serial bits, 1 if not; then
+//! times one distributed sum of 2^20 terms against the serial one.
+//!
 //! Needs the `mpi` feature (OpenMPI: `apt-get install libopenmpi-dev openmpi-bin libclang-dev`).
 
 use sieve::output::vtk::read_vti;
@@ -54,6 +60,115 @@ fn same_vti(a: &str, b: &str) -> Result<String, String> {
     ))
 }
 
+/// A value in [0, 1) from a 64-bit LCG (the same sequence on every rank).
+fn lcg(s: &mut u64) -> f64 {
+    *s = s
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    (*s >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// `--sums`: returns the exit code.
+fn sums() -> i32 {
+    use mpi::traits::*;
+    use sieve::rank_sum::reduce_across;
+    use sieve_core::sum;
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("mpi_check --sums: MPI is already initialised");
+        return 1;
+    };
+    let world = universe.world();
+    let (rank, size) = (world.rank() as usize, world.size() as usize);
+    let mut bad = 0i32;
+    let mut cases = 0;
+    // (cells per row, rows, seed of the cuts: 0 = rows shared evenly, else random row cuts
+    // with empty parts)
+    let shapes = [
+        (29, 100, 0),
+        (58, 200, 0),
+        (29, 8, 0),
+        (1, 7, 0),
+        (256, 9, 0),
+        (1000, 3, 0),
+        (29, 100, 1),
+        (1, 1000, 2),
+        (7, 300, 3),
+        (29, 1, 4),
+    ];
+    for (w, rows, seed) in shapes {
+        let n = w * rows;
+        let mut s = 0x5eed ^ (n as u64) ^ (seed << 32);
+        // 12 decades, mixed signs: the order of additions shows in the bits
+        let x: Vec<f64> = (0..n)
+            .map(|_| (lcg(&mut s) - 0.4) * 10f64.powf(12.0 * lcg(&mut s) - 6.0))
+            .collect();
+        let y: Vec<f64> = (0..n).map(|_| lcg(&mut s) - 0.5).collect();
+        let mut cuts: Vec<usize> = if seed == 0 {
+            (0..=size).map(|r| r * rows / size * w).collect()
+        } else {
+            let mut c: Vec<usize> = (0..size - 1)
+                .map(|_| (lcg(&mut s) * (rows + 1) as f64) as usize * w)
+                .collect();
+            c.push(0);
+            c.push(n);
+            c.sort_unstable();
+            c
+        };
+        cuts[size] = n;
+        let parts: Vec<_> = cuts.windows(2).map(|c| c[0]..c[1]).collect();
+        let serial = sum::reduce(n, |i| x[i] * y[i]);
+        let across = reduce_across(&world, &parts, |i| x[i] * y[i]);
+        let xf: Vec<f32> = x.iter().map(|v| *v as f32).collect();
+        let serial32 = sum::reduce(n, |i| xf[i] * y[i] as f32);
+        let across32 = reduce_across(&world, &parts, |i| xf[i] * y[i] as f32);
+        cases += 2;
+        if across.to_bits() != serial.to_bits() || across32.to_bits() != serial32.to_bits() {
+            bad += 1;
+            eprintln!(
+                "mpi_check --sums: rank {rank}: {rows} rows of {w}, parts {parts:?}: {across:e} / {across32:e} against the serial {serial:e} / {serial32:e}"
+            );
+        }
+    }
+    // the cost of the exchanges: one sum of 2^20 terms on rows of 1000 cells
+    let n = 1 << 20;
+    let x: Vec<f64> = (0..n).map(|i| 1.0 + (i % 7) as f64 * 1e-3).collect();
+    let cuts: Vec<usize> = (0..=size).map(|r| r * (n / 1000) / size * 1000).collect();
+    let mut parts: Vec<_> = cuts.windows(2).map(|c| c[0]..c[1]).collect();
+    parts[size - 1].end = n;
+    let reps = 200;
+    world.barrier();
+    let t = std::time::Instant::now();
+    let mut across = 0.0;
+    for _ in 0..reps {
+        across = reduce_across(&world, &parts, |i| x[i] * x[i]);
+    }
+    let t_across = t.elapsed().as_secs_f64() / reps as f64;
+    let t = std::time::Instant::now();
+    let mut serial = 0.0;
+    for _ in 0..reps {
+        serial = std::hint::black_box(sum::dot(&x, &x));
+    }
+    let t_serial = t.elapsed().as_secs_f64() / reps as f64;
+    if across.to_bits() != serial.to_bits() {
+        bad += 1;
+    }
+    let all_bad = {
+        let mut total = 0i32;
+        world.all_reduce_into(&bad, &mut total, mpi::collective::SystemOperation::sum());
+        total
+    };
+    if rank == 0 {
+        println!(
+            "mpi_check --sums: {cases} sums on {size} ranks, {}; 2^20 terms: {:.1} us across the ranks, {:.1} us serially on one",
+            if all_bad == 0 { "all with the serial bits" } else { "SOME DIFFERENT" },
+            t_across * 1e6,
+            t_serial * 1e6
+        );
+    }
+    drop(universe);
+    i32::from(all_bad != 0)
+}
+
 fn main() {
     let mut args = std::env::args().skip(1);
     let name = args.next().unwrap_or_else(|| "shear-cell-inverse".into());
@@ -70,6 +185,9 @@ fn main() {
             }
         }
         return;
+    }
+    if name == "--sums" {
+        std::process::exit(sums());
     }
     let sets: Vec<String> = args.collect();
     let launched = match sieve::parallel_mpi::launch() {

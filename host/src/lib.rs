@@ -32,6 +32,8 @@ pub mod parallel_mpi;
 pub mod pool;
 pub mod power_law;
 pub mod progress;
+#[cfg(feature = "mpi")]
+pub mod rank_sum;
 pub mod read;
 pub mod run;
 pub mod scene;

@@ -446,7 +446,9 @@ struct Local<R: Real, const D: usize, const N: usize> {
 /// that close behind in a balanced step), then with 20 us sleeps. MPI's own wait polls at
 /// full speed however long it takes, which on a machine with more processes than free
 /// cores takes the CPU the awaited rank needs (docs/parallel.md, measured there).
-fn wait_politely<'a, S: mpi::request::Scope<'a>>(mut req: mpi::request::Request<'a, [f64], S>) {
+pub(crate) fn wait_politely<'a, S: mpi::request::Scope<'a>>(
+    mut req: mpi::request::Request<'a, [f64], S>,
+) {
     let start = std::time::Instant::now();
     loop {
         match req.test() {

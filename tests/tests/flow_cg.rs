@@ -477,6 +477,7 @@ proptest! {
         seed in 1u64..1_000_000,
         n in 1usize..3000,
         cuts in proptest::collection::vec(0usize..12, 0..5),
+        any_cuts in proptest::collection::vec(0usize..100_000, 0..24),
     ) {
         let mut s = seed;
         // mixed signs and 12 decades: cancellation and swamping
@@ -512,6 +513,38 @@ proptest! {
         }
         prop_assert_eq!(k, partials.len());
         prop_assert_eq!(sum::fold(&partials).to_bits(), whole.to_bits());
+        // cut anywhere (grid rows of any width, parts shorter than a block, empty parts): each
+        // part lends its head to the part where that block began, borrows what its last
+        // block needs from the parts after it, and folds from the running total before it
+        let mut edges: Vec<usize> = any_cuts.iter().map(|c| c % (n + 1)).collect();
+        edges.push(0);
+        edges.push(n);
+        edges.sort_unstable();
+        let parts: Vec<(usize, usize)> = edges.windows(2).map(|w| (w[0], w[1])).collect();
+        let term = |i: usize| x[i] * y[i];
+        let lent: Vec<Vec<f64>> = parts
+            .iter()
+            .map(|&(a, b)| (a..a + sum::lent(a, b)).map(term).collect())
+            .collect();
+        let mut total = 0.0;
+        let mut begun = 0;
+        for (p, &(a, b)) in parts.iter().enumerate() {
+            let need = sum::borrowed(a, b, n);
+            let from_later: Vec<f64> = lent[p + 1..].iter().flatten().copied().take(need).collect();
+            prop_assert_eq!(from_later.len(), need, "part {}..{} of {}", a, b, n);
+            let mut out = vec![f64::NAN; sum::blocks_begun(a, b)];
+            let k = sum::cut_partials(a, b, n, term, &from_later, &mut out);
+            prop_assert_eq!(k, out.len());
+            begun += k;
+            total = sum::fold_from(total, &out);
+        }
+        prop_assert_eq!(begun, n.div_ceil(sum::BLOCK));
+        prop_assert_eq!(total.to_bits(), whole.to_bits(), "cuts {:?}", edges);
+        // every lent term is borrowed by exactly one part: the lent heads cover the blocks'
+        // tails, no more
+        let lent_total: usize = lent.iter().map(Vec::len).sum();
+        let borrowed_total: usize = parts.iter().map(|&(a, b)| sum::borrowed(a, b, n)).sum();
+        prop_assert_eq!(lent_total, borrowed_total);
         // the slice kernels are the generic scheme
         prop_assert_eq!(sum::reduce(n, |i| x[i] * y[i]).to_bits(), whole.to_bits());
         let (mut xu, mut ru) = (y.clone(), x.clone());
