@@ -13,6 +13,12 @@
 //! serial `sum::reduce` on every rank: exits 0 if all have the serial bits, 1 if not; then
 //! times one distributed sum of 2^20 terms against the serial one.
 //!
+//! `mpirun -np K target/release/examples/mpi_check --lines`: the flow's line preconditioner
+//! on random systems (2D and 3D, periodic and not, coefficients over 10 decades) cut into
+//! K slabs of rows, evenly and unevenly, its columns in 1 and 4 pieces, by
+//! `sieve::rank_lines`, against the serial factor and solve: exits 0 if every rank's pivots,
+//! multipliers and `z` have the serial bits, 1 if not.
+//!
 //! Needs the `mpi` feature (OpenMPI: `apt-get install libopenmpi-dev openmpi-bin libclang-dev`).
 
 use sieve::output::vtk::read_vti;
@@ -169,6 +175,128 @@ fn sums() -> i32 {
     i32::from(all_bad != 0)
 }
 
+/// One random system's line solve on the ranks' slabs against the serial one; the number of
+/// arrays that differ on this rank.
+fn line_case<const D: usize, C: mpi::traits::Communicator>(
+    world: &C,
+    cells: [usize; D],
+    periodic: [bool; D],
+    uneven: bool,
+    segments: usize,
+    seed: u64,
+) -> i32 {
+    use sieve_core::flow::cg::Stencil;
+    const N: usize = 4096;
+    let (rank, size) = (world.rank() as usize, world.size() as usize);
+    let grid = sieve_core::Grid::<f64, D>::new(cells, [0.0; D], [1.0; D], N).expect("grid");
+    let n = grid.len();
+    let s = grid.stride(D - 1);
+    let mut r = seed;
+    let mut kf = Box::new([[0.0f64; N]; D]);
+    for (a, k) in kf.iter_mut().enumerate() {
+        for v in k[..n].iter_mut() {
+            let scale = if a + 1 == D { 1e3 } else { 1.0 };
+            *v = scale * 10f64.powf(10.0 * lcg(&mut r) - 5.0);
+        }
+    }
+    let diag: Vec<f64> = (0..N).map(|_| 1e-3 + lcg(&mut r)).collect();
+    let b: Vec<f64> = (0..N).map(|_| lcg(&mut r) - 0.5).collect();
+    let st = Stencil {
+        grid: &grid,
+        periodic,
+        kf: &kf,
+    };
+    let (mut inv_d, mut l, mut z) = (vec![0.0; N], vec![0.0; N], vec![0.0; N]);
+    st.line_factor(&diag, &mut inv_d, &mut l);
+    st.precondition(&inv_d, &l, &b, &mut z);
+    // this rank's rows: even shares, or the lower ranks one row each (at least one row each)
+    let rows = n / s;
+    let edge = |k: usize| {
+        if uneven {
+            if k < size {
+                k
+            } else {
+                rows
+            }
+        } else {
+            k * rows / size
+        }
+    };
+    let (a, e) = (edge(rank) * s, edge(rank + 1) * s);
+    let mut m = vec![0.0; N];
+    st.diagonal(&diag, &mut m);
+    let mut d = m[a..e].to_vec();
+    let mut ls = vec![f64::NAN; e - a];
+    let kb: Vec<f64> = (a..e)
+        .map(|i| if i >= s { kf[D - 1][i - s] } else { f64::NAN })
+        .collect();
+    sieve::rank_lines::factor_across(world, s, segments, &mut d, &mut ls, &kb);
+    let mut zs = vec![f64::NAN; e - a];
+    sieve::rank_lines::solve_across(world, s, segments, &d, &ls, &b[a..e], &mut zs);
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let mut bad = 0;
+    for (what, mine, serial) in [
+        ("pivots", &d, &inv_d),
+        ("multipliers", &ls, &l),
+        ("z", &zs, &z),
+    ] {
+        if bits(mine) != bits(&serial[a..e]) {
+            bad += 1;
+            eprintln!("mpi_check --lines: rank {rank}: {cells:?} periodic {periodic:?}, rows {}..{}, {segments} pieces: {what} differ", a / s, e / s);
+        }
+    }
+    bad
+}
+
+/// `--lines`: returns the exit code.
+fn lines() -> i32 {
+    use mpi::traits::*;
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("mpi_check --lines: MPI is already initialised");
+        return 1;
+    };
+    let world = universe.world();
+    let mut bad = 0i32;
+    let mut cases = 0;
+    for (seed, uneven, segments) in [(1, false, 1), (2, false, 4), (3, true, 4), (4, true, 1)] {
+        for periodic in [false, true] {
+            bad += line_case(&world, [13, 31], [periodic, false], uneven, segments, seed);
+            bad += line_case(
+                &world,
+                [29, 9],
+                [periodic, periodic],
+                uneven,
+                segments,
+                seed,
+            );
+            bad += line_case(
+                &world,
+                [5, 4, 19],
+                [periodic, false, periodic],
+                uneven,
+                segments,
+                seed,
+            );
+            cases += 3;
+        }
+    }
+    let mut all_bad = 0i32;
+    world.all_reduce_into(&bad, &mut all_bad, mpi::collective::SystemOperation::sum());
+    if world.rank() == 0 {
+        println!(
+            "mpi_check --lines: {cases} line solves on {} ranks, {}",
+            world.size(),
+            if all_bad == 0 {
+                "pivots, multipliers and z with the serial bits"
+            } else {
+                "SOME DIFFERENT"
+            }
+        );
+    }
+    drop(universe);
+    i32::from(all_bad != 0)
+}
+
 fn main() {
     let mut args = std::env::args().skip(1);
     let name = args.next().unwrap_or_else(|| "shear-cell-inverse".into());
@@ -188,6 +316,9 @@ fn main() {
     }
     if name == "--sums" {
         std::process::exit(sums());
+    }
+    if name == "--lines" {
+        std::process::exit(lines());
     }
     let sets: Vec<String> = args.collect();
     let launched = match sieve::parallel_mpi::launch() {

@@ -33,6 +33,8 @@ pub mod pool;
 pub mod power_law;
 pub mod progress;
 #[cfg(feature = "mpi")]
+pub mod rank_lines;
+#[cfg(feature = "mpi")]
 pub mod rank_sum;
 pub mod read;
 pub mod run;

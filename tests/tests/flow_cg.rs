@@ -453,6 +453,133 @@ fn reruns_are_bit_identical() {
     }
 }
 
+/// The line preconditioner cut into slabs of rows (core/src/flow/line_slab.rs) has the
+/// serial bits: pivots, multipliers and `z = M^-1 r`, for slabs of one row up, cuts in every
+/// place, and the columns in segments swept slab after slab as a wavefront would (segment
+/// by segment up the slabs for the factor and the forward sweep, down for the backward one),
+/// in 2D and 3D, periodic and not, with coefficients over 10 decades.
+#[test]
+fn line_slabs_have_the_serial_bits() {
+    use sieve_core::flow::line_slab;
+    fn check<const D: usize>(sys: &System<D>, cuts: &[usize], segments: usize, what: &str) {
+        let n = sys.grid.len();
+        let s = sys.grid.stride(D - 1);
+        let st = Stencil {
+            grid: &sys.grid,
+            periodic: sys.periodic,
+            kf: &sys.kf,
+        };
+        let (mut inv_d, mut l, mut z) = (vec![0.0; N], vec![0.0; N], vec![0.0; N]);
+        st.line_factor(&sys.diag, &mut inv_d, &mut l);
+        st.precondition(&inv_d, &l, &sys.b, &mut z);
+        // the slabs: rows [cuts[k], cuts[k + 1]), each with its own arrays
+        let rows = n / s;
+        let mut edges: Vec<usize> = cuts.iter().map(|c| c % rows).filter(|&c| c > 0).collect();
+        edges.push(0);
+        edges.push(rows);
+        edges.sort_unstable();
+        edges.dedup();
+        let slabs: Vec<(usize, usize)> = edges.windows(2).map(|w| (w[0] * s, w[1] * s)).collect();
+        let mut m = vec![0.0; N];
+        st.diagonal(&sys.diag, &mut m);
+        let mut d: Vec<Vec<f64>> = slabs.iter().map(|&(a, b)| m[a..b].to_vec()).collect();
+        let mut ls: Vec<Vec<f64>> = slabs.iter().map(|&(a, b)| vec![f64::NAN; b - a]).collect();
+        // the face below each row: the coefficient stored at the cell below it (none on the floor)
+        let kb: Vec<Vec<f64>> = slabs
+            .iter()
+            .map(|&(a, b)| {
+                (a..b)
+                    .map(|i| {
+                        if i >= s {
+                            sys.kf[D - 1][i - s]
+                        } else {
+                            f64::NAN
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let seg: Vec<std::ops::Range<usize>> = (0..segments)
+            .map(|k| k * s / segments..(k + 1) * s / segments)
+            .collect();
+        for c in &seg {
+            for k in 0..slabs.len() {
+                let (done, rest) = d.split_at_mut(k);
+                let below = done.last().map(|p| &p[p.len() - s..]);
+                line_slab::factor(s, c.clone(), &mut rest[0], &mut ls[k], &kb[k], below);
+            }
+        }
+        for p in d.iter_mut() {
+            line_slab::invert_pivots(p);
+        }
+        let mut zs: Vec<Vec<f64>> = slabs.iter().map(|&(a, b)| vec![f64::NAN; b - a]).collect();
+        for c in &seg {
+            for k in 0..slabs.len() {
+                let (a, b) = slabs[k];
+                let (done, rest) = zs.split_at_mut(k);
+                let below = done.last().map(|p| &p[p.len() - s..]);
+                line_slab::forward(
+                    s,
+                    c.clone(),
+                    &ls[k],
+                    Some(&sys.b[a..b]),
+                    &mut rest[0],
+                    below,
+                );
+            }
+        }
+        for c in &seg {
+            for k in (0..slabs.len()).rev() {
+                let (here, after) = zs.split_at_mut(k + 1);
+                let above = after.first().map(|za| (&za[..s], &ls[k + 1][..s]));
+                line_slab::backward(s, c.clone(), &d[k], &ls[k], &mut here[k], above);
+            }
+        }
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let joined = |v: &[Vec<f64>]| v.concat();
+        assert_eq!(
+            bits(&joined(&d)),
+            bits(&inv_d[..n]),
+            "{what}: pivots, slabs {slabs:?}"
+        );
+        assert_eq!(
+            bits(&joined(&ls)),
+            bits(&l[..n]),
+            "{what}: multipliers, slabs {slabs:?}"
+        );
+        assert_eq!(
+            bits(&joined(&zs)),
+            bits(&z[..n]),
+            "{what}: z, slabs {slabs:?}"
+        );
+    }
+    for (seed, cuts, segments) in [
+        (1, vec![], 1),
+        (2, vec![1], 1),
+        (3, vec![5, 6, 7, 20], 3),
+        (4, vec![3, 11, 12, 13, 14, 15, 30], 7),
+    ] {
+        for periodic in [false, true] {
+            let sys = random_system([13, 31], [periodic, periodic], seed);
+            check(
+                &sys,
+                &cuts,
+                segments,
+                &format!("2D seed {seed} periodic {periodic}"),
+            );
+            let sys = layer(29, 17, periodic, seed);
+            check(&sys, &cuts, segments, &format!("layer seed {seed}"));
+            let sys = random_system([5, 4, 19], [periodic, false, periodic], seed);
+            check(
+                &sys,
+                &cuts,
+                segments,
+                &format!("3D seed {seed} periodic {periodic}"),
+            );
+        }
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(24))]
     #[test]

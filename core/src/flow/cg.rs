@@ -330,10 +330,12 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
         }
     }
 
-    /// `m = diag + sum of the adjacent face coefficients`: A's diagonal. (A periodic axis of
-    /// one cell has a wrap face from the cell to itself, which A does not see.)
+    /// `m = diag + sum of the adjacent face coefficients`: A's diagonal, and the line
+    /// preconditioner's before its factor ([`super::line_slab`] takes it from here). (A
+    /// periodic axis of one cell has a wrap face from the cell to itself, which A does not
+    /// see.)
     #[inline(always)]
-    fn diagonal(&self, diag: &[R], m: &mut [R]) {
+    pub fn diagonal(&self, diag: &[R], m: &mut [R]) {
         let n = self.grid.len();
         m[..n].copy_from_slice(&diag[..n]);
         for a in 0..D {
@@ -436,7 +438,7 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
 
 /// `l = k / d_below; d -= k l` on one row of the factor.
 #[inline(always)]
-fn factor_row<R: Real>(dh: &mut [R], lh: &mut [R], db: &[R], kb: &[R]) {
+pub(crate) fn factor_row<R: Real>(dh: &mut [R], lh: &mut [R], db: &[R], kb: &[R]) {
     let s = dh.len();
     let (lh, db, kb) = (&mut lh[..s], &db[..s], &kb[..s]);
     for j in 0..s {
@@ -447,7 +449,7 @@ fn factor_row<R: Real>(dh: &mut [R], lh: &mut [R], db: &[R], kb: &[R]) {
 
 /// The forward sweep on one row: `z = r + l z_below` (or `z += l z_below` without `r`).
 #[inline(always)]
-fn forward_row<R: Real>(zh: &mut [R], rh: Option<&[R]>, lh: &[R], zb: &[R]) {
+pub(crate) fn forward_row<R: Real>(zh: &mut [R], rh: Option<&[R]>, lh: &[R], zb: &[R]) {
     let s = zh.len();
     let (lh, zb) = (&lh[..s], &zb[..s]);
     match rh {
@@ -467,7 +469,7 @@ fn forward_row<R: Real>(zh: &mut [R], rh: Option<&[R]>, lh: &[R], zb: &[R]) {
 
 /// The backward sweep on one row: `z_below = z_below w_below + l z`.
 #[inline(always)]
-fn backward_row<R: Real>(zb: &mut [R], zh: &[R], lh: &[R], wb: &[R]) {
+pub(crate) fn backward_row<R: Real>(zb: &mut [R], zh: &[R], lh: &[R], wb: &[R]) {
     let s = zb.len();
     let (zh, lh, wb) = (&zh[..s], &lh[..s], &wb[..s]);
     for j in 0..s {
