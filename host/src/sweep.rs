@@ -205,7 +205,14 @@ pub fn parse_fit(model: &str) -> Result<Exponent> {
         None if model.trim() == "power" => Ok(Exponent::Free),
         Some((name, n)) if name.trim() == "power" => match n.trim().parse::<f64>() {
             Ok(n) if n > 0.0 && n <= power_law::MAX_EXPONENT => Ok(Exponent::Fixed(n)),
-            _ => Err(Error::range("command line", "--fit", model, &allowed)),
+            Ok(_) => Err(Error::range("command line", "--fit", model, &allowed)),
+            Err(_) => Err(Error::at(
+                "command line",
+                "--fit",
+                format!(
+                    "`{model}`: the exponent after `power:` is not a number; allowed {allowed}"
+                ),
+            )),
         },
         // Not a number out of range but a model sieve does not know: say so.
         _ => Err(Error::at(
@@ -959,6 +966,15 @@ mod tests {
         assert!(e.contains("is not a model"), "{e}");
         let e = parse_fit("power:-1").unwrap_err().to_string();
         assert!(e.contains("= power:-1 is out of range"), "{e}");
+        for bad in ["power:", "power:1.5x", "power:nan"] {
+            let e = parse_fit(bad).unwrap_err().to_string();
+            let says = if bad == "power:nan" {
+                "out of range"
+            } else {
+                "is not a number"
+            };
+            assert!(e.contains(says), "{bad}: {e}");
+        }
     }
 
     #[test]
