@@ -463,6 +463,27 @@ pub(crate) fn wait_politely<'a, S: mpi::request::Scope<'a>>(
     }
 }
 
+/// A blocking receive of `buf.len()` values from rank `from` with `tag`, waiting as
+/// [`wait_politely`] does (the sums and line solves of `rank_sum` and `rank_lines`).
+pub(crate) fn receive_politely<C: Communicator>(comm: &C, from: usize, tag: i32, buf: &mut [f64]) {
+    mpi::request::scope(|sc| {
+        wait_politely(
+            comm.process_at_rank(from as i32)
+                .immediate_receive_into_with_tag(sc, buf, tag),
+        );
+    });
+}
+
+/// A broadcast of `buf` from rank `root`, waiting as [`wait_politely`] does.
+pub(crate) fn broadcast_politely<C: Communicator>(comm: &C, root: usize, buf: &mut [f64]) {
+    mpi::request::scope(|sc| {
+        wait_politely(
+            comm.process_at_rank(root as i32)
+                .immediate_broadcast_into(sc, buf),
+        );
+    });
+}
+
 impl<R: Real, const D: usize, const N: usize> Local<R, D, N> {
     /// Subdomain `rank` of `ranks` of the prepared `global`, checked against the global
     /// step.

@@ -21,10 +21,9 @@ fn pieces(s: usize, segments: usize) -> Vec<Range<usize>> {
     (0..m).map(|k| k * s / m..(k + 1) * s / m).collect()
 }
 
-/// Receives a piece of a row from `from` into `row[c]`.
+/// Receives a piece of a row from `from` into `row[c]` (waiting politely, as the halos do).
 fn receive<C: Communicator>(comm: &C, from: usize, tag: i32, row: &mut [f64], c: &Range<usize>) {
-    comm.process_at_rank(from as i32)
-        .receive_into_with_tag(&mut row[c.clone()], tag);
+    crate::parallel_mpi::receive_politely(comm, from, tag, &mut row[c.clone()]);
 }
 
 /// Sends a piece of a row to `to`, widened to f64 (exact for f32).

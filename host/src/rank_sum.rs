@@ -9,8 +9,10 @@
 //!
 //! Cost per sum: at most one message of fewer than `BLOCK` terms per cut, a chain of one
 //! number through the ranks (latency grows with the number of ranks), and one broadcast.
+//! Every wait polls with short sleeps as the run's halo exchange does, so that a waiting rank
+//! leaves the CPU to the one it waits for on a machine with more ranks than cores.
 
-use crate::parallel_mpi::wait_politely;
+use crate::parallel_mpi::{broadcast_politely, receive_politely, wait_politely};
 use mpi::traits::*;
 use sieve_core::{sum, Real};
 use std::ops::Range;
@@ -54,8 +56,7 @@ pub fn reduce_across<R: Real, C: Communicator>(
         while got < need && q < size {
             let l = sum::lent(parts[q].start, parts[q].end);
             if l > 0 {
-                comm.process_at_rank(q as i32)
-                    .receive_into_with_tag(&mut borrowed[got..got + l], TAG_LENT);
+                receive_politely(comm, q, TAG_LENT, &mut borrowed[got..got + l]);
             }
             got += l;
             q += 1;
@@ -69,8 +70,7 @@ pub fn reduce_across<R: Real, C: Communicator>(
     sum::cut_partials(a, b, n, &mut term, &borrowed, &mut partials);
     let mut running = [0.0f64];
     if rank > 0 {
-        comm.process_at_rank(rank as i32 - 1)
-            .receive_into_with_tag(&mut running[..], TAG_RUNNING);
+        receive_politely(comm, rank - 1, TAG_RUNNING, &mut running);
     }
     let total = sum::fold_from(R::from_f64(running[0]), &partials);
     running[0] = total.to_f64();
@@ -78,7 +78,6 @@ pub fn reduce_across<R: Real, C: Communicator>(
         comm.process_at_rank(rank as i32 + 1)
             .send_with_tag(&running[..], TAG_RUNNING);
     }
-    comm.process_at_rank(size as i32 - 1)
-        .broadcast_into(&mut running[..]);
+    broadcast_politely(comm, size - 1, &mut running);
     R::from_f64(running[0])
 }
