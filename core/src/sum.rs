@@ -96,23 +96,16 @@ pub fn block<R: Real>(start: usize, end: usize, term: &mut impl FnMut(usize) -> 
 /// The block partials of `term` over `start..end` into `out` (one per block; `start` a
 /// multiple of [`BLOCK`]): what one worker of a threaded driver computes for its chunk.
 /// Returns the number of partials written. [`fold`] of all chunks' partials, in block order,
-/// is bit-identical to [`reduce`] over the whole range.
+/// is bit-identical to [`reduce`] over the whole range. (The aligned case of
+/// [`cut_partials`]: a chunk that ends at a block boundary or at the end borrows nothing.)
 pub fn block_partials<R: Real>(
     start: usize,
     end: usize,
-    mut term: impl FnMut(usize) -> R,
+    term: impl FnMut(usize) -> R,
     out: &mut [R],
 ) -> usize {
     debug_assert!(start % BLOCK == 0, "chunks must start at a block boundary");
-    let mut k = 0;
-    let mut s = start;
-    while s < end {
-        let e = (s + BLOCK).min(end);
-        out[k] = block(s, e, &mut term);
-        k += 1;
-        s = e;
-    }
-    k
+    cut_partials(start, end, end, term, &[], out)
 }
 
 /// Adds block partials in order, from 0: the last stage of [`reduce`].

@@ -37,9 +37,11 @@ fn last_row(len: usize, s: usize) -> usize {
     (len / s.max(1)).saturating_sub(1) * s
 }
 
-/// Values widened by [`send`], back in `R`.
-fn narrow<R: Real>(row: &[f64]) -> Vec<R> {
-    row.iter().map(|&v| R::from_f64(v)).collect()
+/// The piece `c` of a row widened by [`send`], back in `R`, into the same piece of `out`.
+fn narrow<R: Real>(row: &[f64], c: &Range<usize>, out: &mut [R]) {
+    for (o, &v) in out[c.clone()].iter_mut().zip(&row[c.clone()]) {
+        *o = R::from_f64(v);
+    }
 }
 
 /// The rank below and the rank above this one (ranks own slabs from the floor up, in rank
@@ -63,13 +65,15 @@ pub fn factor_across<R: Real, C: Communicator>(
 ) {
     let (below, above) = neighbours(comm);
     let mut row = vec![0.0f64; s];
+    let mut db = vec![R::ZERO; s];
     let top = last_row(d.len(), s);
     for c in pieces(s, segments) {
-        let db = below.map(|b| {
+        if let Some(b) = below {
             receive(comm, b, TAG_UP, &mut row, &c);
-            narrow::<R>(&row)
-        });
-        line_slab::factor(s, c.clone(), d, l, k_below, db.as_deref());
+            narrow(&row, &c, &mut db);
+        }
+        let db = below.map(|_| &db[..]);
+        line_slab::factor(s, c.clone(), d, l, k_below, db);
         if let Some(a) = above {
             send(comm, a, TAG_UP, &d[top + c.start..top + c.end]);
         }
@@ -90,31 +94,28 @@ pub fn solve_across<R: Real, C: Communicator>(
     let (below, above) = neighbours(comm);
     let mut row = vec![0.0f64; s];
     let mut row_l = vec![0.0f64; s];
+    let (mut zn, mut ln) = (vec![R::ZERO; s], vec![R::ZERO; s]);
     let top = last_row(z.len(), s);
     for c in pieces(s, segments) {
-        let zb = below.map(|b| {
+        if let Some(b) = below {
             receive(comm, b, TAG_UP, &mut row, &c);
-            narrow::<R>(&row)
-        });
-        line_slab::forward(s, c.clone(), l, Some(r), z, zb.as_deref());
+            narrow(&row, &c, &mut zn);
+        }
+        let zb = below.map(|_| &zn[..]);
+        line_slab::forward(s, c.clone(), l, Some(r), z, zb);
         if let Some(a) = above {
             send(comm, a, TAG_UP, &z[top + c.start..top + c.end]);
         }
     }
     for c in pieces(s, segments) {
-        let za = above.map(|a| {
+        if let Some(a) = above {
             receive(comm, a, TAG_DOWN, &mut row, &c);
             receive(comm, a, TAG_DOWN, &mut row_l, &c);
-            (narrow::<R>(&row), narrow::<R>(&row_l))
-        });
-        line_slab::backward(
-            s,
-            c.clone(),
-            inv_d,
-            l,
-            z,
-            za.as_ref().map(|(z, l)| (&z[..], &l[..])),
-        );
+            narrow(&row, &c, &mut zn);
+            narrow(&row_l, &c, &mut ln);
+        }
+        let za = above.map(|_| (&zn[..], &ln[..]));
+        line_slab::backward(s, c.clone(), inv_d, l, z, za);
         if let Some(b) = below {
             send(comm, b, TAG_DOWN, &z[c.clone()]);
             send(comm, b, TAG_DOWN, &l[c.clone()]);
