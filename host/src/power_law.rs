@@ -75,9 +75,18 @@ impl PowerFit {
     }
 }
 
-/// Least-squares line through `(x, y)`: `(slope, intercept)`. The caller guarantees two
-/// distinct `x` at least.
-fn line(x: impl Iterator<Item = f64> + Clone, y: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
+/// A least-squares line and the spread of its `x`, which its standard errors need.
+struct Line {
+    slope: f64,
+    intercept: f64,
+    /// Mean of the `x`.
+    mean_x: f64,
+    /// `sum (x - mean_x)^2`.
+    sxx: f64,
+}
+
+/// Least-squares line through `(x, y)`. The caller guarantees two distinct `x` at least.
+fn line(x: impl Iterator<Item = f64> + Clone, y: impl Iterator<Item = f64> + Clone) -> Line {
     let n = x.clone().count() as f64;
     let mx = x.clone().sum::<f64>() / n;
     let my = y.clone().sum::<f64>() / n;
@@ -85,7 +94,20 @@ fn line(x: impl Iterator<Item = f64> + Clone, y: impl Iterator<Item = f64> + Clo
         (sxy + (a - mx) * (b - my), sxx + (a - mx) * (a - mx))
     });
     let slope = sxy / sxx;
-    (slope, my - slope * mx)
+    Line {
+        slope,
+        intercept: my - slope * mx,
+        mean_x: mx,
+        sxx,
+    }
+}
+
+/// The line of the fixed-exponent fit: `y^(1/n)` against `x`.
+fn fixed_line(points: &[(f64, f64)], n: f64) -> Line {
+    line(
+        points.iter().map(|p| p.0),
+        points.iter().map(|p| p.1.powf(1.0 / n)),
+    )
 }
 
 /// Fits `y = A (x - x0)^n` to `points`. Errors (one line, in the words of the points) when
@@ -158,14 +180,18 @@ fn standard_errors(points: &[(f64, f64)], exponent: Exponent, a: f64, x0: f64, n
     let m = points.len() as f64;
     let se = match exponent {
         Exponent::Fixed(_) => {
-            let s = a.powf(1.0 / n);
+            // the fit's own line (the same slope, mean and spread of x as the fit)
+            let Line {
+                slope: s,
+                mean_x: mx,
+                sxx,
+                ..
+            } = fixed_line(points, n);
             let sse: f64 = points
                 .iter()
                 .map(|&(x, y)| (y.powf(1.0 / n) - s * (x - x0)).powi(2))
                 .sum();
             let var = sse / (m - 2.0);
-            let mx = points.iter().map(|p| p.0).sum::<f64>() / m;
-            let sxx: f64 = points.iter().map(|p| (p.0 - mx) * (p.0 - mx)).sum();
             // Var(slope) = s^2 / Sxx; x0 = -intercept / slope gives
             // Var(x0) = s^2 (1/m + (mean x - x0)^2 / Sxx) / slope^2.
             let se_s = (var / sxx).sqrt();
@@ -216,8 +242,9 @@ fn inverse_diagonal(m: &[[f64; 3]; 3]) -> [f64; 3] {
 
 /// `y^(1/n)` is the straight line `A^(1/n) (x - x0)`.
 fn fixed(points: &[(f64, f64)], n: f64) -> Result<(f64, f64, f64), String> {
-    let z = points.iter().map(|p| p.1.powf(1.0 / n));
-    let (slope, intercept) = line(points.iter().map(|p| p.0), z);
+    let Line {
+        slope, intercept, ..
+    } = fixed_line(points, n);
     if !(slope > 0.0) {
         return Err("y does not grow with x, so no growing power law fits".into());
     }
@@ -238,7 +265,11 @@ fn free(points: &[(f64, f64)], xmin: f64, span: f64) -> Result<(f64, f64, f64), 
         let x0 = xmin - span * u.exp();
         let lx = points.iter().map(move |p| (p.0 - x0).ln());
         let ly = points.iter().map(|p| p.1.ln());
-        let (n, ln_a) = line(lx.clone(), ly.clone());
+        let Line {
+            slope: n,
+            intercept: ln_a,
+            ..
+        } = line(lx.clone(), ly.clone());
         let sse = lx
             .zip(ly)
             .map(|(a, b)| (b - ln_a - n * a) * (b - ln_a - n * a))
