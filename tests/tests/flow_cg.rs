@@ -17,9 +17,11 @@ use proptest::prelude::*;
 use sieve::isa::Level;
 use sieve::pool::Pool;
 use sieve_core::flow::cg::{solve_on, workspace_len, Preconditioner, Scratch, Stencil, Stop};
+use sieve_core::flow::cycle_slab::Links;
 use sieve_core::fork::{Fork, Serial};
 use sieve_core::sum;
 use sieve_core::Grid;
+use std::sync::{mpsc, Arc, Barrier, Mutex};
 
 const N: usize = 4096;
 
@@ -577,6 +579,295 @@ fn line_slabs_have_the_serial_bits() {
                 &format!("3D seed {seed} periodic {periodic}"),
             );
         }
+    }
+}
+
+/// Slabs on threads, the tests' stand-in for MPI ranks (core/src/flow/cycle_slab.rs
+/// `Links`): a channel per direction between neighbours, a shared board for the gathers.
+struct ThreadLinks {
+    index: usize,
+    up: Option<mpsc::Sender<Vec<f64>>>,
+    down: Option<mpsc::Sender<Vec<f64>>>,
+    from_below: Option<mpsc::Receiver<Vec<f64>>>,
+    from_above: Option<mpsc::Receiver<Vec<f64>>>,
+    board: Arc<(Mutex<Vec<Vec<f64>>>, Barrier)>,
+}
+
+impl ThreadLinks {
+    /// The links of `slabs` slabs, in slab order.
+    fn chain(slabs: usize) -> Vec<Self> {
+        let board = Arc::new((Mutex::new(vec![vec![]; slabs]), Barrier::new(slabs)));
+        let mut links: Vec<Self> = (0..slabs)
+            .map(|index| Self {
+                index,
+                up: None,
+                down: None,
+                from_below: None,
+                from_above: None,
+                board: board.clone(),
+            })
+            .collect();
+        for k in 1..slabs {
+            let (tx, rx) = mpsc::channel();
+            links[k - 1].up = Some(tx);
+            links[k].from_below = Some(rx);
+            let (tx, rx) = mpsc::channel();
+            links[k].down = Some(tx);
+            links[k - 1].from_above = Some(rx);
+        }
+        links
+    }
+}
+
+impl Links<f64> for ThreadLinks {
+    fn send_up(&mut self, row: &[f64]) {
+        self.up
+            .as_ref()
+            .expect("a slab above")
+            .send(row.to_vec())
+            .unwrap();
+    }
+    fn send_down(&mut self, row: &[f64]) {
+        self.down
+            .as_ref()
+            .expect("a slab below")
+            .send(row.to_vec())
+            .unwrap();
+    }
+    fn receive_below(&mut self, row: &mut [f64]) {
+        row.copy_from_slice(
+            &self
+                .from_below
+                .as_ref()
+                .expect("a slab below")
+                .recv()
+                .unwrap(),
+        );
+    }
+    fn receive_above(&mut self, row: &mut [f64]) {
+        row.copy_from_slice(
+            &self
+                .from_above
+                .as_ref()
+                .expect("a slab above")
+                .recv()
+                .unwrap(),
+        );
+    }
+    fn swap(&mut self, bottom: &[f64], top: &[f64], below: &mut [f64], above: &mut [f64]) {
+        if let Some(d) = &self.down {
+            d.send(bottom.to_vec()).unwrap();
+        }
+        if let Some(u) = &self.up {
+            u.send(top.to_vec()).unwrap();
+        }
+        if let Some(r) = &self.from_below {
+            below.copy_from_slice(&r.recv().unwrap());
+        }
+        if let Some(r) = &self.from_above {
+            above.copy_from_slice(&r.recv().unwrap());
+        }
+    }
+    fn gather(&mut self, own: &[f64], all: &mut [f64]) {
+        let (board, barrier) = &*self.board;
+        board.lock().unwrap()[self.index] = own.to_vec();
+        barrier.wait();
+        all.copy_from_slice(&board.lock().unwrap().concat());
+        barrier.wait();
+    }
+}
+
+/// The preconditioner on slabs of rows (core/src/flow/cycle_slab.rs: the line solves as
+/// pipelines, the V-cycle's upper levels on the slabs with halo rows, its lower levels
+/// gathered) gives `z = B r` with the serial bits, the slabs running as threads: cuts
+/// aligned to 2, 4, 8 and 16 rows and uneven slabs, one slab, 2D and 3D, periodic across,
+/// coefficients over 10 decades and a cold bed, full and shortened hierarchies, and the lines
+/// alone (where odd cuts are allowed). Every array a slab is not meant to read (halo values
+/// other than the faces below, its workspace) starts as NaN.
+#[test]
+fn slab_preconditioner_has_the_serial_bits() {
+    use sieve_core::flow::cg::precondition_once;
+    use sieve_core::flow::cycle_slab::{self, Fine, Plan, PlanError};
+    fn check<const D: usize>(sys: &System<D>, starts: &[usize], room: usize, mg: bool, what: &str) {
+        let n = sys.grid.len();
+        let cells = sys.grid.cells();
+        let s: usize = cells[..D - 1].iter().product();
+        let st = Stencil {
+            grid: &sys.grid,
+            periodic: sys.periodic,
+            kf: &sys.kf,
+        };
+        let mut z = vec![0.0; N];
+        let mut v = vec![vec![0.0; N]; 6];
+        let mut coarse = vec![0.0; room];
+        let [r, p, ap, pre, line, tmp] = &mut v[..] else {
+            unreachable!()
+        };
+        let _ = (r, p, ap);
+        let rz = precondition_once(
+            &st,
+            &sys.diag,
+            &sys.b,
+            &mut z,
+            Scratch {
+                r: &mut [],
+                p: &mut [],
+                ap: &mut [],
+                pre,
+                line,
+                tmp,
+                coarse: &mut coarse,
+                part: &mut [],
+            },
+            mg,
+        );
+        assert!(rz.is_finite() && rz > 0.0, "{what}: r . z = {rz}");
+        let slabs = starts.len();
+        let pieces: Vec<Vec<f64>> = std::thread::scope(|scope| {
+            let handles: Vec<_> = ThreadLinks::chain(slabs)
+                .into_iter()
+                .enumerate()
+                .map(|(k, mut links)| {
+                    scope.spawn(move || {
+                        let plan = Plan::new(cells, sys.periodic, starts, k, room).unwrap();
+                        let own = plan.own_range();
+                        let first = starts[k] * s; // global index of the first own cell
+                        let len = plan.padded_len();
+                        // global cell of padded index i (own cells, the halo rows beside them)
+                        let global = |i: usize| (i + first).checked_sub(s).filter(|&g| g < n);
+                        let padded = |src: &[f64], halo_below: bool| -> Vec<f64> {
+                            (0..len)
+                                .map(|i| match global(i) {
+                                    Some(g) if own.contains(&i) => src[g],
+                                    Some(g) if halo_below && i < s => src[g],
+                                    _ => f64::NAN,
+                                })
+                                .collect()
+                        };
+                        let diag = padded(&sys.diag, false);
+                        let kf: Vec<Vec<f64>> = (0..D)
+                            .map(|a| padded(&sys.kf[a][..n], a == D - 1))
+                            .collect();
+                        let fine = Fine {
+                            diag: &diag,
+                            kf: std::array::from_fn(|a| &kf[a][..]),
+                        };
+                        let r = padded(&sys.b, false);
+                        let mut z = vec![f64::NAN; len];
+                        let m = own.len();
+                        let (mut pre, mut line, mut tmp) =
+                            (vec![f64::NAN; m], vec![f64::NAN; m], vec![f64::NAN; m]);
+                        let mut work = vec![f64::NAN; plan.workspace_len()];
+                        cycle_slab::factor(
+                            &plan, &mut links, &fine, &mut pre, &mut line, &mut work,
+                        );
+                        let coarsened = mg && plan.can_coarsen();
+                        if coarsened {
+                            cycle_slab::coarsen(&plan, &mut links, &fine, &mut pre, &mut work);
+                        }
+                        cycle_slab::apply(
+                            &plan,
+                            &mut links,
+                            &fine,
+                            (&pre, &line),
+                            &r,
+                            &mut z,
+                            &mut tmp,
+                            &mut work,
+                            coarsened,
+                        );
+                        z[own].to_vec()
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let joined = pieces.concat();
+        if bits(&joined) != bits(&z[..n]) {
+            let first = (0..n)
+                .find(|&i| joined[i].to_bits() != z[i].to_bits())
+                .unwrap();
+            panic!(
+                "{what}, slabs from {starts:?}, room {room}, multigrid {mg}: z differs first at \
+                 cell {first} (row {}): {} against the serial {}",
+                first / s,
+                joined[first],
+                z[first]
+            );
+        }
+    }
+    let full2 = workspace_len([24, 40]);
+    for (seed, starts) in [
+        (1, vec![0]),
+        (2, vec![0, 16]),
+        (3, vec![0, 8, 16, 32]),
+        (4, vec![0, 4, 12, 20, 28]),
+        (5, vec![0, 2, 4, 6, 8, 30]),
+        (6, vec![0, 2, 38]),
+    ] {
+        for px in [false, true] {
+            let sys = random_system([24, 40], [px, false], seed);
+            for room in [full2, full2 / 8, 0] {
+                check(
+                    &sys,
+                    &starts,
+                    room,
+                    true,
+                    &format!("2D seed {seed} px {px}"),
+                );
+            }
+            check(
+                &sys,
+                &starts,
+                full2,
+                false,
+                &format!("2D lines seed {seed} px {px}"),
+            );
+            let sys = layer(29, 40, px, seed);
+            check(
+                &sys,
+                &starts,
+                workspace_len([29, 40]),
+                true,
+                &format!("layer seed {seed}"),
+            );
+            let sys = random_system([5, 4, 40], [px, true, false], seed);
+            let full3 = workspace_len([5, 4, 40]);
+            check(
+                &sys,
+                &starts,
+                full3,
+                true,
+                &format!("3D seed {seed} px {px}"),
+            );
+        }
+    }
+    // the lines alone take any cut; the V-cycle refuses odd ones and a cut periodic axis
+    let sys = random_system([13, 31], [true, false], 7);
+    check(&sys, &[0, 1, 5, 6, 7, 20], 0, false, "2D odd cuts, lines");
+    let sys = random_system([1, 31], [false, false], 8);
+    check(
+        &sys,
+        &[0, 3, 17],
+        workspace_len([1, 31]),
+        true,
+        "vertical lines, odd cuts",
+    );
+    assert_eq!(
+        Plan::new([13, 31], [false; 2], &[0, 5], 0, workspace_len([13, 31])).err(),
+        Some(PlanError::OddCut)
+    );
+    assert_eq!(
+        Plan::new([13, 32], [false, true], &[0, 16], 0, 0).err(),
+        Some(PlanError::PeriodicCut)
+    );
+    for bad in [&[][..], &[1], &[0, 0], &[0, 31], &[0, 9, 4]] {
+        assert_eq!(
+            Plan::new([13, 31], [false; 2], bad, 0, 0).err(),
+            Some(PlanError::BadCuts),
+            "{bad:?}"
+        );
     }
 }
 

@@ -61,14 +61,15 @@
 use crate::fork::{self, Call, Fork};
 use crate::grid::Grid;
 use crate::real::Real;
+use core::ops::Range;
 
 /// Damping of the finest smoother (the line solve): `omega M^-1`. Below 1 so that the
 /// line-Jacobi smoother is convergent for any coefficients (`2 M / omega - A` is positive
 /// definite), which keeps the V-cycle SPD; 0.8 was the fastest of 0.8 and 1.0 on the
 /// shear-cell spin-up.
-const OMEGA: f64 = 0.8;
+pub(crate) const OMEGA: f64 = 0.8;
 /// Damping of the Jacobi smoother of the coarse levels.
-const OMEGA_COARSE: f64 = 2.0 / 3.0;
+pub(crate) const OMEGA_COARSE: f64 = 2.0 / 3.0;
 /// Symmetric Gauss-Seidel sweeps on the coarsest level.
 const COARSEST_SWEEPS: u32 = 2;
 /// Iterations between two checks of the convergence rate of the line preconditioner.
@@ -168,80 +169,15 @@ impl<R: Real, const D: usize, const N: usize> Stencil<'_, R, D, N> {
         first: usize,
         out: &mut [R],
     ) {
-        let cells = self.grid.cells();
-        let n0 = cells[0];
-        let lines = out.len() / n0;
-        let mut k = line_start(cells, first);
-        let empty: &[R] = &[];
         let kf: [&[R]; D] = core::array::from_fn(|a| &self.kf[a][..]);
         let strides: [usize; D] = core::array::from_fn(|a| self.grid.stride(a));
-        for line in first..first + lines {
-            let i0 = line * n0;
-            // The faces of the other axes, in the order they are added: per axis the face to
-            // `+a` (or the wrap face at the last cell), the face from `-a` (or the wrap face
-            // at the first); as (coefficients, neighbour values) of the whole line.
-            let mut kt: [&[R]; 6] = [empty; 6];
-            let mut xt: [&[R]; 6] = [empty; 6];
-            let m = line_faces(
-                (cells, strides, self.periodic),
-                kf,
-                x,
-                (&k, i0, n0),
-                &mut kt,
-                &mut xt,
-            );
-            let line_x = &x[i0..i0 + n0];
-            let o = &mut out[i0 - first * n0..i0 - first * n0 + n0];
-            let (ds, bs) = (&diag[i0..i0 + n0], &b[i0..i0 + n0]);
-            let k0 = &self.kf[0][i0..i0 + n0];
-            let lx = LineTerms {
-                x: line_x,
-                kt: &kt[..m],
-                xt: &xt[..m],
-            };
-            match m {
-                0 => lx.interior::<RES, 0>(ds, bs, k0, o),
-                1 => lx.interior::<RES, 1>(ds, bs, k0, o),
-                2 => lx.interior::<RES, 2>(ds, bs, k0, o),
-                3 => lx.interior::<RES, 3>(ds, bs, k0, o),
-                4 => lx.interior::<RES, 4>(ds, bs, k0, o),
-                5 => lx.interior::<RES, 5>(ds, bs, k0, o),
-                _ => lx.interior::<RES, 6>(ds, bs, k0, o),
-            }
-            // the two end cells of the line (or the only one), with the wrap face of axis 0
-            let ends = if n0 > 1 { [0, n0 - 1] } else { [0, 0] };
-            for (e, &j) in ends.iter().enumerate() {
-                if e == 1 && n0 == 1 {
-                    break;
-                }
-                let xj = line_x[j];
-                let mut v = if RES { bs[j] - ds[j] * xj } else { ds[j] * xj };
-                let mut add = |t: R| {
-                    if RES {
-                        v -= t;
-                    } else {
-                        v += t;
-                    }
-                };
-                if n0 > 1 {
-                    if j + 1 < n0 {
-                        add(k0[j] * (xj - line_x[j + 1]));
-                    }
-                    if j > 0 {
-                        add(k0[j - 1] * (xj - line_x[j - 1]));
-                    }
-                    if self.periodic[0] {
-                        let other = if j == 0 { n0 - 1 } else { 0 };
-                        add(k0[n0 - 1] * (xj - line_x[other]));
-                    }
-                }
-                for t in 0..m {
-                    add(kt[t][j] * (xj - xt[t][j]));
-                }
-                o[j] = v;
-            }
-            next_line(&mut k, &cells);
-        }
+        product_lines::<RES, R, D>(
+            (self.grid.cells(), strides, self.periodic),
+            kf,
+            (diag, b, x),
+            first,
+            out,
+        );
     }
 
     /// The product of [`Self::product`] as a face-by-face pass per axis over each line (the
@@ -477,6 +413,92 @@ pub(crate) fn backward_row<R: Real>(zb: &mut [R], zh: &[R], lh: &[R], wb: &[R]) 
     }
 }
 
+/// `out = A x` (or `b - A x`) on the whole lines along axis 0 that `out` covers, the first
+/// being line `first` (`out` starts at cell `first * n0`), for a grid of `cells` with face
+/// coefficients `kf` and diagonal `diag`: [`Stencil::product`]'s arithmetic on slices, so
+/// that a slab of rows with its halo rows ([`super::cycle_slab`]) computes its own rows with
+/// the serial bits. Inlined into the runner of [`Fork::hot`], as are the line solves below.
+#[inline(always)]
+pub(crate) fn product_lines<const RES: bool, R: Real, const D: usize>(
+    (cells, strides, periodic): ([usize; D], [usize; D], [bool; D]),
+    kf: [&[R]; D],
+    (diag, b, x): (&[R], &[R], &[R]),
+    first: usize,
+    out: &mut [R],
+) {
+    let n0 = cells[0];
+    let lines = out.len() / n0;
+    let mut k = line_start(cells, first);
+    let empty: &[R] = &[];
+    for line in first..first + lines {
+        let i0 = line * n0;
+        // The faces of the other axes, in the order they are added: per axis the face to
+        // `+a` (or the wrap face at the last cell), the face from `-a` (or the wrap face
+        // at the first); as (coefficients, neighbour values) of the whole line.
+        let mut kt: [&[R]; 6] = [empty; 6];
+        let mut xt: [&[R]; 6] = [empty; 6];
+        let m = line_faces(
+            (cells, strides, periodic),
+            kf,
+            x,
+            (&k, i0, n0),
+            &mut kt,
+            &mut xt,
+        );
+        let line_x = &x[i0..i0 + n0];
+        let o = &mut out[i0 - first * n0..i0 - first * n0 + n0];
+        let (ds, bs) = (&diag[i0..i0 + n0], &b[i0..i0 + n0]);
+        let k0 = &kf[0][i0..i0 + n0];
+        let lx = LineTerms {
+            x: line_x,
+            kt: &kt[..m],
+            xt: &xt[..m],
+        };
+        match m {
+            0 => lx.interior::<RES, 0>(ds, bs, k0, o),
+            1 => lx.interior::<RES, 1>(ds, bs, k0, o),
+            2 => lx.interior::<RES, 2>(ds, bs, k0, o),
+            3 => lx.interior::<RES, 3>(ds, bs, k0, o),
+            4 => lx.interior::<RES, 4>(ds, bs, k0, o),
+            5 => lx.interior::<RES, 5>(ds, bs, k0, o),
+            _ => lx.interior::<RES, 6>(ds, bs, k0, o),
+        }
+        // the two end cells of the line (or the only one), with the wrap face of axis 0
+        let ends = if n0 > 1 { [0, n0 - 1] } else { [0, 0] };
+        for (e, &j) in ends.iter().enumerate() {
+            if e == 1 && n0 == 1 {
+                break;
+            }
+            let xj = line_x[j];
+            let mut v = if RES { bs[j] - ds[j] * xj } else { ds[j] * xj };
+            let mut add = |t: R| {
+                if RES {
+                    v -= t;
+                } else {
+                    v += t;
+                }
+            };
+            if n0 > 1 {
+                if j + 1 < n0 {
+                    add(k0[j] * (xj - line_x[j + 1]));
+                }
+                if j > 0 {
+                    add(k0[j - 1] * (xj - line_x[j - 1]));
+                }
+                if periodic[0] {
+                    let other = if j == 0 { n0 - 1 } else { 0 };
+                    add(k0[n0 - 1] * (xj - line_x[other]));
+                }
+            }
+            for t in 0..m {
+                add(kt[t][j] * (xj - xt[t][j]));
+            }
+            o[j] = v;
+        }
+        next_line(&mut k, &cells);
+    }
+}
+
 /// The coordinates of the first cell of line `line` along axis 0 (`k[0] = 0`): where a
 /// product over a chunk of lines starts counting.
 fn line_start<const D: usize>(cells: [usize; D], line: usize) -> [usize; D] {
@@ -625,7 +647,7 @@ fn coarser<const D: usize>(cells: [usize; D]) -> [usize; D] {
     c
 }
 
-fn strides<const D: usize>(cells: [usize; D]) -> [usize; D] {
+pub(crate) fn strides<const D: usize>(cells: [usize; D]) -> [usize; D] {
     let mut s = [1; D];
     for a in 1..D {
         s[a] = s[a - 1] * cells[a - 1];
@@ -643,7 +665,7 @@ pub fn workspace_len<const D: usize>(cells: [usize; D]) -> usize {
 /// Calls `f(i, k)` for every cell `i` with its coordinates `k`, in index order (`forward`) or
 /// in reverse.
 #[inline(always)]
-fn for_each_cell<const D: usize>(
+pub(crate) fn for_each_cell<const D: usize>(
     cells: [usize; D],
     forward: bool,
     mut f: impl FnMut(usize, &[usize; D]),
@@ -702,7 +724,7 @@ fn for_each_line<const D: usize>(
 /// `coarse[parent(i)] += fine[i]` over the cells of `cells` (restriction, `P^T`). Inlined
 /// into a hot loop ([`Fork::hot`]) at each call.
 #[inline(always)]
-fn restrict<R: Real, const D: usize>(
+pub(crate) fn restrict<R: Real, const D: usize>(
     cells: [usize; D],
     sc: &[usize; D],
     fine: &[R],
@@ -724,7 +746,7 @@ fn restrict<R: Real, const D: usize>(
 
 /// `fine[i] += coarse[parent(i)]` (prolongation, `P`). Inlined into a hot loop.
 #[inline(always)]
-fn prolong<R: Real, const D: usize>(
+pub(crate) fn prolong<R: Real, const D: usize>(
     cells: [usize; D],
     sc: &[usize; D],
     coarse: &[R],
@@ -756,15 +778,15 @@ fn parent<const D: usize>(k: &[usize; D], sc: &[usize; D]) -> usize {
 
 /// The shapes of a multigrid hierarchy (level 0 is the fine grid).
 #[derive(Clone, Copy)]
-struct Levels<const D: usize> {
-    cells: [[usize; D]; MAX_LEVELS],
-    n: [usize; MAX_LEVELS],
-    count: usize,
+pub(crate) struct Levels<const D: usize> {
+    pub(crate) cells: [[usize; D]; MAX_LEVELS],
+    pub(crate) n: [usize; MAX_LEVELS],
+    pub(crate) count: usize,
 }
 
 impl<const D: usize> Levels<D> {
     /// Coarsens to one cell, or as far as the storage fits in `room`.
-    fn new(fine: [usize; D], room: usize) -> Self {
+    pub(crate) fn new(fine: [usize; D], room: usize) -> Self {
         let mut lv = Self {
             cells: [fine; MAX_LEVELS],
             n: [0; MAX_LEVELS],
@@ -790,7 +812,7 @@ impl<const D: usize> Levels<D> {
     }
 
     /// Operators and vectors of the coarse levels, plus one shared vector of level 1.
-    fn storage(&self) -> usize {
+    pub(crate) fn storage(&self) -> usize {
         if self.count < 2 {
             0
         } else {
@@ -800,20 +822,61 @@ impl<const D: usize> Levels<D> {
 
     /// Offset of level `l`'s operator block (full diagonal, then `D` face arrays) in the
     /// operator part of the workspace.
-    fn op_offset(&self, l: usize) -> usize {
+    pub(crate) fn op_offset(&self, l: usize) -> usize {
         (D + 1) * self.n[1..l].iter().sum::<usize>()
+    }
+
+    /// Where level `l`'s right-hand side lives in the V-cycle's work (after the operators);
+    /// during set-up it holds the level's mass diagonal.
+    pub(crate) fn rhs_slot(&self, l: usize) -> Range<usize> {
+        let x = 2 * self.n[1..l].iter().sum::<usize>();
+        x + self.n[l]..x + 2 * self.n[l]
+    }
+
+    /// The hierarchy below level `from` as one of its own: its level 0 is level `from - 1`
+    /// of this one (`from >= 1`), so its level 1 is level `from`. What a slab of rows solves
+    /// whole on every rank once its levels are gathered ([`super::cycle_slab`]).
+    pub(crate) fn below(&self, from: usize) -> Self {
+        let mut lv = Self::new(self.cells[from - 1], usize::MAX);
+        lv.count = self.count + 1 - from;
+        lv
+    }
+
+    /// Builds levels `2..count` from level 1's operator (at the start of `ops`) and mass
+    /// diagonal (in `work`'s right-hand side slot of level 1): the masses restricted level by
+    /// level, each level's Galerkin operator from the one above.
+    pub(crate) fn coarsen_from_first<R: Real>(
+        &self,
+        periodic: [bool; D],
+        ops: &mut [R],
+        work: &mut [R],
+    ) {
+        for l in 1..self.count - 1 {
+            let (here, below) = work.split_at_mut(self.rhs_slot(l + 1).start);
+            let m = &mut below[..self.n[l + 1]];
+            m.fill(R::ZERO);
+            restrict(
+                self.cells[l],
+                &strides(self.cells[l + 1]),
+                &here[self.rhs_slot(l)],
+                m,
+            );
+            let (done, next) = ops.split_at_mut(self.op_offset(l + 1));
+            let op = Op::at(&done[self.op_offset(l)..], self.cells[l], periodic);
+            op.galerkin(self.cells[l + 1], &work[self.rhs_slot(l + 1)], next);
+        }
     }
 }
 
 /// One grid's operator `A x = adiag x - sum_f k_f x_nb` with its full diagonal and face
 /// coefficients as slices (the coarse levels, and the fine level during set-up).
 #[derive(Clone, Copy)]
-struct Op<'a, R, const D: usize> {
-    cells: [usize; D],
-    strides: [usize; D],
-    periodic: [bool; D],
-    adiag: &'a [R],
-    kf: [&'a [R]; D],
+pub(crate) struct Op<'a, R, const D: usize> {
+    pub(crate) cells: [usize; D],
+    pub(crate) strides: [usize; D],
+    pub(crate) periodic: [bool; D],
+    pub(crate) adiag: &'a [R],
+    pub(crate) kf: [&'a [R]; D],
 }
 
 impl<'a, R: Real, const D: usize> Op<'a, R, D> {
@@ -880,7 +943,7 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
     /// `out = b - A x` on the whole lines along axis 0 that `out` covers, the first being
     /// line `first`.
     #[inline(always)]
-    fn residual_lines(&self, b: &[R], x: &[R], first: usize, out: &mut [R]) {
+    pub(crate) fn residual_lines(&self, b: &[R], x: &[R], first: usize, out: &mut [R]) {
         let cells = self.cells;
         let n0 = cells[0];
         let lines = out.len() / n0;
@@ -952,45 +1015,77 @@ impl<'a, R: Real, const D: usize> Op<'a, R, D> {
     /// to round-off, and could leave a closed aggregate with a diagonal of the wrong sign.
     fn galerkin(&self, cc: [usize; D], mass: &[R], block: &mut [R]) {
         let nc: usize = cc.iter().product();
-        let sc = strides(cc);
         let block = &mut block[..(D + 1) * nc];
-        block.fill(R::ZERO);
+        let (ad, faces) = block.split_at_mut(nc);
+        let mut fa = faces.chunks_exact_mut(nc);
+        let mut faces: [&mut [R]; D] = core::array::from_fn(|_| fa.next().unwrap_or_default());
+        self.aggregate_faces(false, cc, &mut faces);
+        ad.copy_from_slice(&mass[..nc]);
+        let faces: [&[R]; D] = faces.map(|f| &*f);
+        assemble_diagonal(cc, self.periodic, faces, ad);
+    }
+
+    /// The coarse face coefficients of [`Self::galerkin`] (`faces[a]`, one per coarse cell
+    /// of `cc`): the sum, in cell order, of the fine faces that join two aggregates.
+    /// `top_inside`: the last row along the last axis is not the grid's last (a slab of
+    /// rows cut below the next slab, [`super::cycle_slab`]), so its faces to the row above
+    /// join two aggregates as an interior row's do.
+    pub(crate) fn aggregate_faces(
+        &self,
+        top_inside: bool,
+        cc: [usize; D],
+        faces: &mut [&mut [R]; D],
+    ) {
+        let sc = strides(cc);
+        for f in faces.iter_mut() {
+            f.fill(R::ZERO);
+        }
         for_each_cell(self.cells, true, |i, k| {
             let j = parent(k, &sc);
             for a in 0..D {
-                if self.cells[a] < 2 {
+                if self.cells[a] < 2 && !(top_inside && a == D - 1) {
                     continue;
                 }
-                let crosses = if k[a] + 1 < self.cells[a] {
+                let crosses = if k[a] + 1 < self.cells[a] || (top_inside && a == D - 1) {
                     k[a] & 1 == 1
                 } else {
                     self.periodic[a] && cc[a] > 1
                 };
                 if crosses {
-                    block[(1 + a) * nc + j] += self.kf[a][i];
+                    faces[a][j] += self.kf[a][i];
                 }
-            }
-        });
-        let (ad, faces) = block.split_at_mut(nc);
-        ad.copy_from_slice(&mass[..nc]);
-        for_each_cell(cc, true, |j, k| {
-            for a in 0..D {
-                if cc[a] < 2 {
-                    continue;
-                }
-                let other = if k[a] + 1 < cc[a] {
-                    j + sc[a]
-                } else if self.periodic[a] {
-                    j - (cc[a] - 1) * sc[a]
-                } else {
-                    continue;
-                };
-                let f = faces[a * nc + j];
-                ad[j] += f;
-                ad[other] += f;
             }
         });
     }
+}
+
+/// The full diagonal of a Galerkin operator: `ad` holds the mass diagonal and becomes mass
+/// plus the coarse faces `faces` at both their cells, added in cell order (the order, and
+/// so the bits, of every caller: the serial hierarchy and a slab with its halo rows).
+pub(crate) fn assemble_diagonal<R: Real, const D: usize>(
+    cc: [usize; D],
+    periodic: [bool; D],
+    faces: [&[R]; D],
+    ad: &mut [R],
+) {
+    let sc = strides(cc);
+    for_each_cell(cc, true, |j, k| {
+        for a in 0..D {
+            if cc[a] < 2 {
+                continue;
+            }
+            let other = if k[a] + 1 < cc[a] {
+                j + sc[a]
+            } else if periodic[a] {
+                j - (cc[a] - 1) * sc[a]
+            } else {
+                continue;
+            };
+            let f = faces[a][j];
+            ad[j] += f;
+            ad[other] += f;
+        }
+    });
 }
 
 /// Scratch vectors of one solve (each at least the grid length, except `coarse`).
@@ -1070,10 +1165,10 @@ struct Precond<'s, 'a, R: Real, const D: usize, const N: usize, F> {
 
 /// What a V-cycle on the coarse levels needs.
 #[derive(Clone, Copy)]
-struct Cycle<R, const D: usize> {
-    levels: Levels<D>,
-    periodic: [bool; D],
-    omega_c: R,
+pub(crate) struct Cycle<R, const D: usize> {
+    pub(crate) levels: Levels<D>,
+    pub(crate) periodic: [bool; D],
+    pub(crate) omega_c: R,
 }
 
 impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R, D, N, F> {
@@ -1127,25 +1222,10 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
         let (ops, work) = self.coarse.split_at_mut(lv.op_offset(lv.count));
         // The mass diagonal of every level, restricted level by level into the right-hand
         // side slots of the V-cycle (free until the first cycle).
-        let rhs_slot = |l: usize| {
-            let x = 2 * lv.n[1..l].iter().sum::<usize>();
-            x + lv.n[l]..x + 2 * lv.n[l]
-        };
         {
-            let m1 = &mut work[rhs_slot(1)];
+            let m1 = &mut work[lv.rhs_slot(1)];
             m1.fill(R::ZERO);
             restrict(cells, &strides(lv.cells[1]), &self.diag[..n], m1);
-        }
-        for l in 1..lv.count - 1 {
-            let (here, below) = work.split_at_mut(rhs_slot(l + 1).start);
-            let m = &mut below[..lv.n[l + 1]];
-            m.fill(R::ZERO);
-            restrict(
-                lv.cells[l],
-                &strides(lv.cells[l + 1]),
-                &here[rhs_slot(l)],
-                m,
-            );
         }
         let fine = Op {
             cells,
@@ -1154,12 +1234,8 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
             adiag: &self.diag[..n], // not used by `galerkin`
             kf: core::array::from_fn(|a| &st.kf[a][..n]),
         };
-        fine.galerkin(lv.cells[1], &work[rhs_slot(1)], ops);
-        for l in 1..lv.count - 1 {
-            let (done, next) = ops.split_at_mut(lv.op_offset(l + 1));
-            let op = Op::at(&done[lv.op_offset(l)..], lv.cells[l], st.periodic);
-            op.galerkin(lv.cells[l + 1], &work[rhs_slot(l + 1)], next);
-        }
+        fine.galerkin(lv.cells[1], &work[lv.rhs_slot(1)], ops);
+        lv.coarsen_from_first(st.periodic, ops, work);
         let omega = R::from_f64(OMEGA);
         for w in self.pre[..n].iter_mut() {
             *w *= omega;
@@ -1216,7 +1292,7 @@ impl<'s, 'a, R: Real, const D: usize, const N: usize, F: Fork> Precond<'s, 'a, R
 
 impl<R: Real, const D: usize> Cycle<R, D> {
     /// Level `l >= 1`: `x_l = V b_l` with `work = [x_l | b_l | coarser levels... | shared]`.
-    fn vcycle<F: Fork>(&self, fork: &F, ops: &[R], l: usize, work: &mut [R]) {
+    pub(crate) fn vcycle<F: Fork>(&self, fork: &F, ops: &[R], l: usize, work: &mut [R]) {
         let lv = &self.levels;
         let n = lv.n[l];
         let (xb, rest) = work.split_at_mut(2 * n);
@@ -1259,6 +1335,35 @@ impl<R: Real, const D: usize> Cycle<R, D> {
         let t: &[R] = t;
         fork::set(fork, x, |i, xi| xi + w * t[i] / d[i]);
     }
+}
+
+/// `z = B r` once, with the preconditioner [`solve`] starts with (the lines) or, if
+/// `multigrid` and the grid can coarsen in `sc.coarse`, the one it switches to; returns
+/// `r . z`. The serial reference of the slab preconditioner's tests
+/// ([`super::cycle_slab`]).
+#[doc(hidden)]
+pub fn precondition_once<R: Real, const D: usize, const N: usize>(
+    st: &Stencil<'_, R, D, N>,
+    diag: &[R],
+    r: &[R],
+    z: &mut [R],
+    sc: Scratch<'_, R>,
+    multigrid: bool,
+) -> R {
+    let fork = &fork::Serial;
+    let mut pc = Precond::new(
+        (fork, sc.part),
+        st,
+        diag,
+        sc.pre,
+        sc.line,
+        sc.tmp,
+        sc.coarse,
+    );
+    if multigrid && pc.can_coarsen() {
+        pc.multigrid();
+    }
+    pc.apply(r, z)
 }
 
 /// Solves `A x = b` by preconditioned CG (module docs) from the initial guess in `x`, until

@@ -75,6 +75,7 @@
 
 pub mod cg;
 pub mod coupled;
+pub mod cycle_slab;
 pub mod line_slab;
 mod objective;
 mod pressure;
