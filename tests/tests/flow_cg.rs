@@ -17,7 +17,7 @@ use proptest::prelude::*;
 use sieve::isa::Level;
 use sieve::pool::Pool;
 use sieve_core::flow::cg::{solve_on, workspace_len, Preconditioner, Scratch, Stencil, Stop};
-use sieve_core::flow::cycle_slab::Links;
+use sieve_core::flow::cycle_slab::{Fine, Links, Plan};
 use sieve_core::fork::{Fork, Serial};
 use sieve_core::sum;
 use sieve_core::Grid;
@@ -675,6 +675,75 @@ impl Links<f64> for ThreadLinks {
         all.copy_from_slice(&board.lock().unwrap().concat());
         barrier.wait();
     }
+    fn sum(&mut self, own: &[f64]) -> f64 {
+        let (board, barrier) = &*self.board;
+        board.lock().unwrap()[self.index] = own.to_vec();
+        barrier.wait();
+        let all = board.lock().unwrap().concat();
+        barrier.wait();
+        sum::sum(&all)
+    }
+}
+
+/// Runs `job` on every slab of `sys` cut at the rows `starts`, each on its own thread, with
+/// its plan, links, padded fine operator and padded right-hand side (core/src/flow/
+/// cycle_slab.rs); returns what each slab returned, in slab order. Every padded value a slab
+/// is not meant to read (halo rows, other than the faces below its first row) is NaN.
+fn on_slabs<const D: usize>(
+    sys: &System<D>,
+    starts: &[usize],
+    room: usize,
+    job: impl Fn(&Plan<D>, &mut ThreadLinks, &Fine<'_, f64, D>, &[f64]) -> Vec<f64> + Sync,
+) -> Vec<Vec<f64>> {
+    let n = sys.grid.len();
+    let cells = sys.grid.cells();
+    let s: usize = cells[..D - 1].iter().product();
+    let job = &job;
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = ThreadLinks::chain(starts.len())
+            .into_iter()
+            .enumerate()
+            .map(|(k, mut links)| {
+                scope.spawn(move || {
+                    let plan = Plan::new(cells, sys.periodic, starts, k, room).unwrap();
+                    let own = plan.own_range();
+                    let first = starts[k] * s; // global index of the first own cell
+                    let len = plan.padded_len();
+                    // global cell of padded index i (own cells, the halo rows beside them)
+                    let global = |i: usize| (i + first).checked_sub(s).filter(|&g| g < n);
+                    let padded = |src: &[f64], halo_below: bool| -> Vec<f64> {
+                        (0..len)
+                            .map(|i| match global(i) {
+                                Some(g) if own.contains(&i) => src[g],
+                                Some(g) if halo_below && i < s => src[g],
+                                _ => f64::NAN,
+                            })
+                            .collect()
+                    };
+                    let diag = padded(&sys.diag, false);
+                    let kf: Vec<Vec<f64>> = (0..D)
+                        .map(|a| padded(&sys.kf[a][..n], a == D - 1))
+                        .collect();
+                    let fine = Fine {
+                        diag: &diag,
+                        kf: std::array::from_fn(|a| &kf[a][..]),
+                    };
+                    let b = padded(&sys.b, false);
+                    job(&plan, &mut links, &fine, &b)
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    })
+}
+
+/// The index and values of the first difference in bits of `a` and `b`.
+fn first_difference(a: &[f64], b: &[f64]) -> Option<(usize, f64, f64)> {
+    (0..a.len().max(b.len())).find_map(|i| {
+        let (x, y) = (a.get(i).copied(), b.get(i).copied());
+        (x.map(f64::to_bits) != y.map(f64::to_bits))
+            .then(|| (i, x.unwrap_or(f64::NAN), y.unwrap_or(f64::NAN)))
+    })
 }
 
 /// The preconditioner on slabs of rows (core/src/flow/cycle_slab.rs: the line solves as
@@ -687,7 +756,7 @@ impl Links<f64> for ThreadLinks {
 #[test]
 fn slab_preconditioner_has_the_serial_bits() {
     use sieve_core::flow::cg::precondition_once;
-    use sieve_core::flow::cycle_slab::{self, Fine, Plan, PlanError};
+    use sieve_core::flow::cycle_slab::{self, PlanError};
     fn check<const D: usize>(sys: &System<D>, starts: &[usize], room: usize, mg: bool, what: &str) {
         let n = sys.grid.len();
         let cells = sys.grid.cells();
@@ -722,78 +791,36 @@ fn slab_preconditioner_has_the_serial_bits() {
             mg,
         );
         assert!(rz.is_finite() && rz > 0.0, "{what}: r . z = {rz}");
-        let slabs = starts.len();
-        let pieces: Vec<Vec<f64>> = std::thread::scope(|scope| {
-            let handles: Vec<_> = ThreadLinks::chain(slabs)
-                .into_iter()
-                .enumerate()
-                .map(|(k, mut links)| {
-                    scope.spawn(move || {
-                        let plan = Plan::new(cells, sys.periodic, starts, k, room).unwrap();
-                        let own = plan.own_range();
-                        let first = starts[k] * s; // global index of the first own cell
-                        let len = plan.padded_len();
-                        // global cell of padded index i (own cells, the halo rows beside them)
-                        let global = |i: usize| (i + first).checked_sub(s).filter(|&g| g < n);
-                        let padded = |src: &[f64], halo_below: bool| -> Vec<f64> {
-                            (0..len)
-                                .map(|i| match global(i) {
-                                    Some(g) if own.contains(&i) => src[g],
-                                    Some(g) if halo_below && i < s => src[g],
-                                    _ => f64::NAN,
-                                })
-                                .collect()
-                        };
-                        let diag = padded(&sys.diag, false);
-                        let kf: Vec<Vec<f64>> = (0..D)
-                            .map(|a| padded(&sys.kf[a][..n], a == D - 1))
-                            .collect();
-                        let fine = Fine {
-                            diag: &diag,
-                            kf: std::array::from_fn(|a| &kf[a][..]),
-                        };
-                        let r = padded(&sys.b, false);
-                        let mut z = vec![f64::NAN; len];
-                        let m = own.len();
-                        let (mut pre, mut line, mut tmp) =
-                            (vec![f64::NAN; m], vec![f64::NAN; m], vec![f64::NAN; m]);
-                        let mut work = vec![f64::NAN; plan.workspace_len()];
-                        cycle_slab::factor(
-                            &plan, &mut links, &fine, &mut pre, &mut line, &mut work,
-                        );
-                        let coarsened = mg && plan.can_coarsen();
-                        if coarsened {
-                            cycle_slab::coarsen(&plan, &mut links, &fine, &mut pre, &mut work);
-                        }
-                        cycle_slab::apply(
-                            &plan,
-                            &mut links,
-                            &fine,
-                            (&pre, &line),
-                            &r,
-                            &mut z,
-                            &mut tmp,
-                            &mut work,
-                            coarsened,
-                        );
-                        z[own].to_vec()
-                    })
-                })
-                .collect();
-            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        let pieces = on_slabs(sys, starts, room, |plan, links, fine, r| {
+            let own = plan.own_range();
+            let mut z = vec![f64::NAN; plan.padded_len()];
+            let m = own.len();
+            let (mut pre, mut line, mut tmp) =
+                (vec![f64::NAN; m], vec![f64::NAN; m], vec![f64::NAN; m]);
+            let mut work = vec![f64::NAN; plan.workspace_len()];
+            cycle_slab::factor(plan, links, fine, &mut pre, &mut line, &mut work);
+            let coarsened = mg && plan.can_coarsen();
+            if coarsened {
+                cycle_slab::coarsen(plan, links, fine, &mut pre, &mut work);
+            }
+            cycle_slab::apply(
+                plan,
+                links,
+                fine,
+                (&pre, &line),
+                r,
+                &mut z,
+                &mut tmp,
+                &mut work,
+                coarsened,
+            );
+            z[own].to_vec()
         });
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        let joined = pieces.concat();
-        if bits(&joined) != bits(&z[..n]) {
-            let first = (0..n)
-                .find(|&i| joined[i].to_bits() != z[i].to_bits())
-                .unwrap();
+        if let Some((i, got, want)) = first_difference(&pieces.concat(), &z[..n]) {
             panic!(
                 "{what}, slabs from {starts:?}, room {room}, multigrid {mg}: z differs first at \
-                 cell {first} (row {}): {} against the serial {}",
-                first / s,
-                joined[first],
-                z[first]
+                 cell {i} (row {}): {got} against the serial {want}",
+                i / s
             );
         }
     }
@@ -869,6 +896,143 @@ fn slab_preconditioner_has_the_serial_bits() {
             "{bad:?}"
         );
     }
+}
+
+/// Conjugate gradients on slabs of rows (core/src/flow/cg_slab.rs) take the serial solve's
+/// iterations and end with its bits (solution and residual), with the lines, the V-cycle
+/// and the switch between them: 1 to 5 slabs on threads, 2D and 3D, periodic across, random
+/// coefficients over 10 decades and a cold bed whose lines converge slowly (so the
+/// automatic choice switches to the V-cycle mid-solve), a short hierarchy.
+#[test]
+fn slab_solves_have_the_serial_bits() {
+    use sieve_core::flow::cg_slab;
+    fn check<const D: usize>(
+        sys: &System<D>,
+        starts: &[usize],
+        pc: Preconditioner,
+        room: usize,
+        what: &str,
+    ) -> u32 {
+        let n = sys.grid.len();
+        let serial = sys.solve_on(&Serial, pc, room, 400);
+        let stop = Stop {
+            relative: 1e-10,
+            floor: 0.0,
+            max_iterations: 400,
+            preconditioner: pc,
+        };
+        let pieces = on_slabs(sys, starts, room, |plan, links, fine, b| {
+            let (len, m) = (plan.padded_len(), plan.own_range().len());
+            let mut x = vec![f64::NAN; len];
+            x[plan.own_range()].fill(0.0);
+            let mut v: Vec<Vec<f64>> = (0..3).map(|_| vec![f64::NAN; len]).collect();
+            let mut w: Vec<Vec<f64>> = (0..4).map(|_| vec![f64::NAN; m]).collect();
+            let mut work = vec![f64::NAN; plan.workspace_len()];
+            let [r, p, ap] = &mut v[..] else {
+                unreachable!()
+            };
+            let [pre, line, tmp, terms] = &mut w[..] else {
+                unreachable!()
+            };
+            let res = cg_slab::solve(
+                plan,
+                links,
+                fine,
+                b,
+                &mut x,
+                cg_slab::Scratch {
+                    r,
+                    p,
+                    ap,
+                    pre,
+                    line,
+                    tmp,
+                    terms,
+                    work: &mut work,
+                },
+                stop,
+            );
+            let mut out = x[plan.own_range()].to_vec();
+            out.push(f64::from(res.iterations));
+            out.push(res.relative_residual);
+            out
+        });
+        let mut joined = Vec::new();
+        for piece in &pieces {
+            let k = piece.len() - 2;
+            assert_eq!(
+                piece[k],
+                f64::from(serial.iterations),
+                "{what}, slabs from {starts:?}: iterations"
+            );
+            assert_eq!(
+                piece[k + 1].to_bits(),
+                serial.recursive.to_bits(),
+                "{what}, slabs from {starts:?}: residual"
+            );
+            joined.extend_from_slice(&piece[..k]);
+        }
+        if let Some((i, got, want)) = first_difference(&joined, &serial.x[..n]) {
+            panic!("{what}, slabs from {starts:?}, {pc:?}: x differs first at cell {i}: {got} against the serial {want}");
+        }
+        serial.iterations
+    }
+    let mut switched = 0;
+    for (seed, starts) in [
+        (1, vec![0]),
+        (2, vec![0, 16]),
+        (3, vec![0, 8, 16, 32]),
+        (4, vec![0, 4, 12, 20, 28]),
+        (5, vec![0, 2, 38]),
+    ] {
+        for pc in [
+            Preconditioner::Lines,
+            Preconditioner::Multigrid,
+            Preconditioner::Auto,
+        ] {
+            for px in [false, true] {
+                let sys = random_system([24, 40], [px, false], seed);
+                check(
+                    &sys,
+                    &starts,
+                    pc,
+                    workspace_len([24, 40]),
+                    &format!("2D seed {seed} px {px}"),
+                );
+                let sys = random_system([5, 4, 40], [px, true, false], seed);
+                check(
+                    &sys,
+                    &starts,
+                    pc,
+                    workspace_len([5, 4, 40]) / 4,
+                    &format!("3D seed {seed}"),
+                );
+            }
+            // a cold bed: the lines converge slowly, Auto switches to the V-cycle
+            let sys = layer(64, 40, true, seed);
+            let full = workspace_len([64, 40]);
+            let it = check(&sys, &starts, pc, full, &format!("layer seed {seed}"));
+            if pc == Preconditioner::Auto {
+                let lines = sys
+                    .solve_on(&Serial, Preconditioner::Lines, full, 400)
+                    .iterations;
+                switched += usize::from(it < lines);
+            }
+        }
+    }
+    assert!(
+        switched >= 3,
+        "the automatic choice switched on {switched} of 5 layers"
+    );
+    // the lines alone, on odd cuts
+    let sys = random_system([13, 31], [true, false], 7);
+    check(
+        &sys,
+        &[0, 1, 5, 6, 7, 20],
+        Preconditioner::Lines,
+        0,
+        "2D odd cuts, lines",
+    );
 }
 
 proptest! {

@@ -73,11 +73,11 @@ pub(crate) const OMEGA_COARSE: f64 = 2.0 / 3.0;
 /// Symmetric Gauss-Seidel sweeps on the coarsest level.
 const COARSEST_SWEEPS: u32 = 2;
 /// Iterations between two checks of the convergence rate of the line preconditioner.
-const PROBE: u32 = 4;
+pub(crate) const PROBE: u32 = 4;
 /// Switch to multigrid if the line preconditioner predicts more iterations than this: a
 /// V-cycle costs about 2.5 line-preconditioned iterations and needed ~5 per system where
 /// the lines needed 9 (column collapse) to 80 (shear-cell spin-up on 80 x 80).
-const LONG: f64 = 12.0;
+pub(crate) const LONG: f64 = 12.0;
 
 /// Which preconditioner [`solve`] uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -60,6 +60,10 @@ pub trait Links<R: Real> {
     fn swap(&mut self, bottom: &[R], top: &[R], below: &mut [R], above: &mut [R]);
     /// Every slab's `own`, in slab order, into `all`, on every slab.
     fn gather(&mut self, own: &[R], all: &mut [R]);
+    /// The blocked sum ([`crate::sum::reduce`]) of every slab's `own` terms in slab order,
+    /// on every slab: the serial sum's bits (`crate::sum::cut_partials` tells how to get them
+    /// without gathering the terms).
+    fn sum(&mut self, own: &[R]) -> R;
 }
 
 /// Why a cut cannot carry the serial preconditioner.
@@ -305,6 +309,15 @@ fn swap_halos<R: Real, L: Links<R>, const D: usize>(links: &mut L, lay: &Layer<D
     links.swap(&own[..s], &own[own.len() - s..], below, &mut above[..s]);
 }
 
+/// Fills the halo rows of the padded fine array `v` from the neighbours.
+pub(crate) fn swap_fine<R: Real, L: Links<R>, const D: usize>(
+    plan: &Plan<D>,
+    links: &mut L,
+    v: &mut [R],
+) {
+    swap_halos(links, &plan.layer(0), v);
+}
+
 /// The padded operator block of a slab level as the serial [`Op`] on the view.
 fn view_op<'a, R: Real, const D: usize>(
     lay: &Layer<D>,
@@ -332,10 +345,22 @@ fn fine_residual<R: Real, const D: usize>(
     x: &[R],
     out: &mut [R],
 ) {
+    fine_product::<true, R, D>(plan, fine, b, x, out);
+}
+
+/// `out = A x` (or `b - A x` if `RES`) on the own cells of the fine level (`b`, `x` padded,
+/// `x`'s halo rows filled): the serial product on the view.
+pub(crate) fn fine_product<const RES: bool, R: Real, const D: usize>(
+    plan: &Plan<D>,
+    fine: &Fine<'_, R, D>,
+    b: &[R],
+    x: &[R],
+    out: &mut [R],
+) {
     let lay = plan.layer(0);
     let v = lay.view();
     let cells = lay.view_cells();
-    product_lines::<true, R, D>(
+    product_lines::<RES, R, D>(
         (cells, strides(cells), plan.periodic),
         fine.kf.map(|k| &k[v.clone()]),
         (&fine.diag[v.clone()], &b[v.clone()], &x[v]),

@@ -74,6 +74,7 @@
 //! - Cells with `c < vacuum` (1e-12) carry no velocity and no temperature (their mass stays).
 
 pub mod cg;
+pub mod cg_slab;
 pub mod coupled;
 pub mod cycle_slab;
 pub mod line_slab;
