@@ -19,6 +19,13 @@
 //! `sieve::rank_lines`, against the serial factor and solve: exits 0 if every rank's pivots,
 //! multipliers and `z` have the serial bits, 1 if not.
 //!
+//! `mpirun -np K target/release/examples/mpi_check --cg`: conjugate gradients on random
+//! systems and a cold bed (2D and 3D, periodic across, the lines, the V-cycle and the
+//! automatic switch) on K slabs of rows aligned to 2 and 8 rows, by
+//! `sieve_core::flow::cg_slab` over `sieve::rank_links`, against the serial solve: exits 0
+//! if every rank's iterations, residual and solution have the serial bits, 1 if not; then
+//! times one 128 x 128 solve against the serial one.
+//!
 //! Needs the `mpi` feature (OpenMPI: `apt-get install libopenmpi-dev openmpi-bin libclang-dev`).
 
 use sieve::output::vtk::read_vti;
@@ -175,6 +182,42 @@ fn sums() -> i32 {
     i32::from(all_bad != 0)
 }
 
+/// Cells a check's system may have.
+const N: usize = 16384;
+
+/// A linear system `diag + faces` (`cg::Stencil`'s operator) on a grid.
+struct System<const D: usize> {
+    grid: sieve_core::Grid<f64, D>,
+    kf: Box<[[f64; N]; D]>,
+    diag: Vec<f64>,
+    b: Vec<f64>,
+}
+
+/// Random coefficients over 10 decades, 1000 times stronger along the last axis; or (`cold`)
+/// a cold bed whose coupling grows with the depth (~1e4 times the mass term), on which the
+/// line preconditioner converges slowly.
+fn random_system<const D: usize>(cells: [usize; D], seed: u64, cold: bool) -> System<D> {
+    let grid = sieve_core::Grid::<f64, D>::new(cells, [0.0; D], [1.0; D], N).expect("grid");
+    let n = grid.len();
+    let mut r = seed;
+    let mut kf = vec![[0.0f64; N]; D].into_boxed_slice();
+    for (a, k) in kf.iter_mut().enumerate() {
+        for (i, v) in k[..n].iter_mut().enumerate() {
+            let scale = if a + 1 == D { 1e3 } else { 1.0 };
+            *v = if cold {
+                1e4 * (cells[D - 1] - grid.coords(i)[D - 1]) as f64 * (0.5 + lcg(&mut r))
+            } else {
+                scale * 10f64.powf(10.0 * lcg(&mut r) - 5.0)
+            };
+        }
+    }
+    let kf: Box<[[f64; N]; D]> = kf.try_into().expect("D arrays");
+    let lo = if cold { 0.5 } else { 1e-3 };
+    let diag: Vec<f64> = (0..n).map(|_| lo + lcg(&mut r)).collect();
+    let b: Vec<f64> = (0..n).map(|_| lcg(&mut r) - 0.5).collect();
+    System { grid, kf, diag, b }
+}
+
 /// One random system's line solve on the ranks' slabs against the serial one; the number of
 /// arrays that differ on this rank.
 fn line_case<const D: usize, C: mpi::traits::Communicator>(
@@ -186,27 +229,16 @@ fn line_case<const D: usize, C: mpi::traits::Communicator>(
     seed: u64,
 ) -> i32 {
     use sieve_core::flow::cg::Stencil;
-    const N: usize = 4096;
     let (rank, size) = (world.rank() as usize, world.size() as usize);
-    let grid = sieve_core::Grid::<f64, D>::new(cells, [0.0; D], [1.0; D], N).expect("grid");
+    let System { grid, kf, diag, b } = random_system(cells, seed, false);
     let n = grid.len();
     let s = grid.stride(D - 1);
-    let mut r = seed;
-    let mut kf = Box::new([[0.0f64; N]; D]);
-    for (a, k) in kf.iter_mut().enumerate() {
-        for v in k[..n].iter_mut() {
-            let scale = if a + 1 == D { 1e3 } else { 1.0 };
-            *v = scale * 10f64.powf(10.0 * lcg(&mut r) - 5.0);
-        }
-    }
-    let diag: Vec<f64> = (0..N).map(|_| 1e-3 + lcg(&mut r)).collect();
-    let b: Vec<f64> = (0..N).map(|_| lcg(&mut r) - 0.5).collect();
     let st = Stencil {
         grid: &grid,
         periodic,
         kf: &kf,
     };
-    let (mut inv_d, mut l, mut z) = (vec![0.0; N], vec![0.0; N], vec![0.0; N]);
+    let (mut inv_d, mut l, mut z) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
     st.line_factor(&diag, &mut inv_d, &mut l);
     st.precondition(&inv_d, &l, &b, &mut z);
     // this rank's rows: even shares, or the lower ranks one row each (at least one row each)
@@ -223,7 +255,7 @@ fn line_case<const D: usize, C: mpi::traits::Communicator>(
         }
     };
     let (a, e) = (edge(rank) * s, edge(rank + 1) * s);
-    let mut m = vec![0.0; N];
+    let mut m = vec![0.0; n];
     st.diagonal(&diag, &mut m);
     let mut d = m[a..e].to_vec();
     let mut ls = vec![f64::NAN; e - a];
@@ -297,6 +329,204 @@ fn lines() -> i32 {
     i32::from(all_bad != 0)
 }
 
+/// The first row of every rank's slab: rows shared evenly, each start rounded down to a
+/// multiple of `align` (a power of two; at least one row each).
+fn slab_starts(rows: usize, ranks: usize, align: usize) -> Vec<usize> {
+    let mut starts: Vec<usize> = (0..ranks)
+        .map(|k| k * rows / ranks / align * align)
+        .collect();
+    starts.dedup();
+    starts
+}
+
+/// One system solved by CG on the ranks' slabs (`sieve_core::flow::cg_slab` with
+/// `sieve::rank_links`) against the serial solve on every rank; returns (cases that differ
+/// on this rank, seconds on the slabs, seconds serially, iterations).
+fn cg_case<const D: usize, C: mpi::traits::Communicator>(
+    world: &C,
+    sys: &System<D>,
+    periodic: [bool; D],
+    align: usize,
+    pc: sieve_core::flow::cg::Preconditioner,
+) -> (i32, f64, f64, u32) {
+    use mpi::traits::*;
+    use sieve_core::flow::cg::{self, Scratch, Stencil, Stop};
+    use sieve_core::flow::cg_slab;
+    use sieve_core::flow::cycle_slab::{Fine, Plan};
+    let (rank, size) = (world.rank() as usize, world.size() as usize);
+    let (grid, n) = (&sys.grid, sys.grid.len());
+    let cells = grid.cells();
+    let s = grid.stride(D - 1);
+    let st = Stencil {
+        grid,
+        periodic,
+        kf: &sys.kf,
+    };
+    let stop = Stop {
+        relative: 1e-10,
+        floor: 0.0,
+        max_iterations: 500,
+        preconditioner: pc,
+    };
+    let room = cg::workspace_len(cells);
+    let mut x = vec![0.0; n];
+    let mut v = vec![vec![0.0; n]; 6];
+    let mut coarse = vec![0.0; room];
+    let t = std::time::Instant::now();
+    let serial = {
+        let [r, p, ap, pre, line, tmp] = &mut v[..] else {
+            unreachable!()
+        };
+        let sc = Scratch {
+            r,
+            p,
+            ap,
+            pre,
+            line,
+            tmp,
+            coarse: &mut coarse,
+            part: &mut [],
+        };
+        cg::solve(&st, &sys.diag, &sys.b, &mut x, sc, stop)
+    };
+    let serial_time = t.elapsed().as_secs_f64();
+    let starts = slab_starts(cells[D - 1], size, align);
+    if starts.len() < size {
+        eprintln!("mpi_check --cg: {size} ranks do not fit {cells:?} aligned to {align}");
+        return (1, 0.0, 0.0, 0);
+    }
+    let plan = Plan::new(cells, periodic, &starts, rank, room).expect("a plan");
+    let own = plan.own_range();
+    let first = starts[rank] * s;
+    let len = plan.padded_len();
+    let padded = |src: &[f64], row_below: bool| -> Vec<f64> {
+        let mut out = vec![f64::NAN; len];
+        plan.pad_from(src, row_below, &mut out);
+        out
+    };
+    let diag = padded(&sys.diag, false);
+    let kf: Vec<Vec<f64>> = (0..D)
+        .map(|a| padded(&sys.kf[a][..n], a == D - 1))
+        .collect();
+    let fine = Fine {
+        diag: &diag,
+        kf: std::array::from_fn(|a| &kf[a][..]),
+    };
+    let b = padded(&sys.b, false);
+    let parts: Vec<std::ops::Range<usize>> = (0..size)
+        .map(|k| starts[k] * s..starts.get(k + 1).map_or(n, |&e| e * s))
+        .collect();
+    let mut links = sieve::rank_links::RankLinks::new(world, parts);
+    let mut xs = vec![f64::NAN; len];
+    xs[own.clone()].fill(0.0);
+    let m = own.len();
+    let mut pv: Vec<Vec<f64>> = (0..3).map(|_| vec![f64::NAN; len]).collect();
+    let mut ov: Vec<Vec<f64>> = (0..4).map(|_| vec![f64::NAN; m]).collect();
+    let mut work = vec![f64::NAN; plan.workspace_len()];
+    let [r, p, ap] = &mut pv[..] else {
+        unreachable!()
+    };
+    let [pre, line, tmp, terms] = &mut ov[..] else {
+        unreachable!()
+    };
+    world.barrier();
+    let t = std::time::Instant::now();
+    let res = cg_slab::solve(
+        &plan,
+        &mut links,
+        &fine,
+        &b,
+        &mut xs,
+        cg_slab::Scratch {
+            r,
+            p,
+            ap,
+            pre,
+            line,
+            tmp,
+            terms,
+            work: &mut work,
+        },
+        stop,
+    );
+    let slab_time = t.elapsed().as_secs_f64();
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let same = res.iterations == serial.iterations
+        && res.relative_residual.to_bits() == serial.relative_residual.to_bits()
+        && bits(&xs[own.clone()]) == bits(&x[first..first + m]);
+    if !same {
+        eprintln!(
+            "mpi_check --cg: rank {rank}: {cells:?} periodic {periodic:?} {pc:?}, slabs from {starts:?}: {} iterations, residual {:e}, against the serial {} and {:e}{}",
+            res.iterations,
+            res.relative_residual,
+            serial.iterations,
+            serial.relative_residual,
+            if bits(&xs[own.clone()]) == bits(&x[first..first + m]) { "" } else { "; x differs" }
+        );
+    }
+    (i32::from(!same), slab_time, serial_time, serial.iterations)
+}
+
+/// `--cg`: returns the exit code.
+fn conjugate_gradients() -> i32 {
+    use mpi::traits::*;
+    use sieve_core::flow::cg::Preconditioner;
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("mpi_check --cg: MPI is already initialised");
+        return 1;
+    };
+    let world = universe.world();
+    let (mut bad, mut cases) = (0i32, 0);
+    for seed in 1..=2 {
+        for pc in [
+            Preconditioner::Lines,
+            Preconditioner::Multigrid,
+            Preconditioner::Auto,
+        ] {
+            for align in [2, 8] {
+                for px in [false, true] {
+                    let sys = random_system([24, 40], seed, false);
+                    bad += cg_case(&world, &sys, [px, false], align, pc).0;
+                    let sys = random_system([5, 4, 40], seed, false);
+                    bad += cg_case(&world, &sys, [px, true, false], align, pc).0;
+                    let sys = random_system([64, 40], seed, true);
+                    bad += cg_case(&world, &sys, [true, false], align, pc).0;
+                    cases += 3;
+                }
+            }
+        }
+    }
+    // one larger solve timed: a cold bed of 128 x 128, the automatic choice
+    let sys = random_system([128, 128], 3, true);
+    let (b, slab_time, serial_time, iterations) =
+        cg_case(&world, &sys, [true, false], 16, Preconditioner::Auto);
+    bad += b;
+    cases += 1;
+    let mut all_bad = 0i32;
+    world.all_reduce_into(&bad, &mut all_bad, mpi::collective::SystemOperation::sum());
+    let mut slowest = 0.0f64;
+    world.all_reduce_into(
+        &slab_time,
+        &mut slowest,
+        mpi::collective::SystemOperation::max(),
+    );
+    if world.rank() == 0 {
+        println!(
+            "mpi_check --cg: {cases} solves on {} ranks, {}; 128 x 128 cold bed ({iterations} iterations): {:.1} ms across the ranks, {:.1} ms serially on one",
+            world.size(),
+            if all_bad == 0 {
+                "iterations, residuals and solutions with the serial bits"
+            } else {
+                "SOME DIFFERENT"
+            },
+            1e3 * slowest,
+            1e3 * serial_time
+        );
+    }
+    drop(universe);
+    i32::from(all_bad != 0)
+}
+
 fn main() {
     let mut args = std::env::args().skip(1);
     let name = args.next().unwrap_or_else(|| "shear-cell-inverse".into());
@@ -319,6 +549,9 @@ fn main() {
     }
     if name == "--lines" {
         std::process::exit(lines());
+    }
+    if name == "--cg" {
+        std::process::exit(conjugate_gradients());
     }
     let sets: Vec<String> = args.collect();
     let launched = match sieve::parallel_mpi::launch() {

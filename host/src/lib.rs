@@ -35,6 +35,8 @@ pub mod progress;
 #[cfg(feature = "mpi")]
 pub mod rank_lines;
 #[cfg(feature = "mpi")]
+pub mod rank_links;
+#[cfg(feature = "mpi")]
 pub mod rank_sum;
 pub mod read;
 pub mod run;

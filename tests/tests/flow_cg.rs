@@ -697,7 +697,6 @@ fn on_slabs<const D: usize>(
 ) -> Vec<Vec<f64>> {
     let n = sys.grid.len();
     let cells = sys.grid.cells();
-    let s: usize = cells[..D - 1].iter().product();
     let job = &job;
     std::thread::scope(|scope| {
         let handles: Vec<_> = ThreadLinks::chain(starts.len())
@@ -706,19 +705,10 @@ fn on_slabs<const D: usize>(
             .map(|(k, mut links)| {
                 scope.spawn(move || {
                     let plan = Plan::new(cells, sys.periodic, starts, k, room).unwrap();
-                    let own = plan.own_range();
-                    let first = starts[k] * s; // global index of the first own cell
-                    let len = plan.padded_len();
-                    // global cell of padded index i (own cells, the halo rows beside them)
-                    let global = |i: usize| (i + first).checked_sub(s).filter(|&g| g < n);
-                    let padded = |src: &[f64], halo_below: bool| -> Vec<f64> {
-                        (0..len)
-                            .map(|i| match global(i) {
-                                Some(g) if own.contains(&i) => src[g],
-                                Some(g) if halo_below && i < s => src[g],
-                                _ => f64::NAN,
-                            })
-                            .collect()
+                    let padded = |src: &[f64], row_below: bool| -> Vec<f64> {
+                        let mut out = vec![f64::NAN; plan.padded_len()];
+                        plan.pad_from(src, row_below, &mut out);
+                        out
                     };
                     let diag = padded(&sys.diag, false);
                     let kf: Vec<Vec<f64>> = (0..D)

@@ -221,7 +221,21 @@ impl<const D: usize> Plan<D> {
         self.layer(0).own_range()
     }
 
-    /// The tail: the gathered levels as a hierarchy of their own (level 1 = `gathered`).
+    /// Copies the slab's part of a global fine array (cells in grid order) into the padded
+    /// `out`: the own cells, and the row below them too if `row_below` (the faces `kf[D - 1]`
+    /// need it, [`Fine`]). The other values of `out` are left as they are.
+    pub fn pad_from<R: Copy>(&self, global: &[R], row_below: bool, out: &mut [R]) {
+        let lay = self.layer(0);
+        let s = lay.s;
+        let first = self.rows.start * s;
+        let own = lay.own_range();
+        out[own.clone()].copy_from_slice(&global[first..first + own.len()]);
+        if row_below && self.below {
+            out[..s].copy_from_slice(&global[first - s..first]);
+        }
+    }
+
+    /// The tail: the gathered levels    /// The tail: the gathered levels as a hierarchy of their own (level 1 = `gathered`).
     fn tail(&self) -> Levels<D> {
         self.levels.below(self.gathered)
     }
