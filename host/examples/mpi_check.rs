@@ -346,7 +346,7 @@ fn cg_case<const D: usize, C: mpi::traits::Communicator>(
     world: &C,
     sys: &System<D>,
     periodic: [bool; D],
-    align: usize,
+    (align, pieces): (usize, Option<usize>),
     pc: sieve_core::flow::cg::Preconditioner,
 ) -> (i32, f64, f64, u32) {
     use mpi::traits::*;
@@ -395,7 +395,10 @@ fn cg_case<const D: usize, C: mpi::traits::Communicator>(
         eprintln!("mpi_check --cg: {size} ranks do not fit {cells:?} aligned to {align}");
         return (1, 0.0, 0.0, 0);
     }
-    let plan = Plan::new(cells, periodic, &starts, rank, room).expect("a plan");
+    let mut plan = Plan::new(cells, periodic, &starts, rank, room).expect("a plan");
+    if let Some(m) = pieces {
+        plan = plan.with_pieces(m);
+    }
     let own = plan.own_range();
     let first = starts[rank] * s;
     let len = plan.padded_len();
@@ -486,41 +489,53 @@ fn conjugate_gradients() -> i32 {
             for align in [2, 8] {
                 for px in [false, true] {
                     let sys = random_system([24, 40], seed, false);
-                    bad += cg_case(&world, &sys, [px, false], align, pc).0;
+                    let pieces = Some(1 + seed as usize);
+                    bad += cg_case(&world, &sys, [px, false], (align, pieces), pc).0;
                     let sys = random_system([5, 4, 40], seed, false);
-                    bad += cg_case(&world, &sys, [px, true, false], align, pc).0;
+                    bad += cg_case(&world, &sys, [px, true, false], (align, pieces), pc).0;
                     let sys = random_system([64, 40], seed, true);
-                    bad += cg_case(&world, &sys, [true, false], align, pc).0;
+                    bad += cg_case(&world, &sys, [true, false], (align, None), pc).0;
                     cases += 3;
                 }
             }
         }
     }
-    // one larger solve timed: a cold bed of 128 x 128, the automatic choice
+    // one larger solve timed: a cold bed of 128 x 128, the automatic choice, the line
+    // pipelines with whole rows and in the default pieces (4)
     let sys = random_system([128, 128], 3, true);
-    let (b, slab_time, serial_time, iterations) =
-        cg_case(&world, &sys, [true, false], 16, Preconditioner::Auto);
-    bad += b;
-    cases += 1;
+    let mut times = [0.0f64; 3];
+    let mut iterations = 0;
+    for (k, pieces) in [Some(1), None].into_iter().enumerate() {
+        let (b, slab_time, serial_time, it) = cg_case(
+            &world,
+            &sys,
+            [true, false],
+            (16, pieces),
+            Preconditioner::Auto,
+        );
+        bad += b;
+        cases += 1;
+        world.all_reduce_into(
+            &slab_time,
+            &mut times[k],
+            mpi::collective::SystemOperation::max(),
+        );
+        (times[2], iterations) = (serial_time, it);
+    }
     let mut all_bad = 0i32;
     world.all_reduce_into(&bad, &mut all_bad, mpi::collective::SystemOperation::sum());
-    let mut slowest = 0.0f64;
-    world.all_reduce_into(
-        &slab_time,
-        &mut slowest,
-        mpi::collective::SystemOperation::max(),
-    );
     if world.rank() == 0 {
         println!(
-            "mpi_check --cg: {cases} solves on {} ranks, {}; 128 x 128 cold bed ({iterations} iterations): {:.1} ms across the ranks, {:.1} ms serially on one",
+            "mpi_check --cg: {cases} solves on {} ranks, {}; 128 x 128 cold bed ({iterations} iterations): {:.1} ms across the ranks with whole rows, {:.1} ms in 4 pieces, {:.1} ms serially on one",
             world.size(),
             if all_bad == 0 {
                 "iterations, residuals and solutions with the serial bits"
             } else {
                 "SOME DIFFERENT"
             },
-            1e3 * slowest,
-            1e3 * serial_time
+            1e3 * times[0],
+            1e3 * times[1],
+            1e3 * times[2]
         );
     }
     drop(universe);

@@ -691,7 +691,7 @@ impl Links<f64> for ThreadLinks {
 /// is not meant to read (halo rows, other than the faces below its first row) is NaN.
 fn on_slabs<const D: usize>(
     sys: &System<D>,
-    starts: &[usize],
+    (starts, pieces): (&[usize], usize),
     room: usize,
     job: impl Fn(&Plan<D>, &mut ThreadLinks, &Fine<'_, f64, D>, &[f64]) -> Vec<f64> + Sync,
 ) -> Vec<Vec<f64>> {
@@ -704,7 +704,9 @@ fn on_slabs<const D: usize>(
             .enumerate()
             .map(|(k, mut links)| {
                 scope.spawn(move || {
-                    let plan = Plan::new(cells, sys.periodic, starts, k, room).unwrap();
+                    let plan = Plan::new(cells, sys.periodic, starts, k, room)
+                        .unwrap()
+                        .with_pieces(pieces);
                     let padded = |src: &[f64], row_below: bool| -> Vec<f64> {
                         let mut out = vec![f64::NAN; plan.padded_len()];
                         plan.pad_from(src, row_below, &mut out);
@@ -738,7 +740,8 @@ fn first_difference(a: &[f64], b: &[f64]) -> Option<(usize, f64, f64)> {
 
 /// The preconditioner on slabs of rows (core/src/flow/cycle_slab.rs: the line solves as
 /// pipelines, the V-cycle's upper levels on the slabs with halo rows, its lower levels
-/// gathered) gives `z = B r` with the serial bits, the slabs running as threads: cuts
+/// gathered) gives `z = B r` with the serial bits, the slabs running as threads (the line
+/// pipelines in 1 to 4 column pieces): cuts
 /// aligned to 2, 4, 8 and 16 rows and uneven slabs, one slab, 2D and 3D, periodic across,
 /// coefficients over 10 decades and a cold bed, full and shortened hierarchies, and the lines
 /// alone (where odd cuts are allowed). Every array a slab is not meant to read (halo values
@@ -781,31 +784,37 @@ fn slab_preconditioner_has_the_serial_bits() {
             mg,
         );
         assert!(rz.is_finite() && rz > 0.0, "{what}: r . z = {rz}");
-        let pieces = on_slabs(sys, starts, room, |plan, links, fine, r| {
-            let own = plan.own_range();
-            let mut z = vec![f64::NAN; plan.padded_len()];
-            let m = own.len();
-            let (mut pre, mut line, mut tmp) =
-                (vec![f64::NAN; m], vec![f64::NAN; m], vec![f64::NAN; m]);
-            let mut work = vec![f64::NAN; plan.workspace_len()];
-            cycle_slab::factor(plan, links, fine, &mut pre, &mut line, &mut work);
-            let coarsened = mg && plan.can_coarsen();
-            if coarsened {
-                cycle_slab::coarsen(plan, links, fine, &mut pre, &mut work);
-            }
-            cycle_slab::apply(
-                plan,
-                links,
-                fine,
-                (&pre, &line),
-                r,
-                &mut z,
-                &mut tmp,
-                &mut work,
-                coarsened,
-            );
-            z[own].to_vec()
-        });
+        // the line pipelines' column pieces: 1 to 4, by the number of slabs
+        let pieces = on_slabs(
+            sys,
+            (starts, 1 + starts.len() % 4),
+            room,
+            |plan, links, fine, r| {
+                let own = plan.own_range();
+                let mut z = vec![f64::NAN; plan.padded_len()];
+                let m = own.len();
+                let (mut pre, mut line, mut tmp) =
+                    (vec![f64::NAN; m], vec![f64::NAN; m], vec![f64::NAN; m]);
+                let mut work = vec![f64::NAN; plan.workspace_len()];
+                cycle_slab::factor(plan, links, fine, &mut pre, &mut line, &mut work);
+                let coarsened = mg && plan.can_coarsen();
+                if coarsened {
+                    cycle_slab::coarsen(plan, links, fine, &mut pre, &mut work);
+                }
+                cycle_slab::apply(
+                    plan,
+                    links,
+                    fine,
+                    (&pre, &line),
+                    r,
+                    &mut z,
+                    &mut tmp,
+                    &mut work,
+                    coarsened,
+                );
+                z[own].to_vec()
+            },
+        );
         if let Some((i, got, want)) = first_difference(&pieces.concat(), &z[..n]) {
             panic!(
                 "{what}, slabs from {starts:?}, room {room}, multigrid {mg}: z differs first at \
@@ -911,42 +920,47 @@ fn slab_solves_have_the_serial_bits() {
             max_iterations: 400,
             preconditioner: pc,
         };
-        let pieces = on_slabs(sys, starts, room, |plan, links, fine, b| {
-            let (len, m) = (plan.padded_len(), plan.own_range().len());
-            let mut x = vec![f64::NAN; len];
-            x[plan.own_range()].fill(0.0);
-            let mut v: Vec<Vec<f64>> = (0..3).map(|_| vec![f64::NAN; len]).collect();
-            let mut w: Vec<Vec<f64>> = (0..4).map(|_| vec![f64::NAN; m]).collect();
-            let mut work = vec![f64::NAN; plan.workspace_len()];
-            let [r, p, ap] = &mut v[..] else {
-                unreachable!()
-            };
-            let [pre, line, tmp, terms] = &mut w[..] else {
-                unreachable!()
-            };
-            let res = cg_slab::solve(
-                plan,
-                links,
-                fine,
-                b,
-                &mut x,
-                cg_slab::Scratch {
-                    r,
-                    p,
-                    ap,
-                    pre,
-                    line,
-                    tmp,
-                    terms,
-                    work: &mut work,
-                },
-                stop,
-            );
-            let mut out = x[plan.own_range()].to_vec();
-            out.push(f64::from(res.iterations));
-            out.push(res.relative_residual);
-            out
-        });
+        let pieces = on_slabs(
+            sys,
+            (starts, 1 + starts.len() % 4),
+            room,
+            |plan, links, fine, b| {
+                let (len, m) = (plan.padded_len(), plan.own_range().len());
+                let mut x = vec![f64::NAN; len];
+                x[plan.own_range()].fill(0.0);
+                let mut v: Vec<Vec<f64>> = (0..3).map(|_| vec![f64::NAN; len]).collect();
+                let mut w: Vec<Vec<f64>> = (0..4).map(|_| vec![f64::NAN; m]).collect();
+                let mut work = vec![f64::NAN; plan.workspace_len()];
+                let [r, p, ap] = &mut v[..] else {
+                    unreachable!()
+                };
+                let [pre, line, tmp, terms] = &mut w[..] else {
+                    unreachable!()
+                };
+                let res = cg_slab::solve(
+                    plan,
+                    links,
+                    fine,
+                    b,
+                    &mut x,
+                    cg_slab::Scratch {
+                        r,
+                        p,
+                        ap,
+                        pre,
+                        line,
+                        tmp,
+                        terms,
+                        work: &mut work,
+                    },
+                    stop,
+                );
+                let mut out = x[plan.own_range()].to_vec();
+                out.push(f64::from(res.iterations));
+                out.push(res.relative_residual);
+                out
+            },
+        );
         let mut joined = Vec::new();
         for piece in &pieces {
             let k = piece.len() - 2;

@@ -4,7 +4,8 @@
 //! "The V-cycle on slabs").
 //!
 //! Why the bits are the serial ones:
-//! - the line solves continue along the slabs as pipelines ([`super::line_slab`]);
+//! - the line solves continue along the slabs as pipelines ([`super::line_slab`]), each row
+//!   sent in column pieces so that the slabs sweep as a wavefront ([`Plan::with_pieces`]);
 //! - a product or a residual of a slab's own rows reads one row beyond them on each cut
 //!   side. A slab keeps a halo row there, filled from the neighbour before each product, and
 //!   computes its own rows with the serial function on the *view* of its rows and the halo
@@ -65,6 +66,11 @@ pub trait Links<R: Real> {
     /// without gathering the terms).
     fn sum(&mut self, own: &[R]) -> R;
 }
+
+/// Cells of a row per column piece of the line pipelines, by default ([`Plan::with_pieces`]).
+const PIECE: usize = 32;
+/// Most column pieces by default.
+const MAX_PIECES: usize = 8;
 
 /// Why a cut cannot carry the serial preconditioner.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -134,6 +140,8 @@ pub struct Plan<const D: usize> {
     levels: Levels<D>,
     /// The first level gathered whole on every slab (levels `1..gathered` are on the slabs).
     gathered: usize,
+    /// Column pieces of the line pipelines' wavefront (see [`Plan::with_pieces`]).
+    pieces: usize,
 }
 
 impl<const D: usize> Plan<D> {
@@ -183,7 +191,28 @@ impl<const D: usize> Plan<D> {
             above: index + 1 < starts.len(),
             levels,
             gathered: align.min(levels.count.saturating_sub(1)),
+            pieces: if starts.len() > 1 {
+                (cells[..D - 1].iter().product::<usize>() / PIECE).clamp(1, MAX_PIECES)
+            } else {
+                1
+            },
         })
+    }
+
+    /// The line pipelines send each row in `pieces` pieces of columns (at least 1), so that
+    /// the slab above starts on the first piece while this one sweeps the next: a wavefront.
+    /// With `m` pieces on `K` slabs a sweep takes about `(m + K - 1) / m` of a perfectly
+    /// shared one, against `K` times for whole rows; each piece is a message. Never changes
+    /// the bits. The default: one piece per 32 cells of a row, at most 8.
+    pub fn with_pieces(mut self, pieces: usize) -> Self {
+        self.pieces = pieces.max(1);
+        self
+    }
+
+    /// The column pieces of a row of `s` cells.
+    fn pieces(&self, s: usize) -> impl Iterator<Item = Range<usize>> {
+        let m = self.pieces.clamp(1, s.max(1));
+        (0..m).map(move |k| k * s / m..(k + 1) * s / m)
     }
 
     /// Whether the V-cycle can run ([`coarsen`]); without it the preconditioner is the
@@ -395,21 +424,28 @@ fn lines<R: Real, L: Links<R>, const D: usize>(
     z: &mut [R],
 ) {
     let s = row.len();
-    let below = if plan.below {
-        links.receive_below(row);
-        Some(&*row)
-    } else {
-        None
-    };
-    line_slab::forward(s, 0..s, line, r, z, below);
-    if plan.above {
-        links.send_up(&z[z.len() - s..]);
-        links.receive_above(row);
+    let top = z.len() - s;
+    for c in plan.pieces(s) {
+        let below = if plan.below {
+            links.receive_below(&mut row[c.clone()]);
+            Some(&*row)
+        } else {
+            None
+        };
+        line_slab::forward(s, c.clone(), line, r, z, below);
+        if plan.above {
+            links.send_up(&z[top + c.start..top + c.end]);
+        }
     }
-    let above = plan.above.then_some((&*row, l_above));
-    line_slab::backward(s, 0..s, pre, line, z, above);
-    if plan.below {
-        links.send_down(&z[..s]);
+    for c in plan.pieces(s) {
+        if plan.above {
+            links.receive_above(&mut row[c.clone()]);
+        }
+        let above = plan.above.then_some((&*row, l_above));
+        line_slab::backward(s, c.clone(), pre, line, z, above);
+        if plan.below {
+            links.send_down(&z[c]);
+        }
     }
 }
 
@@ -462,16 +498,18 @@ pub fn factor<R: Real, L: Links<R>, const D: usize>(
         pre[g - own.start] = m;
     });
     let Parts { row, l_above, .. } = split(plan, work);
-    let below = if plan.below {
-        links.receive_below(row);
-        Some(&*row)
-    } else {
-        None
-    };
-    // the face below own row i is kf's row i - 1 of the padded array (row 0: the halo)
-    line_slab::factor(s, 0..s, pre, line, &fine.kf[D - 1][..n], below);
-    if plan.above {
-        links.send_up(&pre[n - s..]);
+    for c in plan.pieces(s) {
+        let below = if plan.below {
+            links.receive_below(&mut row[c.clone()]);
+            Some(&*row)
+        } else {
+            None
+        };
+        // the face below own row i is kf's row i - 1 of the padded array (row 0: the halo)
+        line_slab::factor(s, c.clone(), pre, line, &fine.kf[D - 1][..n], below);
+        if plan.above {
+            links.send_up(&pre[n - s + c.start..n - s + c.end]);
+        }
     }
     line_slab::invert_pivots(pre);
     if plan.below {
