@@ -24,7 +24,8 @@
 //! automatic switch) on K slabs of rows aligned to 2 and 8 rows, by
 //! `sieve_core::flow::cg_slab` over `sieve::rank_links`, against the serial solve: exits 0
 //! if every rank's iterations, residual and solution have the serial bits, 1 if not; then
-//! times one 128 x 128 solve against the serial one.
+//! times one 128 x 128 solve against the serial one. `--cg-time SIZE` times one cold bed of
+//! SIZE x SIZE (at most 512) the same way.
 //!
 //! Needs the `mpi` feature (OpenMPI: `apt-get install libopenmpi-dev openmpi-bin libclang-dev`).
 
@@ -185,10 +186,13 @@ fn sums() -> i32 {
 /// Cells a check's system may have.
 const N: usize = 16384;
 
-/// A linear system `diag + faces` (`cg::Stencil`'s operator) on a grid.
-struct System<const D: usize> {
+/// Cells of the larger systems `--cg-time` times.
+const N_TIMED: usize = 1 << 18;
+
+/// A linear system `diag + faces` (`cg::Stencil`'s operator) on a grid of at most `M` cells.
+struct System<const D: usize, const M: usize = N> {
     grid: sieve_core::Grid<f64, D>,
-    kf: Box<[[f64; N]; D]>,
+    kf: Box<[[f64; M]; D]>,
     diag: Vec<f64>,
     b: Vec<f64>,
 }
@@ -196,11 +200,15 @@ struct System<const D: usize> {
 /// Random coefficients over 10 decades, 1000 times stronger along the last axis; or (`cold`)
 /// a cold bed whose coupling grows with the depth (~1e4 times the mass term), on which the
 /// line preconditioner converges slowly.
-fn random_system<const D: usize>(cells: [usize; D], seed: u64, cold: bool) -> System<D> {
-    let grid = sieve_core::Grid::<f64, D>::new(cells, [0.0; D], [1.0; D], N).expect("grid");
+fn random_system<const D: usize, const M: usize>(
+    cells: [usize; D],
+    seed: u64,
+    cold: bool,
+) -> System<D, M> {
+    let grid = sieve_core::Grid::<f64, D>::new(cells, [0.0; D], [1.0; D], M).expect("grid");
     let n = grid.len();
     let mut r = seed;
-    let mut kf = vec![[0.0f64; N]; D].into_boxed_slice();
+    let mut kf = vec![[0.0f64; M]; D].into_boxed_slice();
     for (a, k) in kf.iter_mut().enumerate() {
         for (i, v) in k[..n].iter_mut().enumerate() {
             let scale = if a + 1 == D { 1e3 } else { 1.0 };
@@ -211,7 +219,7 @@ fn random_system<const D: usize>(cells: [usize; D], seed: u64, cold: bool) -> Sy
             };
         }
     }
-    let kf: Box<[[f64; N]; D]> = kf.try_into().expect("D arrays");
+    let kf: Box<[[f64; M]; D]> = kf.try_into().expect("D arrays");
     let lo = if cold { 0.5 } else { 1e-3 };
     let diag: Vec<f64> = (0..n).map(|_| lo + lcg(&mut r)).collect();
     let b: Vec<f64> = (0..n).map(|_| lcg(&mut r) - 0.5).collect();
@@ -230,7 +238,7 @@ fn line_case<const D: usize, C: mpi::traits::Communicator>(
 ) -> i32 {
     use sieve_core::flow::cg::Stencil;
     let (rank, size) = (world.rank() as usize, world.size() as usize);
-    let System { grid, kf, diag, b } = random_system(cells, seed, false);
+    let System { grid, kf, diag, b } = random_system::<D, N>(cells, seed, false);
     let n = grid.len();
     let s = grid.stride(D - 1);
     let st = Stencil {
@@ -342,9 +350,9 @@ fn slab_starts(rows: usize, ranks: usize, align: usize) -> Vec<usize> {
 /// One system solved by CG on the ranks' slabs (`sieve_core::flow::cg_slab` with
 /// `sieve::rank_links`) against the serial solve on every rank; returns (cases that differ
 /// on this rank, seconds on the slabs, seconds serially, iterations).
-fn cg_case<const D: usize, C: mpi::traits::Communicator>(
+fn cg_case<const D: usize, const M: usize, C: mpi::traits::Communicator>(
     world: &C,
-    sys: &System<D>,
+    sys: &System<D, M>,
     periodic: [bool; D],
     (align, pieces): (usize, Option<usize>),
     pc: sieve_core::flow::cg::Preconditioner,
@@ -470,6 +478,53 @@ fn cg_case<const D: usize, C: mpi::traits::Communicator>(
     (i32::from(!same), slab_time, serial_time, serial.iterations)
 }
 
+/// `--cg-time SIZE`: one cold bed of SIZE x SIZE cells (at most 512) solved on the ranks'
+/// slabs (aligned to 16 rows) with whole rows and in the default pieces, and serially, with
+/// the automatic choice; prints the times (the slowest rank's) and checks the bits. Returns
+/// the exit code.
+fn cg_time(size: usize) -> i32 {
+    use mpi::traits::*;
+    use sieve_core::flow::cg::Preconditioner;
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("mpi_check --cg-time: MPI is already initialised");
+        return 1;
+    };
+    let world = universe.world();
+    let size = size.clamp(16, 512);
+    let sys = random_system::<2, N_TIMED>([size, size], 3, true);
+    let (mut bad, mut times, mut iterations) = (0i32, [0.0f64; 3], 0);
+    for (k, pieces) in [Some(1), None].into_iter().enumerate() {
+        let (b, slab, serial, it) = cg_case(
+            &world,
+            &sys,
+            [true, false],
+            (16, pieces),
+            Preconditioner::Auto,
+        );
+        bad += b;
+        world.all_reduce_into(
+            &slab,
+            &mut times[k],
+            mpi::collective::SystemOperation::max(),
+        );
+        (times[2], iterations) = (serial, it);
+    }
+    let mut all_bad = 0i32;
+    world.all_reduce_into(&bad, &mut all_bad, mpi::collective::SystemOperation::sum());
+    if world.rank() == 0 {
+        println!(
+            "mpi_check --cg-time: {size} x {size} cold bed ({iterations} iterations) on {} ranks: {:.1} ms with whole rows, {:.1} ms in pieces, {:.1} ms serially on one; {}",
+            world.size(),
+            1e3 * times[0],
+            1e3 * times[1],
+            1e3 * times[2],
+            if all_bad == 0 { "the serial bits" } else { "SOME DIFFERENT" }
+        );
+    }
+    drop(universe);
+    i32::from(all_bad != 0)
+}
+
 /// `--cg`: returns the exit code.
 fn conjugate_gradients() -> i32 {
     use mpi::traits::*;
@@ -488,12 +543,12 @@ fn conjugate_gradients() -> i32 {
         ] {
             for align in [2, 8] {
                 for px in [false, true] {
-                    let sys = random_system([24, 40], seed, false);
+                    let sys = random_system::<_, N>([24, 40], seed, false);
                     let pieces = Some(1 + seed as usize);
                     bad += cg_case(&world, &sys, [px, false], (align, pieces), pc).0;
-                    let sys = random_system([5, 4, 40], seed, false);
+                    let sys = random_system::<_, N>([5, 4, 40], seed, false);
                     bad += cg_case(&world, &sys, [px, true, false], (align, pieces), pc).0;
-                    let sys = random_system([64, 40], seed, true);
+                    let sys = random_system::<_, N>([64, 40], seed, true);
                     bad += cg_case(&world, &sys, [true, false], (align, None), pc).0;
                     cases += 3;
                 }
@@ -502,7 +557,7 @@ fn conjugate_gradients() -> i32 {
     }
     // one larger solve timed: a cold bed of 128 x 128, the automatic choice, the line
     // pipelines with whole rows and in the default pieces (4)
-    let sys = random_system([128, 128], 3, true);
+    let sys = random_system::<_, N>([128, 128], 3, true);
     let mut times = [0.0f64; 3];
     let mut iterations = 0;
     for (k, pieces) in [Some(1), None].into_iter().enumerate() {
@@ -567,6 +622,10 @@ fn main() {
     }
     if name == "--cg" {
         std::process::exit(conjugate_gradients());
+    }
+    if name == "--cg-time" {
+        let size = args.next().and_then(|a| a.parse().ok()).unwrap_or(256);
+        std::process::exit(cg_time(size));
     }
     let sets: Vec<String> = args.collect();
     let launched = match sieve::parallel_mpi::launch() {
