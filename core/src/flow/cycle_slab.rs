@@ -615,8 +615,9 @@ pub fn coarsen<R: Real, L: Links<R>, const D: usize>(
 }
 
 /// `z = B r` on the own cells (`r`, `z` padded; `tmp` one value per own cell): the serial
-/// preconditioner's `apply`, without its final dot product (a sum across the slabs, the
-/// driver's: `crate::sum::cut_partials`). The lines alone until [`coarsen`] ran.
+/// preconditioner's `apply`, without its final dot product (a sum across the slabs:
+/// [`Links::sum`], as [`super::cg_slab::solve`] takes it). `coarsened`: [`coarsen`] ran on
+/// this workspace (the V-cycle), else the lines alone.
 #[allow(clippy::too_many_arguments)]
 pub fn apply<R: Real, L: Links<R>, const D: usize>(
     plan: &Plan<D>,
