@@ -20,7 +20,7 @@ use sieve_core::flow::cg::{solve_on, workspace_len, Preconditioner, Scratch, Ste
 use sieve_core::flow::cycle_slab::{Fine, Links, Plan};
 use sieve_core::fork::{Fork, Serial};
 use sieve_core::sum;
-use sieve_core::Grid;
+use sieve_core::{Grid, Real};
 use std::sync::{mpsc, Arc, Barrier, Mutex};
 
 const N: usize = 4096;
@@ -584,16 +584,16 @@ fn line_slabs_have_the_serial_bits() {
 
 /// Slabs on threads, the tests' stand-in for MPI ranks (core/src/flow/cycle_slab.rs
 /// `Links`): a channel per direction between neighbours, a shared board for the gathers.
-struct ThreadLinks {
+struct ThreadLinks<R = f64> {
     index: usize,
-    up: Option<mpsc::Sender<Vec<f64>>>,
-    down: Option<mpsc::Sender<Vec<f64>>>,
-    from_below: Option<mpsc::Receiver<Vec<f64>>>,
-    from_above: Option<mpsc::Receiver<Vec<f64>>>,
-    board: Arc<(Mutex<Vec<Vec<f64>>>, Barrier)>,
+    up: Option<mpsc::Sender<Vec<R>>>,
+    down: Option<mpsc::Sender<Vec<R>>>,
+    from_below: Option<mpsc::Receiver<Vec<R>>>,
+    from_above: Option<mpsc::Receiver<Vec<R>>>,
+    board: Arc<(Mutex<Vec<Vec<R>>>, Barrier)>,
 }
 
-impl ThreadLinks {
+impl<R: Real> ThreadLinks<R> {
     /// The links of `slabs` slabs, in slab order.
     fn chain(slabs: usize) -> Vec<Self> {
         let board = Arc::new((Mutex::new(vec![vec![]; slabs]), Barrier::new(slabs)));
@@ -619,22 +619,22 @@ impl ThreadLinks {
     }
 }
 
-impl Links<f64> for ThreadLinks {
-    fn send_up(&mut self, row: &[f64]) {
+impl<R: Real> Links<R> for ThreadLinks<R> {
+    fn send_up(&mut self, row: &[R]) {
         self.up
             .as_ref()
             .expect("a slab above")
             .send(row.to_vec())
             .unwrap();
     }
-    fn send_down(&mut self, row: &[f64]) {
+    fn send_down(&mut self, row: &[R]) {
         self.down
             .as_ref()
             .expect("a slab below")
             .send(row.to_vec())
             .unwrap();
     }
-    fn receive_below(&mut self, row: &mut [f64]) {
+    fn receive_below(&mut self, row: &mut [R]) {
         row.copy_from_slice(
             &self
                 .from_below
@@ -644,7 +644,7 @@ impl Links<f64> for ThreadLinks {
                 .unwrap(),
         );
     }
-    fn receive_above(&mut self, row: &mut [f64]) {
+    fn receive_above(&mut self, row: &mut [R]) {
         row.copy_from_slice(
             &self
                 .from_above
@@ -654,7 +654,7 @@ impl Links<f64> for ThreadLinks {
                 .unwrap(),
         );
     }
-    fn swap(&mut self, bottom: &[f64], top: &[f64], below: &mut [f64], above: &mut [f64]) {
+    fn swap(&mut self, bottom: &[R], top: &[R], below: &mut [R], above: &mut [R]) {
         if let Some(d) = &self.down {
             d.send(bottom.to_vec()).unwrap();
         }
@@ -668,14 +668,14 @@ impl Links<f64> for ThreadLinks {
             above.copy_from_slice(&r.recv().unwrap());
         }
     }
-    fn gather(&mut self, own: &[f64], all: &mut [f64]) {
+    fn gather(&mut self, own: &[R], all: &mut [R]) {
         let (board, barrier) = &*self.board;
         board.lock().unwrap()[self.index] = own.to_vec();
         barrier.wait();
         all.copy_from_slice(&board.lock().unwrap().concat());
         barrier.wait();
     }
-    fn sum(&mut self, own: &[f64]) -> f64 {
+    fn sum(&mut self, own: &[R]) -> R {
         let (board, barrier) = &*self.board;
         board.lock().unwrap()[self.index] = own.to_vec();
         barrier.wait();
@@ -685,18 +685,39 @@ impl Links<f64> for ThreadLinks {
     }
 }
 
-/// Runs `job` on every slab of `sys` cut at the rows `starts`, each on its own thread, with
-/// its plan, links, padded fine operator and padded right-hand side (core/src/flow/
-/// cycle_slab.rs); returns what each slab returned, in slab order. Every padded value a slab
-/// is not meant to read (halo rows, other than the faces below its first row) is NaN.
-fn on_slabs<const D: usize>(
-    sys: &System<D>,
+/// What the slabs solve: the operator and right-hand side of a system, global.
+struct Operator<'a, R, const D: usize> {
+    cells: [usize; D],
+    periodic: [bool; D],
+    diag: &'a [R],
+    kf: [&'a [R]; D],
+    b: &'a [R],
+}
+
+impl<const D: usize> System<D> {
+    fn operator(&self) -> Operator<'_, f64, D> {
+        let n = self.grid.len();
+        Operator {
+            cells: self.grid.cells(),
+            periodic: self.periodic,
+            diag: &self.diag[..n],
+            kf: std::array::from_fn(|a| &self.kf[a][..n]),
+            b: &self.b[..n],
+        }
+    }
+}
+
+/// Runs `job` on every slab of `op` cut at the rows `starts`, each on its own thread, with
+/// its plan (the line pipelines in `pieces`), links, padded fine operator and padded
+/// right-hand side (core/src/flow/cycle_slab.rs); returns what each slab returned, in slab
+/// order. Every padded value a slab is not meant to read (halo rows, other than the faces
+/// below its first row) is NaN.
+fn on_slabs<R: Real, const D: usize>(
+    op: &Operator<'_, R, D>,
     (starts, pieces): (&[usize], usize),
     room: usize,
-    job: impl Fn(&Plan<D>, &mut ThreadLinks, &Fine<'_, f64, D>, &[f64]) -> Vec<f64> + Sync,
-) -> Vec<Vec<f64>> {
-    let n = sys.grid.len();
-    let cells = sys.grid.cells();
+    job: impl Fn(&Plan<D>, &mut ThreadLinks<R>, &Fine<'_, R, D>, &[R]) -> Vec<R> + Sync,
+) -> Vec<Vec<R>> {
     let job = &job;
     std::thread::scope(|scope| {
         let handles: Vec<_> = ThreadLinks::chain(starts.len())
@@ -704,23 +725,21 @@ fn on_slabs<const D: usize>(
             .enumerate()
             .map(|(k, mut links)| {
                 scope.spawn(move || {
-                    let plan = Plan::new(cells, sys.periodic, starts, k, room)
+                    let plan = Plan::new(op.cells, op.periodic, starts, k, room)
                         .unwrap()
                         .with_pieces(pieces);
-                    let padded = |src: &[f64], row_below: bool| -> Vec<f64> {
-                        let mut out = vec![f64::NAN; plan.padded_len()];
+                    let padded = |src: &[R], row_below: bool| -> Vec<R> {
+                        let mut out = vec![R::from_f64(f64::NAN); plan.padded_len()];
                         plan.pad_from(src, row_below, &mut out);
                         out
                     };
-                    let diag = padded(&sys.diag, false);
-                    let kf: Vec<Vec<f64>> = (0..D)
-                        .map(|a| padded(&sys.kf[a][..n], a == D - 1))
-                        .collect();
+                    let diag = padded(op.diag, false);
+                    let kf: Vec<Vec<R>> = (0..D).map(|a| padded(op.kf[a], a == D - 1)).collect();
                     let fine = Fine {
                         diag: &diag,
                         kf: std::array::from_fn(|a| &kf[a][..]),
                     };
-                    let b = padded(&sys.b, false);
+                    let b = padded(op.b, false);
                     job(&plan, &mut links, &fine, &b)
                 })
             })
@@ -786,7 +805,7 @@ fn slab_preconditioner_has_the_serial_bits() {
         assert!(rz.is_finite() && rz > 0.0, "{what}: r . z = {rz}");
         // the line pipelines' column pieces: 1 to 4, by the number of slabs
         let pieces = on_slabs(
-            sys,
+            &sys.operator(),
             (starts, 1 + starts.len() % 4),
             room,
             |plan, links, fine, r| {
@@ -921,7 +940,7 @@ fn slab_solves_have_the_serial_bits() {
             preconditioner: pc,
         };
         let pieces = on_slabs(
-            sys,
+            &sys.operator(),
             (starts, 1 + starts.len() % 4),
             room,
             |plan, links, fine, b| {
@@ -1037,6 +1056,140 @@ fn slab_solves_have_the_serial_bits() {
         0,
         "2D odd cuts, lines",
     );
+}
+
+/// The CG on slabs in f32 (the precision of f32 scenes) takes the serial f32 solve's
+/// iterations and ends with its bits: a cold bed and a random 3D system cut into 2 to 5 slabs,
+/// lines, V-cycle and the automatic switch.
+#[test]
+fn slab_solves_in_f32_have_the_serial_bits() {
+    use sieve_core::flow::cg::{solve, Solve};
+    use sieve_core::flow::cg_slab;
+    fn check<const D: usize>(sys: &System<D>, starts: &[usize], pc: Preconditioner) {
+        let n = sys.grid.len();
+        let cells = sys.grid.cells();
+        let grid = Grid::<f32, D>::new(cells, [0.0; D], [1.0; D], N).unwrap();
+        let mut kf = vec![[0.0f32; N]; D];
+        for a in 0..D {
+            for i in 0..n {
+                kf[a][i] = sys.kf[a][i] as f32;
+            }
+        }
+        let kf: Box<[[f32; N]; D]> = kf.into_boxed_slice().try_into().unwrap();
+        let diag: Vec<f32> = sys.diag[..n].iter().map(|&v| v as f32).collect();
+        let b: Vec<f32> = sys.b[..n].iter().map(|&v| v as f32).collect();
+        let st = Stencil {
+            grid: &grid,
+            periodic: sys.periodic,
+            kf: &kf,
+        };
+        let stop = Stop {
+            relative: 1e-5f32,
+            floor: 0.0,
+            max_iterations: 400,
+            preconditioner: pc,
+        };
+        let room = workspace_len(cells);
+        let mut x = vec![0.0f32; n];
+        let mut v = vec![vec![0.0f32; n]; 6];
+        let mut coarse = vec![0.0f32; room];
+        let [r, p, ap, pre, line, tmp] = &mut v[..] else {
+            unreachable!()
+        };
+        let serial: Solve<f32> = solve(
+            &st,
+            &diag,
+            &b,
+            &mut x,
+            Scratch {
+                r,
+                p,
+                ap,
+                pre,
+                line,
+                tmp,
+                coarse: &mut coarse,
+                part: &mut [],
+            },
+            stop,
+        );
+        assert!(
+            serial.relative_residual <= 1e-5,
+            "{pc:?}: serial residual {}",
+            serial.relative_residual
+        );
+        let op = Operator {
+            cells,
+            periodic: sys.periodic,
+            diag: &diag,
+            kf: std::array::from_fn(|a| &kf[a][..n]),
+            b: &b,
+        };
+        let pieces = on_slabs(&op, (starts, 2), room, |plan, links, fine, b| {
+            let (len, m) = (plan.padded_len(), plan.own_range().len());
+            let mut xs = vec![f32::NAN; len];
+            xs[plan.own_range()].fill(0.0);
+            let mut v: Vec<Vec<f32>> = (0..3).map(|_| vec![f32::NAN; len]).collect();
+            let mut w: Vec<Vec<f32>> = (0..4).map(|_| vec![f32::NAN; m]).collect();
+            let mut work = vec![f32::NAN; plan.workspace_len()];
+            let [r, p, ap] = &mut v[..] else {
+                unreachable!()
+            };
+            let [pre, line, tmp, terms] = &mut w[..] else {
+                unreachable!()
+            };
+            let res = cg_slab::solve(
+                plan,
+                links,
+                fine,
+                b,
+                &mut xs,
+                cg_slab::Scratch {
+                    r,
+                    p,
+                    ap,
+                    pre,
+                    line,
+                    tmp,
+                    terms,
+                    work: &mut work,
+                },
+                stop,
+            );
+            assert_eq!(
+                res.iterations, serial.iterations,
+                "{pc:?}, slabs from {starts:?}: iterations"
+            );
+            assert_eq!(
+                res.relative_residual.to_bits(),
+                serial.relative_residual.to_bits(),
+                "{pc:?}: residual"
+            );
+            xs[plan.own_range()].to_vec()
+        });
+        let joined = pieces.concat();
+        let same = joined
+            .iter()
+            .zip(&x)
+            .all(|(p, q)| p.to_bits() == q.to_bits());
+        assert!(
+            same && joined.len() == n,
+            "{pc:?}, slabs from {starts:?}: x differs"
+        );
+    }
+    for pc in [
+        Preconditioner::Lines,
+        Preconditioner::Multigrid,
+        Preconditioner::Auto,
+    ] {
+        check(&layer(64, 40, true, 3), &[0, 16], pc);
+        check(&layer(64, 40, true, 4), &[0, 4, 12, 20, 28], pc);
+        check(
+            &random_system([5, 4, 40], [true, true, false], 5),
+            &[0, 8, 24],
+            pc,
+        );
+    }
 }
 
 proptest! {
