@@ -478,13 +478,38 @@ fn cg_case<const D: usize, const M: usize, C: mpi::traits::Communicator>(
     (i32::from(!same), slab_time, serial_time, serial.iterations)
 }
 
+/// A cold bed (periodic across) solved with the automatic choice on slabs aligned to 16
+/// rows, with whole rows and in the default pieces, and serially: (cases that differ on this
+/// rank, [slowest rank's time with whole rows, in pieces, serial time], iterations).
+fn timed<const M: usize, C: mpi::traits::Communicator>(
+    world: &C,
+    sys: &System<2, M>,
+) -> (i32, [f64; 3], u32) {
+    use mpi::collective::SystemOperation;
+    use mpi::traits::*;
+    use sieve_core::flow::cg::Preconditioner;
+    let (mut bad, mut times, mut iterations) = (0i32, [0.0f64; 3], 0);
+    for (k, pieces) in [Some(1), None].into_iter().enumerate() {
+        let (b, slab, serial, it) = cg_case(
+            world,
+            sys,
+            [true, false],
+            (16, pieces),
+            Preconditioner::Auto,
+        );
+        bad += b;
+        world.all_reduce_into(&slab, &mut times[k], SystemOperation::max());
+        (times[2], iterations) = (serial, it);
+    }
+    (bad, times, iterations)
+}
+
 /// `--cg-time SIZE`: one cold bed of SIZE x SIZE cells (at most 512) solved on the ranks'
 /// slabs (aligned to 16 rows) with whole rows and in the default pieces, and serially, with
 /// the automatic choice; prints the times (the slowest rank's) and checks the bits. Returns
 /// the exit code.
 fn cg_time(size: usize) -> i32 {
     use mpi::traits::*;
-    use sieve_core::flow::cg::Preconditioner;
     let Some(universe) = mpi::initialize() else {
         eprintln!("mpi_check --cg-time: MPI is already initialised");
         return 1;
@@ -492,23 +517,7 @@ fn cg_time(size: usize) -> i32 {
     let world = universe.world();
     let size = size.clamp(16, 512);
     let sys = random_system::<2, N_TIMED>([size, size], 3, true);
-    let (mut bad, mut times, mut iterations) = (0i32, [0.0f64; 3], 0);
-    for (k, pieces) in [Some(1), None].into_iter().enumerate() {
-        let (b, slab, serial, it) = cg_case(
-            &world,
-            &sys,
-            [true, false],
-            (16, pieces),
-            Preconditioner::Auto,
-        );
-        bad += b;
-        world.all_reduce_into(
-            &slab,
-            &mut times[k],
-            mpi::collective::SystemOperation::max(),
-        );
-        (times[2], iterations) = (serial, it);
-    }
+    let (bad, times, iterations) = timed(&world, &sys);
     let mut all_bad = 0i32;
     world.all_reduce_into(&bad, &mut all_bad, mpi::collective::SystemOperation::sum());
     if world.rank() == 0 {
@@ -558,25 +567,9 @@ fn conjugate_gradients() -> i32 {
     // one larger solve timed: a cold bed of 128 x 128, the automatic choice, the line
     // pipelines with whole rows and in the default pieces (4)
     let sys = random_system::<_, N>([128, 128], 3, true);
-    let mut times = [0.0f64; 3];
-    let mut iterations = 0;
-    for (k, pieces) in [Some(1), None].into_iter().enumerate() {
-        let (b, slab_time, serial_time, it) = cg_case(
-            &world,
-            &sys,
-            [true, false],
-            (16, pieces),
-            Preconditioner::Auto,
-        );
-        bad += b;
-        cases += 1;
-        world.all_reduce_into(
-            &slab_time,
-            &mut times[k],
-            mpi::collective::SystemOperation::max(),
-        );
-        (times[2], iterations) = (serial_time, it);
-    }
+    let (b, times, iterations) = timed(&world, &sys);
+    bad += b;
+    cases += 2;
     let mut all_bad = 0i32;
     world.all_reduce_into(&bad, &mut all_bad, mpi::collective::SystemOperation::sum());
     if world.rank() == 0 {

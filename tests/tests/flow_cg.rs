@@ -748,6 +748,56 @@ fn on_slabs<R: Real, const D: usize>(
     })
 }
 
+/// `op` solved from 0 by CG on slabs cut at the rows `starts` (threads, the line pipelines
+/// in `pieces`; core/src/flow/cg_slab.rs): each slab's iterations and relative residual, and
+/// the solution of the slabs' own cells joined in slab order.
+fn solve_on_slabs<R: Real, const D: usize>(
+    op: &Operator<'_, R, D>,
+    cut: (&[usize], usize),
+    room: usize,
+    stop: Stop<R>,
+) -> (Vec<(u32, R)>, Vec<R>) {
+    use sieve_core::flow::cg_slab;
+    let nan = R::from_f64(f64::NAN);
+    let pieces = on_slabs(op, cut, room, |plan, links, fine, b| {
+        let (len, m) = (plan.padded_len(), plan.own_range().len());
+        let mut x = vec![nan; len];
+        x[plan.own_range()].fill(R::ZERO);
+        let mut v: Vec<Vec<R>> = (0..3).map(|_| vec![nan; len]).collect();
+        let mut w: Vec<Vec<R>> = (0..4).map(|_| vec![nan; m]).collect();
+        let mut work = vec![nan; plan.workspace_len()];
+        let [r, p, ap] = &mut v[..] else {
+            unreachable!()
+        };
+        let [pre, line, tmp, terms] = &mut w[..] else {
+            unreachable!()
+        };
+        let sc = cg_slab::Scratch {
+            r,
+            p,
+            ap,
+            pre,
+            line,
+            tmp,
+            terms,
+            work: &mut work,
+        };
+        let res = cg_slab::solve(plan, links, fine, b, &mut x, sc, stop);
+        let mut out = x[plan.own_range()].to_vec();
+        out.push(R::from_usize(res.iterations as usize));
+        out.push(res.relative_residual);
+        out
+    });
+    let mut outcomes = Vec::new();
+    let mut joined = Vec::new();
+    for piece in &pieces {
+        let k = piece.len() - 2;
+        outcomes.push((piece[k].to_f64() as u32, piece[k + 1]));
+        joined.extend_from_slice(&piece[..k]);
+    }
+    (outcomes, joined)
+}
+
 /// The index and values of the first difference in bits of `a` and `b`.
 fn first_difference(a: &[f64], b: &[f64]) -> Option<(usize, f64, f64)> {
     (0..a.len().max(b.len())).find_map(|i| {
@@ -923,7 +973,6 @@ fn slab_preconditioner_has_the_serial_bits() {
 /// automatic choice switches to the V-cycle mid-solve), a short hierarchy.
 #[test]
 fn slab_solves_have_the_serial_bits() {
-    use sieve_core::flow::cg_slab;
     fn check<const D: usize>(
         sys: &System<D>,
         starts: &[usize],
@@ -939,61 +988,18 @@ fn slab_solves_have_the_serial_bits() {
             max_iterations: 400,
             preconditioner: pc,
         };
-        let pieces = on_slabs(
-            &sys.operator(),
-            (starts, 1 + starts.len() % 4),
-            room,
-            |plan, links, fine, b| {
-                let (len, m) = (plan.padded_len(), plan.own_range().len());
-                let mut x = vec![f64::NAN; len];
-                x[plan.own_range()].fill(0.0);
-                let mut v: Vec<Vec<f64>> = (0..3).map(|_| vec![f64::NAN; len]).collect();
-                let mut w: Vec<Vec<f64>> = (0..4).map(|_| vec![f64::NAN; m]).collect();
-                let mut work = vec![f64::NAN; plan.workspace_len()];
-                let [r, p, ap] = &mut v[..] else {
-                    unreachable!()
-                };
-                let [pre, line, tmp, terms] = &mut w[..] else {
-                    unreachable!()
-                };
-                let res = cg_slab::solve(
-                    plan,
-                    links,
-                    fine,
-                    b,
-                    &mut x,
-                    cg_slab::Scratch {
-                        r,
-                        p,
-                        ap,
-                        pre,
-                        line,
-                        tmp,
-                        terms,
-                        work: &mut work,
-                    },
-                    stop,
-                );
-                let mut out = x[plan.own_range()].to_vec();
-                out.push(f64::from(res.iterations));
-                out.push(res.relative_residual);
-                out
-            },
-        );
-        let mut joined = Vec::new();
-        for piece in &pieces {
-            let k = piece.len() - 2;
+        let (outcomes, joined) =
+            solve_on_slabs(&sys.operator(), (starts, 1 + starts.len() % 4), room, stop);
+        for (iterations, residual) in outcomes {
             assert_eq!(
-                piece[k],
-                f64::from(serial.iterations),
+                iterations, serial.iterations,
                 "{what}, slabs from {starts:?}: iterations"
             );
             assert_eq!(
-                piece[k + 1].to_bits(),
+                residual.to_bits(),
                 serial.recursive.to_bits(),
                 "{what}, slabs from {starts:?}: residual"
             );
-            joined.extend_from_slice(&piece[..k]);
         }
         if let Some((i, got, want)) = first_difference(&joined, &serial.x[..n]) {
             panic!("{what}, slabs from {starts:?}, {pc:?}: x differs first at cell {i}: {got} against the serial {want}");
@@ -1064,7 +1070,6 @@ fn slab_solves_have_the_serial_bits() {
 #[test]
 fn slab_solves_in_f32_have_the_serial_bits() {
     use sieve_core::flow::cg::{solve, Solve};
-    use sieve_core::flow::cg_slab;
     fn check<const D: usize>(sys: &System<D>, starts: &[usize], pc: Preconditioner) {
         let n = sys.grid.len();
         let cells = sys.grid.cells();
@@ -1125,49 +1130,18 @@ fn slab_solves_in_f32_have_the_serial_bits() {
             kf: std::array::from_fn(|a| &kf[a][..n]),
             b: &b,
         };
-        let pieces = on_slabs(&op, (starts, 2), room, |plan, links, fine, b| {
-            let (len, m) = (plan.padded_len(), plan.own_range().len());
-            let mut xs = vec![f32::NAN; len];
-            xs[plan.own_range()].fill(0.0);
-            let mut v: Vec<Vec<f32>> = (0..3).map(|_| vec![f32::NAN; len]).collect();
-            let mut w: Vec<Vec<f32>> = (0..4).map(|_| vec![f32::NAN; m]).collect();
-            let mut work = vec![f32::NAN; plan.workspace_len()];
-            let [r, p, ap] = &mut v[..] else {
-                unreachable!()
-            };
-            let [pre, line, tmp, terms] = &mut w[..] else {
-                unreachable!()
-            };
-            let res = cg_slab::solve(
-                plan,
-                links,
-                fine,
-                b,
-                &mut xs,
-                cg_slab::Scratch {
-                    r,
-                    p,
-                    ap,
-                    pre,
-                    line,
-                    tmp,
-                    terms,
-                    work: &mut work,
-                },
-                stop,
-            );
+        let (outcomes, joined) = solve_on_slabs(&op, (starts, 2), room, stop);
+        for (iterations, residual) in outcomes {
             assert_eq!(
-                res.iterations, serial.iterations,
+                iterations, serial.iterations,
                 "{pc:?}, slabs from {starts:?}: iterations"
             );
             assert_eq!(
-                res.relative_residual.to_bits(),
+                residual.to_bits(),
                 serial.relative_residual.to_bits(),
                 "{pc:?}: residual"
             );
-            xs[plan.own_range()].to_vec()
-        });
-        let joined = pieces.concat();
+        }
         let same = joined
             .iter()
             .zip(&x)

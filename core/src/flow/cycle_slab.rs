@@ -412,6 +412,20 @@ pub(crate) fn fine_product<const RES: bool, R: Real, const D: usize>(
     );
 }
 
+/// The piece `c` of the row the slab below sent up, received into `row` (`None` on the
+/// bottom slab): where a pipeline step continues from.
+fn from_below<'r, R: Real, L: Links<R>, const D: usize>(
+    plan: &Plan<D>,
+    links: &mut L,
+    row: &'r mut [R],
+    c: &Range<usize>,
+) -> Option<&'r [R]> {
+    plan.below.then(|| {
+        links.receive_below(&mut row[c.clone()]);
+        &*row
+    })
+}
+
 /// The line solve on the own rows (`pre` and `line` the factor of the own rows, `l_above`
 /// the slab above's bottom-row multipliers): `z = M^-1 r`, or `z = M^-1 z` in place when
 /// `r` is `None`. A pipeline up the slabs and back down.
@@ -426,12 +440,7 @@ fn lines<R: Real, L: Links<R>, const D: usize>(
     let s = row.len();
     let top = z.len() - s;
     for c in plan.pieces(s) {
-        let below = if plan.below {
-            links.receive_below(&mut row[c.clone()]);
-            Some(&*row)
-        } else {
-            None
-        };
+        let below = from_below(plan, links, row, &c);
         line_slab::forward(s, c.clone(), line, r, z, below);
         if plan.above {
             links.send_up(&z[top + c.start..top + c.end]);
@@ -499,12 +508,7 @@ pub fn factor<R: Real, L: Links<R>, const D: usize>(
     });
     let Parts { row, l_above, .. } = split(plan, work);
     for c in plan.pieces(s) {
-        let below = if plan.below {
-            links.receive_below(&mut row[c.clone()]);
-            Some(&*row)
-        } else {
-            None
-        };
+        let below = from_below(plan, links, row, &c);
         // the face below own row i is kf's row i - 1 of the padded array (row 0: the halo)
         line_slab::factor(s, c.clone(), pre, line, &fine.kf[D - 1][..n], below);
         if plan.above {
