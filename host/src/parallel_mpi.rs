@@ -474,6 +474,25 @@ pub(crate) fn receive_politely<C: Communicator>(comm: &C, from: usize, tag: i32,
     });
 }
 
+/// `values` widened to f64, as every message of the solver's MPI drivers travels (an f32
+/// value widens and narrows back exactly, so one MPI datatype serves both precisions).
+pub(crate) fn widen<R: Real>(values: &[R]) -> Vec<f64> {
+    values.iter().map(|v| v.to_f64()).collect()
+}
+
+/// A message of [`widen`]ed values back in `R`, into `out`.
+pub(crate) fn narrow<R: Real>(message: &[f64], out: &mut [R]) {
+    for (o, &v) in out.iter_mut().zip(message) {
+        *o = R::from_f64(v);
+    }
+}
+
+/// Sends `values` [`widen`]ed to rank `to` with `tag` (a standard, blocking send).
+pub(crate) fn send_widened<R: Real, C: Communicator>(comm: &C, to: usize, tag: i32, values: &[R]) {
+    comm.process_at_rank(to as i32)
+        .send_with_tag(&widen(values)[..], tag);
+}
+
 /// A broadcast of `buf` from rank `root`, waiting as [`wait_politely`] does.
 pub(crate) fn broadcast_politely<C: Communicator>(comm: &C, root: usize, buf: &mut [f64]) {
     mpi::request::scope(|sc| {

@@ -6,6 +6,7 @@
 //! sweep takes about `(m + K - 1) / m` of a perfectly shared one. The second of the three
 //! parts the coupled flow under mpirun needs (docs/parallel.md, "Not done").
 
+use crate::parallel_mpi::send_widened as send;
 use mpi::traits::*;
 use sieve_core::flow::line_slab;
 use sieve_core::Real;
@@ -26,12 +27,6 @@ fn receive<C: Communicator>(comm: &C, from: usize, tag: i32, row: &mut [f64], c:
     crate::parallel_mpi::receive_politely(comm, from, tag, &mut row[c.clone()]);
 }
 
-/// Sends a piece of a row to `to`, widened to f64 (exact for f32).
-fn send<R: Real, C: Communicator>(comm: &C, to: usize, tag: i32, row: &[R]) {
-    let w: Vec<f64> = row.iter().map(|v| v.to_f64()).collect();
-    comm.process_at_rank(to as i32).send_with_tag(&w[..], tag);
-}
-
 /// The first index of the last whole row of `len` values.
 fn last_row(len: usize, s: usize) -> usize {
     (len / s.max(1)).saturating_sub(1) * s
@@ -39,9 +34,7 @@ fn last_row(len: usize, s: usize) -> usize {
 
 /// The piece `c` of a row widened by [`send`], back in `R`, into the same piece of `out`.
 fn narrow<R: Real>(row: &[f64], c: &Range<usize>, out: &mut [R]) {
-    for (o, &v) in out[c.clone()].iter_mut().zip(&row[c.clone()]) {
-        *o = R::from_f64(v);
-    }
+    crate::parallel_mpi::narrow(&row[c.clone()], &mut out[c.clone()]);
 }
 
 /// The rank below and the rank above this one (ranks own slabs from the floor up, in rank

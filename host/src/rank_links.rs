@@ -8,7 +8,7 @@
 //! gathers' polls with short sleeps, as the run's halos do, so that a waiting rank leaves the
 //! CPU to the one it waits for on a machine with more ranks than cores.
 
-use crate::parallel_mpi::{receive_politely, wait_politely};
+use crate::parallel_mpi::{narrow, receive_politely, send_widened, wait_politely, widen};
 use mpi::datatype::PartitionMut;
 use mpi::traits::*;
 use sieve_core::flow::cycle_slab::Links;
@@ -41,27 +41,13 @@ impl<'c, C: Communicator> RankLinks<'c, C> {
     }
 }
 
-fn widen<R: Real>(v: &[R]) -> Vec<f64> {
-    v.iter().map(|x| x.to_f64()).collect()
-}
-
-fn narrow<R: Real>(w: &[f64], out: &mut [R]) {
-    for (o, &v) in out.iter_mut().zip(w) {
-        *o = R::from_f64(v);
-    }
-}
-
 impl<R: Real, C: Communicator> Links<R> for RankLinks<'_, C> {
     fn send_up(&mut self, row: &[R]) {
-        self.comm
-            .process_at_rank(self.rank as i32 + 1)
-            .send_with_tag(&widen(row)[..], TAG_UP);
+        send_widened(self.comm, self.rank + 1, TAG_UP, row);
     }
 
     fn send_down(&mut self, row: &[R]) {
-        self.comm
-            .process_at_rank(self.rank as i32 - 1)
-            .send_with_tag(&widen(row)[..], TAG_DOWN);
+        send_widened(self.comm, self.rank - 1, TAG_DOWN, row);
     }
 
     fn receive_below(&mut self, row: &mut [R]) {

@@ -379,18 +379,6 @@ fn view_op<'a, R: Real, const D: usize>(
     }
 }
 
-/// `out = b - A x` on the own cells of the fine level (`b`, `x` padded, `x`'s halo rows
-/// filled): the serial product on the view.
-fn fine_residual<R: Real, const D: usize>(
-    plan: &Plan<D>,
-    fine: &Fine<'_, R, D>,
-    b: &[R],
-    x: &[R],
-    out: &mut [R],
-) {
-    fine_product::<true, R, D>(plan, fine, b, x, out);
-}
-
 /// `out = A x` (or `b - A x` if `RES`) on the own cells of the fine level (`b`, `x` padded,
 /// `x`'s halo rows filled): the serial product on the view.
 pub(crate) fn fine_product<const RES: bool, R: Real, const D: usize>(
@@ -657,7 +645,7 @@ pub fn apply<R: Real, L: Links<R>, const D: usize>(
     }
     let tmp = &mut tmp[..n];
     swap_halos(links, &l0, z);
-    fine_residual(plan, fine, r, z, tmp);
+    fine_product::<true, R, D>(plan, fine, r, z, tmp);
     let lay1 = plan.layer(1);
     let sc = strides(lay1.cells);
     {
@@ -678,7 +666,7 @@ pub fn apply<R: Real, L: Links<R>, const D: usize>(
         prolong(l0.cells, &sc, coarse, &mut z[own.clone()]);
     }
     swap_halos(links, &l0, z);
-    fine_residual(plan, fine, r, z, tmp);
+    fine_product::<true, R, D>(plan, fine, r, z, tmp);
     lines(plan, links, factor, row, None, tmp);
     for (zi, t) in z[own].iter_mut().zip(tmp.iter()) {
         *zi += *t;
