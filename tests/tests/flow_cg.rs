@@ -13,15 +13,15 @@
 //! bound of recursive summation for its tree, and must give the same bits when the array is
 //! split into chunks at block boundaries (what a threaded driver does).
 
+use crate::common::thread_links::ThreadLinks;
 use proptest::prelude::*;
 use sieve::isa::Level;
 use sieve::pool::Pool;
 use sieve_core::flow::cg::{solve_on, workspace_len, Preconditioner, Scratch, Stencil, Stop};
-use sieve_core::flow::cycle_slab::{Fine, Links, Plan};
+use sieve_core::flow::cycle_slab::{Fine, Plan};
 use sieve_core::fork::{Fork, Serial};
 use sieve_core::sum;
 use sieve_core::{Grid, Real};
-use std::sync::{mpsc, Arc, Barrier, Mutex};
 
 const N: usize = 4096;
 
@@ -579,109 +579,6 @@ fn line_slabs_have_the_serial_bits() {
                 &format!("3D seed {seed} periodic {periodic}"),
             );
         }
-    }
-}
-
-/// Slabs on threads, the tests' stand-in for MPI ranks (core/src/flow/cycle_slab.rs
-/// `Links`): a channel per direction between neighbours, a shared board for the gathers.
-struct ThreadLinks<R = f64> {
-    index: usize,
-    up: Option<mpsc::Sender<Vec<R>>>,
-    down: Option<mpsc::Sender<Vec<R>>>,
-    from_below: Option<mpsc::Receiver<Vec<R>>>,
-    from_above: Option<mpsc::Receiver<Vec<R>>>,
-    board: Arc<(Mutex<Vec<Vec<R>>>, Barrier)>,
-}
-
-impl<R: Real> ThreadLinks<R> {
-    /// The links of `slabs` slabs, in slab order.
-    fn chain(slabs: usize) -> Vec<Self> {
-        let board = Arc::new((Mutex::new(vec![vec![]; slabs]), Barrier::new(slabs)));
-        let mut links: Vec<Self> = (0..slabs)
-            .map(|index| Self {
-                index,
-                up: None,
-                down: None,
-                from_below: None,
-                from_above: None,
-                board: board.clone(),
-            })
-            .collect();
-        for k in 1..slabs {
-            let (tx, rx) = mpsc::channel();
-            links[k - 1].up = Some(tx);
-            links[k].from_below = Some(rx);
-            let (tx, rx) = mpsc::channel();
-            links[k].down = Some(tx);
-            links[k - 1].from_above = Some(rx);
-        }
-        links
-    }
-}
-
-impl<R: Real> Links<R> for ThreadLinks<R> {
-    fn send_up(&mut self, row: &[R]) {
-        self.up
-            .as_ref()
-            .expect("a slab above")
-            .send(row.to_vec())
-            .unwrap();
-    }
-    fn send_down(&mut self, row: &[R]) {
-        self.down
-            .as_ref()
-            .expect("a slab below")
-            .send(row.to_vec())
-            .unwrap();
-    }
-    fn receive_below(&mut self, row: &mut [R]) {
-        row.copy_from_slice(
-            &self
-                .from_below
-                .as_ref()
-                .expect("a slab below")
-                .recv()
-                .unwrap(),
-        );
-    }
-    fn receive_above(&mut self, row: &mut [R]) {
-        row.copy_from_slice(
-            &self
-                .from_above
-                .as_ref()
-                .expect("a slab above")
-                .recv()
-                .unwrap(),
-        );
-    }
-    fn swap(&mut self, bottom: &[R], top: &[R], below: &mut [R], above: &mut [R]) {
-        if let Some(d) = &self.down {
-            d.send(bottom.to_vec()).unwrap();
-        }
-        if let Some(u) = &self.up {
-            u.send(top.to_vec()).unwrap();
-        }
-        if let Some(r) = &self.from_below {
-            below.copy_from_slice(&r.recv().unwrap());
-        }
-        if let Some(r) = &self.from_above {
-            above.copy_from_slice(&r.recv().unwrap());
-        }
-    }
-    fn gather(&mut self, own: &[R], all: &mut [R]) {
-        let (board, barrier) = &*self.board;
-        board.lock().unwrap()[self.index] = own.to_vec();
-        barrier.wait();
-        all.copy_from_slice(&board.lock().unwrap().concat());
-        barrier.wait();
-    }
-    fn sum(&mut self, own: &[R]) -> R {
-        let (board, barrier) = &*self.board;
-        board.lock().unwrap()[self.index] = own.to_vec();
-        barrier.wait();
-        let all = board.lock().unwrap().concat();
-        barrier.wait();
-        sum::sum(&all)
     }
 }
 

@@ -36,6 +36,7 @@ mod flow_settling;
 mod flow_shear_cell;
 mod flow_silo;
 mod flow_silo_3d;
+mod flow_slabs;
 mod flow_surface_release;
 mod flow_threads;
 mod fuzz_readers;

@@ -80,7 +80,9 @@ pub mod cycle_slab;
 pub mod line_slab;
 mod objective;
 mod pressure;
+pub mod reach;
 pub mod rest;
+pub mod slab;
 mod step;
 mod walls;
 
@@ -792,7 +794,16 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// over the cells with `c >= surface` and at the exit speed of the outlet faces
     /// (implicit).
     pub fn stable_dt(&self) -> R {
+        self.stable_dt_reaching(&mut reach::Whole)
+    }
+
+    /// [`Self::stable_dt`] of the whole grid from a subdomain: the owned cells' rates, their
+    /// maximum over every subdomain from `reach` (collective). `C / max rate` is the serial
+    /// step to the bit. (The implicit pressure does not run on subdomains yet:
+    /// [`slab::load_slab`] refuses it.)
+    pub fn stable_dt_reaching<Re: reach::Reach<R, D, N>>(&self, reach: &mut Re) -> R {
         if self.cfg.pressure == PressureMode::Implicit {
+            debug_assert!(reach.whole(), "the implicit pressure on a subdomain");
             return self.implicit_stable_dt();
         }
         let n = self.grid.len();
@@ -805,7 +816,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // (added in the same place of the sum, so the same bits).
         let fall: [R; D] = core::array::from_fn(|a| (body[a] / h[a]).sqrt());
         let mut rate = R::ZERO;
-        for i in 0..n {
+        for i in reach.owned(n) {
             let (c, rcp, rlp) = (self.c_eff(i), self.c_rcp[i], self.c_rlp[i]);
             let a_s = closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt();
             let mut r = R::ZERO;
@@ -814,6 +825,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             }
             rate = rate.max(r);
         }
+        let rate = reach.max(rate);
         if rate > R::ZERO {
             self.cfg.courant / rate
         } else {
@@ -826,11 +838,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Each axis has its own, so a face's correction reads nothing of the spacing across it
     /// (an x-independent flow on fewer columns keeps its bits), and the frame enters only
     /// through the body force it exerts now (a frame at rest is the lab frame to the bit).
-    pub(super) fn rhie_chow_rates(&self) -> [R; D] {
+    pub(super) fn rhie_chow_rates<Re: reach::Reach<R, D, N>>(&self, reach: &mut Re) -> [R; D] {
         let h = self.grid.spacing();
         let m = &self.cfg.material;
         let mut rate = [R::ZERO; D];
-        for i in 0..self.grid.len() {
+        for i in reach.owned(self.grid.len()) {
             let (c, rcp, rlp) = (self.c_eff(i), self.c_rcp[i], self.c_rlp[i]);
             let a_s = closure::sound_speed_squared(m, c, self.t[i], rcp, rlp).sqrt();
             for a in 0..D {
@@ -838,6 +850,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             }
         }
         for a in 0..D {
+            rate[a] = reach.max(rate[a]);
             let mut b = self.g_now[a].abs();
             if let Frame::Rotating(rot) = &self.cfg.frame {
                 if rot.in_plane(a) {

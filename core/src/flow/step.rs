@@ -1,6 +1,7 @@
 //! One time step of the flow (the scheme of the module docs of [`super`]).
 
 use super::cg::{self, Preconditioner, Scratch, Stencil, Stop};
+use super::reach::{Reach, Whole};
 use super::{Flow, FlowSide, OutletPressure, PressureMode, Slip, Stress, VelocityGuess};
 use crate::boundary::Boundary;
 use crate::closure;
@@ -39,8 +40,19 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// [`Self::step`] with the linear solves' fine-grid loops on the threads of `fork`: the
     /// same bits for any number of threads (module [`crate::fork`]).
     pub fn step_on<F: Fork>(&mut self, dt: R, fork: &F) {
+        self.step_reaching(dt, fork, &mut Whole);
+    }
+
+    /// [`Self::step_on`] on a grid that may be a subdomain: whatever the step needs of cells
+    /// it does not own (halo rows, sums, maxima, the implicit solves) it asks of `reach`
+    /// (module [`super::reach`]). With [`Whole`] this is the serial step, bit for bit.
+    pub fn step_reaching<F: Fork, Re: Reach<R, D, N>>(&mut self, dt: R, fork: &F, reach: &mut Re) {
         debug_assert!(self.prepared, "prepare() must follow set_cell()");
         let n = self.grid.len();
+        if !reach.whole() {
+            // the halo rows as their owners left them at the end of the last step
+            self.for_each_state_array_mut(|_, field| reach.refresh(field));
+        }
         for a in 0..D {
             self.u_before[a][..n].copy_from_slice(&self.u_prev[a][..n]);
             self.u_prev[a][..n].copy_from_slice(&self.u[a][..n]);
@@ -56,7 +68,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // what is inlined into them is compiled for it, the rest keeps the crate's features.
         fork.hot(Call(
             #[inline(always)]
-            || self.transport(dt),
+            || self.transport(dt, reach),
         ));
         fork.hot(Call(
             #[inline(always)]
@@ -75,13 +87,13 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 self.velocity_from_momentum();
             },
         ));
-        self.viscous(dt, fork);
-        self.temperature_stage(dt, fork);
+        self.viscous(dt, fork, reach);
+        self.temperature_stage(dt, fork, reach);
         self.residual = fork.hot(Call(
             #[inline(always)]
             || {
                 self.pressures();
-                self.step_residual(dt)
+                self.step_residual(dt, reach)
             },
         ));
         self.time += dt;
@@ -148,7 +160,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// and it drives a mass flux against the odd-even (checkerboard) pressure modes that the
     /// collocated central pressure gradient cannot see, so those are damped, not frozen in.
     #[inline(always)]
-    fn transport(&mut self, dt: R) {
+    fn transport<Re: Reach<R, D, N>>(&mut self, dt: R, reach: &mut Re) {
         let n = self.grid.len();
         let h = self.grid.spacing();
         let grid = self.grid;
@@ -162,7 +174,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             // and counting it would let the correction hold an unsupported surface cell in
             // the air. (The implicit face velocity needs no cell forces.)
             self.cell_forces(false);
-            rate = self.rhie_chow_rates();
+            rate = self.rhie_chow_rates(reach);
         }
         let k = R::from_f64(RHIE_CHOW_COURANT) / R::from_usize(D);
         // With an embedded wall every face flux is scaled by its open aperture (0 inside a
@@ -795,7 +807,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// (docs/parallel.md, "Velocity components side by side"). Each solve is the same
     /// arithmetic either way, so the bits do not change. The objective stress doubles the
     /// component's own face coefficients in place, so it solves one component at a time.
-    fn viscous<F: Fork>(&mut self, dt: R, fork: &F) {
+    fn viscous<F: Fork, Re: Reach<R, D, N>>(&mut self, dt: R, fork: &F, reach: &mut Re) {
         let n = self.grid.len();
         let vac = self.cfg.vacuum;
         self.face_coefficients(false, R::ONE);
@@ -804,20 +816,17 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // (model.md 5.3, "Initial guess"). A fast cell there loosened every cell's tolerance,
         // and the extrapolated guess then repeated an accepted error each step: one cell of
         // the explicit tumbler gained 0.1 m/s per step, whatever dt, until T ran away.
-        let mut u_ref = R::from_f64(1e-6);
-        for sides in &self.bc {
-            for s in sides {
-                for v in s.velocity {
-                    u_ref = u_ref.max(v.abs());
+        let u_ref = self.boundary_speed(R::from_f64(1e-6), reach);
+        let own = reach.owned(n);
+        let mass_norm = reach
+            .sum_in_order(|mut sum| {
+                for i in own {
+                    let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
+                    sum += cd * cd;
                 }
-            }
-        }
-        let mut mass_norm = R::ZERO;
-        for i in 0..n {
-            let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
-            mass_norm += cd * cd;
-        }
-        let mass_norm = mass_norm.sqrt();
+                sum
+            })
+            .sqrt();
         // Scale of the mass term `c u / dt` alone: the wall terms (yield viscosity up to
         // eta0 p_y / sqrt(T_min)) would make the floor meaninglessly large.
         let stop = Stop {
@@ -827,7 +836,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             preconditioner: Preconditioner::Auto,
         };
         let objective = self.cfg.stress == Stress::Objective;
-        if !objective && D > 1 && fork.parts() > 1 {
+        if !objective && D > 1 && fork.parts() > 1 && reach.whole() {
             // the horizontal components' systems into the spare set, the vertical one's
             // into `diag`, `rhs`
             for comp in 0..D - 1 {
@@ -855,7 +864,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 self.viscous_rows(comp, dt, objective);
                 self.initial_guess(comp);
                 self.rigid_guess(comp, false);
-                let iterations = self.solve_component(comp, stop, fork);
+                let iterations = self.solve_component(comp, stop, fork, reach);
                 self.rigid_guess(comp, true);
                 if objective {
                     // back to eta_f ap / h^2 (a power of two: exact)
@@ -1009,7 +1018,13 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 
     /// Solves the system in `diag`, `rhs` for component `comp`, its loops on `fork`.
-    fn solve_component<F: Fork>(&mut self, comp: usize, stop: Stop<R>, fork: &F) -> u32 {
+    fn solve_component<F: Fork, Re: Reach<R, D, N>>(
+        &mut self,
+        comp: usize,
+        stop: Stop<R>,
+        fork: &F,
+        reach: &mut Re,
+    ) -> u32 {
         let st = Stencil {
             grid: &self.grid,
             periodic: self.periodic(),
@@ -1019,16 +1034,17 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // the velocity solves, read into `rhs` before the temperature solve).
         // `flux` is not: it holds the step's applied face mass fluxes, which the
         // coupled driver carries phi with after the step.
-        cg::solve_on(
-            fork,
-            &st,
-            &self.diag,
-            &self.rhs,
-            &mut self.u[comp],
-            self.solve.scratch(&mut self.inflow),
-            stop,
-        )
-        .iterations
+        reach
+            .solve(
+                fork,
+                &st,
+                &self.diag,
+                &self.rhs,
+                &mut self.u[comp],
+                self.solve.scratch(&mut self.inflow),
+                stop,
+            )
+            .iterations
     }
 
     /// Solves every velocity component at once on two of `fork`'s items, each with its own
@@ -1213,7 +1229,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// their T then stays within what transport and conduction bring (the M-matrix), where
     /// their own heating, unchecked by the acoustic step, ran away (the 3D silo's dust to
     /// T = 3e12 and 1e6 m/s within 0.25 s).
-    fn temperature_stage<F: Fork>(&mut self, dt: R, fork: &F) {
+    fn temperature_stage<F: Fork, Re: Reach<R, D, N>>(&mut self, dt: R, fork: &F, reach: &mut Re) {
         let n = self.grid.len();
         let h = self.grid.spacing();
         let grid = self.grid;
@@ -1272,7 +1288,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             periodic,
             kf: &self.kf,
         };
-        let res = cg::solve_on(
+        let res = reach.solve(
             fork,
             &st,
             &self.diag,
@@ -1299,9 +1315,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
     }
 
-    fn step_residual(&self, dt: R) -> R {
-        let n = self.grid.len();
-        let mut u_ref = R::from_f64(1e-3);
+    /// The fastest speed of a box side (wall or inflow), at least `floor`. From a subdomain,
+    /// the largest over every subdomain: each side of the box is some subdomain's own, and
+    /// the slip walls at its cuts are at rest.
+    fn boundary_speed<Re: Reach<R, D, N>>(&self, floor: R, reach: &mut Re) -> R {
+        let mut u_ref = floor;
         for sides in &self.bc {
             for s in sides {
                 for v in s.velocity {
@@ -1309,10 +1327,16 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
         }
+        reach.max(u_ref)
+    }
+
+    fn step_residual<Re: Reach<R, D, N>>(&self, dt: R, reach: &mut Re) -> R {
+        let n = self.grid.len();
+        let u_ref = self.boundary_speed(R::from_f64(1e-3), reach);
         let mut du = R::ZERO;
         let mut umax = R::ZERO;
         for a in 0..D {
-            for i in 0..n {
+            for i in reach.owned(n) {
                 if self.c[i] < self.cfg.surface {
                     continue;
                 }
@@ -1320,6 +1344,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 umax = umax.max(self.u[a][i].abs());
             }
         }
+        let (du, umax) = (reach.max(du), reach.max(umax));
         du / (dt * umax.max(u_ref))
     }
 }
@@ -1363,6 +1388,7 @@ pub(super) fn open_low<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
 
 #[cfg(test)]
 mod tests {
+    use super::super::reach::Whole;
     use super::super::{CutWall, Flow, FlowConfig, FlowSide, PressureMode, Slip};
     use crate::closure::{self, Material};
     use crate::fork::Serial;
@@ -1439,7 +1465,7 @@ mod tests {
             *a = s.max(floor);
         }
         flow.implicit_pressure(dt, &Serial);
-        flow.transport(dt);
+        flow.transport(dt, &mut Whole);
         let mut expected = flow.p;
         let mut capped = 0;
         for i in 0..cells {

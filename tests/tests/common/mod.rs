@@ -5,6 +5,8 @@
 //! allowance below.
 #![allow(dead_code)]
 
+pub mod thread_links;
+
 use sieve_core::{
     Boundaries, Boundary, DirectionMode, Grid, Phase, Real, Scheme, Segregation, SegregationConfig,
 };

@@ -1,0 +1,93 @@
+//! What one flow step needs from beyond its own cells: the halo rows of a neighbour, the
+//! other subdomains' share of a sum or a maximum, and the implicit solves over the whole grid
+//! (docs/parallel.md, "The flow on slabs").
+//!
+//! The step ([`super::Flow::step_reaching`]) is written once. It asks a [`Reach`] at the few
+//! places where a value depends on cells it does not own; [`Whole`], the grid alone, answers
+//! from the grid itself and compiles to the serial step with its bits (every call is an
+//! identity or the serial solve). A slab of rows answers through its neighbours
+//! ([`super::slab::Slab`]), so the same step on slabs has the serial bits.
+
+use super::cg::{self, Scratch, Solve, Stencil, Stop};
+use crate::fork::Fork;
+use crate::real::Real;
+use core::ops::Range;
+
+/// The flow step's view past its own cells. Every method is collective on a cut grid: every
+/// subdomain calls it at the same point of the step, in the same order.
+pub trait Reach<R: Real, const D: usize, const N: usize> {
+    /// Whether the grid is whole (nothing cut): then the step may also take the paths that
+    /// split the work between threads.
+    fn whole(&self) -> bool;
+
+    /// The cells this subdomain owns, of the `n` local ones: sums and maxima run over them.
+    fn owned(&self, n: usize) -> Range<usize>;
+
+    /// Overwrites the halo rows of `field` (a per-cell array of the local grid) with the
+    /// values their owners hold.
+    fn refresh(&mut self, field: &mut [R]);
+
+    /// A sum over all cells in cell order: `part(s)` continues the serial running sum `s`
+    /// over the owned cells and returns it; the result is the serial sum's bits.
+    fn sum_in_order(&mut self, part: impl FnOnce(R) -> R) -> R;
+
+    /// The largest of every subdomain's `x` (exact: a maximum does not round).
+    fn max(&mut self, x: R) -> R;
+
+    /// Solves `A x = b` ([`cg::solve_on`]) for the whole grid: on return the owned cells of
+    /// `x` hold the serial solution's bits and its halo rows the neighbours'.
+    #[allow(clippy::too_many_arguments)]
+    fn solve<F: Fork>(
+        &mut self,
+        fork: &F,
+        st: &Stencil<'_, R, D, N>,
+        diag: &[R],
+        b: &[R],
+        x: &mut [R],
+        sc: Scratch<'_, R>,
+        stop: Stop<R>,
+    ) -> Solve<R>;
+}
+
+/// The grid alone: nothing is cut, every answer comes from the grid itself.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Whole;
+
+impl<R: Real, const D: usize, const N: usize> Reach<R, D, N> for Whole {
+    #[inline(always)]
+    fn whole(&self) -> bool {
+        true
+    }
+
+    #[inline(always)]
+    fn owned(&self, n: usize) -> Range<usize> {
+        0..n
+    }
+
+    #[inline(always)]
+    fn refresh(&mut self, _field: &mut [R]) {}
+
+    #[inline(always)]
+    fn sum_in_order(&mut self, part: impl FnOnce(R) -> R) -> R {
+        part(R::ZERO)
+    }
+
+    #[inline(always)]
+    fn max(&mut self, x: R) -> R {
+        x
+    }
+
+    #[inline(always)]
+    fn solve<F: Fork>(
+        &mut self,
+        fork: &F,
+        st: &Stencil<'_, R, D, N>,
+        diag: &[R],
+        b: &[R],
+        x: &mut [R],
+        sc: Scratch<'_, R>,
+        stop: Stop<R>,
+    ) -> Solve<R> {
+        cg::solve_on(fork, st, diag, b, x, sc, stop)
+    }
+}
