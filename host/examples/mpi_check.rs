@@ -27,6 +27,13 @@
 //! times one 128 x 128 solve against the serial one. `--cg-time SIZE` times one cold bed of
 //! SIZE x SIZE (at most 512) the same way.
 //!
+//! `mpirun -np K target/release/examples/mpi_check --flow`: the flow's step on K slabs of
+//! rows (`sieve_core::flow::slab` over `sieve::rank_links`: a collapsing column and a random
+//! state in 2D, a collapse in 3D) against the serial steps on every rank: exits 0 if after
+//! every step every state array of every rank's rows, the step, the residual and the CG
+//! iterations have the serial bits, 1 if not (naming the first step, array and cell that
+//! differ); then times the steps of a 64 x 64 collapse against the serial ones.
+//!
 //! Needs the `mpi` feature (OpenMPI: `apt-get install libopenmpi-dev openmpi-bin libclang-dev`).
 
 use sieve::output::vtk::read_vti;
@@ -590,6 +597,158 @@ fn conjugate_gradients() -> i32 {
     i32::from(all_bad != 0)
 }
 
+/// Capacity of the flows `--flow` steps.
+const N_FLOW: usize = 4096;
+
+type FlowBox<const D: usize> = Box<sieve_core::flow::Flow<f64, D, N_FLOW>>;
+
+/// A prepared flow in a box of friction walls with gravity: a column of `c = 0.6` in the
+/// corner below `block`, at rest, or (`seed > 0`) a random state (content from empty to
+/// packed, velocities up to 1 m/s).
+fn flow_scene<const D: usize>(cells: [usize; D], h: f64, block: [f64; D], seed: u64) -> FlowBox<D> {
+    use sieve_core::closure::Material;
+    use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
+    let mut flow: FlowBox<D> = Box::new(Flow::zeroed());
+    let grid =
+        sieve_core::Grid::new(cells, [0.0; D], cells.map(|c| c as f64 * h), N_FLOW).expect("grid");
+    let mut cfg = FlowConfig::new(Material::glass_beads());
+    cfg.free_surface_push = true;
+    cfg.gravity[D - 1] = -9.81;
+    let wall = FlowSide::wall(Slip::Friction(0.5));
+    flow.setup(grid, [[wall, wall]; D], cfg).expect("setup");
+    let c_max = (1.0 - cfg.margin) * cfg.material.phi_rcp;
+    let mut state = seed;
+    for i in 0..grid.len() {
+        let x = grid.center(i);
+        let (c, u) = if seed == 0 {
+            let inside = (0..D).all(|a| x[a] < block[a]);
+            (if inside { 0.6 } else { 0.0 }, [0.0; D])
+        } else {
+            let c = c_max * lcg(&mut state);
+            (c, std::array::from_fn(|_| 2.0 * lcg(&mut state) - 1.0))
+        };
+        flow.set_cell(i, c, u, 0.0);
+    }
+    flow.prepare().expect("prepare");
+    flow
+}
+
+/// `steps` steps of the flow `make` builds on this rank's slab of rows (the ranks cut the
+/// rows evenly at even rows) and serially, compared after every step; returns (1 if this
+/// rank saw a difference, seconds of the slab steps, seconds of the serial ones).
+fn flow_case<const D: usize, C: mpi::traits::Communicator>(
+    world: &C,
+    make: impl Fn() -> FlowBox<D>,
+    steps: usize,
+    what: &str,
+) -> (i32, f64, f64) {
+    use sieve_core::flow::slab::{load_slab, Slab};
+    use sieve_core::fork::Serial;
+    let (rank, size) = (world.rank() as usize, world.size() as usize);
+    let mut whole = make();
+    let rows = whole.grid().cells()[D - 1];
+    let plane = whole.len() / rows;
+    let starts = slab_starts(rows, size, 2);
+    assert_eq!(starts.len(), size, "{what}: every rank needs rows");
+    let parts: Vec<_> = (0..size)
+        .map(|k| starts[k] * plane..starts.get(k + 1).map_or(rows, |&e| e) * plane)
+        .collect();
+    let mut links = sieve::rank_links::RankLinks::new(world, parts);
+    let mut flow: FlowBox<D> = Box::new(sieve_core::flow::Flow::zeroed());
+    let plan = match load_slab(&*whole, &starts, rank, &mut *flow) {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("mpi_check --flow: {what}: rank {rank}: {e:?}");
+            return (1, 0.0, 0.0);
+        }
+    };
+    let mut memory = vec![0.0; plan.memory_len()];
+    let mut slab = Slab::new(&plan, &mut links, &mut memory);
+    let (own, global) = (plan.owned_cells(), plan.global_cells());
+    let (mut on_slabs, mut serial) = (0.0, 0.0);
+    for step in 1..=steps {
+        let t = std::time::Instant::now();
+        let dt = whole.stable_dt();
+        whole.step(dt);
+        serial += t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let dt_slab = flow.stable_dt_reaching(&mut slab);
+        flow.step_reaching(dt_slab, &Serial, &mut slab);
+        on_slabs += t.elapsed().as_secs_f64();
+        let mut first = None;
+        if dt_slab.to_bits() != dt.to_bits() {
+            first = Some("the step".to_string());
+        }
+        whole.for_each_state_array(|name, all| {
+            flow.for_each_state_array(|mine_name, mine| {
+                if first.is_some() || mine_name != name {
+                    return;
+                }
+                let (m, a) = (&mine[own.clone()], &all[global.clone()]);
+                if let Some(j) = (0..m.len()).find(|&j| m[j].to_bits() != a[j].to_bits()) {
+                    first = Some(format!("{name} at cell {}", global.start + j));
+                }
+            });
+        });
+        if first.is_none() && flow.last_cg_iterations() != whole.last_cg_iterations() {
+            first = Some("the CG iterations".into());
+        }
+        if first.is_none() && flow.residual().to_bits() != whole.residual().to_bits() {
+            first = Some("the residual".into());
+        }
+        if let Some(f) = first {
+            eprintln!("mpi_check --flow: {what} on {size} ranks: rank {rank} left the serial run at step {step}: {f}");
+            return (1, on_slabs, serial);
+        }
+    }
+    (0, on_slabs, serial)
+}
+
+/// `--flow`: returns the exit code.
+fn flow_slabs() -> i32 {
+    use mpi::traits::*;
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("mpi_check --flow: MPI is already initialised");
+        return 1;
+    };
+    let world = universe.world();
+    let mut bad = 0;
+    let collapse = || flow_scene([20, 24], 0.005, [0.05, 0.09], 0);
+    bad += flow_case(&world, collapse, 120, "2D collapse").0;
+    for seed in 1..=4 {
+        let random = || flow_scene([12, 24], 0.005, [0.0; 2], seed);
+        bad += flow_case(&world, random, 4, "2D random state").0;
+    }
+    let collapse_3d = || flow_scene([6, 5, 16], 0.005, [0.015, 0.02, 0.06], 0);
+    bad += flow_case(&world, collapse_3d, 40, "3D collapse").0;
+    let timed = || flow_scene([64, 64], 0.0025, [0.08, 0.12], 0);
+    let (b, slabs, serial) = flow_case(&world, timed, 50, "64 x 64 collapse");
+    bad += b;
+    let mut all_bad = 0i32;
+    world.all_reduce_into(&bad, &mut all_bad, mpi::collective::SystemOperation::sum());
+    let mut slowest = 0.0f64;
+    world.all_reduce_into(
+        &slabs,
+        &mut slowest,
+        mpi::collective::SystemOperation::max(),
+    );
+    if world.rank() == 0 {
+        println!(
+            "mpi_check --flow: 8 flows on {} ranks, {}; 64 x 64 collapse: {:.2} ms per step across the ranks, {:.2} ms serially on one",
+            world.size(),
+            if all_bad == 0 {
+                "every state array, step, residual and CG count with the serial bits after every step"
+            } else {
+                "SOME DIFFERENT"
+            },
+            1e3 * slowest / 50.0,
+            1e3 * serial / 50.0
+        );
+    }
+    drop(universe);
+    i32::from(all_bad != 0)
+}
+
 fn main() {
     let mut args = std::env::args().skip(1);
     let name = args.next().unwrap_or_else(|| "shear-cell-inverse".into());
@@ -615,6 +774,9 @@ fn main() {
     }
     if name == "--cg" {
         std::process::exit(conjugate_gradients());
+    }
+    if name == "--flow" {
+        std::process::exit(flow_slabs());
     }
     if name == "--cg-time" {
         let size = args.next().and_then(|a| a.parse().ok()).unwrap_or(256);
