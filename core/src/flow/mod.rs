@@ -799,12 +799,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
     /// [`Self::stable_dt`] of the whole grid from a subdomain: the owned cells' rates, their
     /// maximum over every subdomain from `reach` (collective). `C / max rate` is the serial
-    /// step to the bit. (The implicit pressure does not run on subdomains yet:
-    /// [`slab::load_slab`] refuses it.)
+    /// step to the bit, and so is the smallest of the outlets' steps.
     pub fn stable_dt_reaching<Re: reach::Reach<R, D, N>>(&self, reach: &mut Re) -> R {
         if self.cfg.pressure == PressureMode::Implicit {
-            debug_assert!(reach.whole(), "the implicit pressure on a subdomain");
-            return self.implicit_stable_dt();
+            return self.implicit_stable_dt(reach);
         }
         let n = self.grid.len();
         let h = self.grid.spacing();
@@ -874,11 +872,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// `0 <= c <= c_max` holds at any Courant number of such a cell, and their momentum rides
     /// on those same limited fluxes. Counting them held the 64 x 64 tumbler at 7e-4 s where
     /// its dense bed allows 1.4e-3 s (docs/implicit-pressure.md).
-    fn implicit_stable_dt(&self) -> R {
+    fn implicit_stable_dt<Re: reach::Reach<R, D, N>>(&self, reach: &mut Re) -> R {
         let h = self.grid.spacing();
         let body = self.body_bound();
         let mut adv = R::ZERO;
-        for i in 0..self.grid.len() {
+        for i in reach.owned(self.grid.len()) {
             if self.c_eff(i) >= self.cfg.surface {
                 let mut r = R::ZERO;
                 for a in 0..D {
@@ -887,7 +885,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 adv = adv.max(r);
             }
         }
-        let mut rate = adv;
+        let mut rate = reach.max(adv);
         for a in 0..D {
             rate += (body[a] / h[a]).sqrt();
         }
@@ -896,7 +894,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         } else {
             R::MAX
         };
-        dt.min(self.outlet_dt())
+        // the smallest outlet step of all (a minimum: the largest negation, exact)
+        dt.min(-reach.max(-self.outlet_dt()))
     }
 
     /// The step at which an outlet face's exit speed keeps the Courant limit (model.md 5.4,

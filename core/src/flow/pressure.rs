@@ -32,7 +32,8 @@
 //! The solve starts from `dp = 0` every step, so a restored checkpoint keeps its bits; `dp`
 //! lives in the face-flux array of axis 0, which the transport rewrites before reading.
 
-use super::cg::{self, Preconditioner, Stencil, Stop};
+use super::cg::{Preconditioner, Stencil, Stop};
+use super::reach::Reach;
 use super::step::open_low;
 use super::{Flow, FlowSide, OutletPressure};
 use crate::boundary::Boundary;
@@ -65,7 +66,12 @@ impl PressureMode {
 
 impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// Sets `p` to the implicit `p^{n+1}` of the step of length `dt` (module docs).
-    pub(super) fn implicit_pressure<F: Fork>(&mut self, dt: R, fork: &F) {
+    pub(super) fn implicit_pressure<F: Fork, Re: Reach<R, D, N>>(
+        &mut self,
+        dt: R,
+        fork: &F,
+        reach: &mut Re,
+    ) {
         let n = self.grid.len();
         let h = self.grid.spacing();
         let grid = self.grid;
@@ -76,7 +82,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         // step: back-coupling).
         self.pressures();
         let a2_floor = self.sound_floor(dt);
-        let mut vnorm = R::ZERO;
         for i in 0..n {
             let v = self.mass_factor(i);
             let a2 = closure::sound_speed_squared(
@@ -96,8 +101,15 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             self.spare.diag[i] = self.p[i];
             self.spare.diag2[i] = self.c[i];
             self.spare.rhs[i] = a2;
-            vnorm += v * v;
         }
+        let own = reach.owned(n);
+        let vnorm = reach.sum_in_order(|mut sum| {
+            for i in own {
+                let v = self.mass_factor(i);
+                sum += v * v;
+            }
+            sum
+        });
         for a in 0..D {
             let lam = dt / h[a];
             let kk = lam * lam;
@@ -155,7 +167,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let dp = &mut self.flux[0];
         dp[..n].fill(R::ZERO);
         // `inflow` is free until the transport's first pass.
-        let res = cg::solve_on(
+        let res = reach.solve(
             fork,
             &st,
             &self.diag,

@@ -10,15 +10,14 @@
 //! - the implicit solves are [`cg_slab::solve`] on the slab's rows, with the serial
 //!   iterations and bits, the solution's halo rows refreshed after each.
 //!
-//! Not yet on slabs ([`load_slab`] refuses them): the implicit pressure, embedded walls, a
-//! rotating frame, and sides along the cut that move mass (inflow, outflow, openings), whose
+//! Not yet on slabs ([`load_slab`] refuses them): embedded walls, a rotating frame, and sides along the cut that move mass (inflow, outflow, openings), whose
 //! books would need sums over the owned boundary cells.
 
 use super::cg::{Scratch, Solve, Stencil, Stop};
 use super::cg_slab;
 use super::cycle_slab::{Fine, Links, Plan, PlanError};
 use super::reach::Reach;
-use super::{Flow, FlowError, FlowSide, PressureMode, Slip};
+use super::{Flow, FlowError, FlowSide, Slip};
 use crate::boundary::Boundary;
 use crate::fork::Fork;
 use crate::frame::Frame;
@@ -109,9 +108,6 @@ pub fn load_slab<R: Real, const D: usize, const M: usize, const N: usize>(
     local: &mut Flow<R, D, N>,
 ) -> Result<SlabPlan<D>, SlabError> {
     let cfg = *global.config();
-    if cfg.pressure == PressureMode::Implicit {
-        return Err(SlabError::NotYet("the implicit pressure"));
-    }
     if global.walls.on {
         return Err(SlabError::NotYet("embedded walls"));
     }

@@ -62,7 +62,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if implicit {
             // p^{n+1} = p^n + dp from one SPD solve; the transport's face velocities and the
             // momentum update below both use it (model.md 5.3, implicit pressure).
-            self.implicit_pressure(dt, fork);
+            self.implicit_pressure(dt, fork, reach);
         }
         // The stages' own loops as hot loops too, at the fork's instruction set (docs/simd.md):
         // what is inlined into them is compiled for it, the rest keeps the crate's features.
@@ -1464,7 +1464,7 @@ mod tests {
             );
             *a = s.max(floor);
         }
-        flow.implicit_pressure(dt, &Serial);
+        flow.implicit_pressure(dt, &Serial, &mut Whole);
         flow.transport(dt, &mut Whole);
         let mut expected = flow.p;
         let mut capped = 0;
