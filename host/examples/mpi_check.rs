@@ -28,8 +28,8 @@
 //! SIZE x SIZE (at most 512) the same way.
 //!
 //! `mpirun -np K target/release/examples/mpi_check --flow`: the flow's step on K slabs of
-//! rows (`sieve_core::flow::slab` over `sieve::rank_links`: a collapsing column and a random
-//! state in 2D, a collapse in 3D) against the serial steps on every rank: exits 0 if after
+//! rows (`sieve_core::flow::slab` over `sieve::rank_links`: a collapsing column and random
+//! states in 2D with the explicit and the implicit pressure, a collapse in 3D) against the serial steps on every rank: exits 0 if after
 //! every step every state array of every rank's rows, the step, the residual and the CG
 //! iterations have the serial bits, 1 if not (naming the first step, array and cell that
 //! differ); then times the steps of a 64 x 64 collapse against the serial ones.
@@ -604,8 +604,14 @@ type FlowBox<const D: usize> = Box<sieve_core::flow::Flow<f64, D, N_FLOW>>;
 
 /// A prepared flow in a box of friction walls with gravity: a column of `c = 0.6` in the
 /// corner below `block`, at rest, or (`seed > 0`) a random state (content from empty to
-/// packed, velocities up to 1 m/s).
-fn flow_scene<const D: usize>(cells: [usize; D], h: f64, block: [f64; D], seed: u64) -> FlowBox<D> {
+/// packed, velocities up to 1 m/s); with the implicit pressure if `implicit`.
+fn flow_scene<const D: usize>(
+    cells: [usize; D],
+    h: f64,
+    block: [f64; D],
+    seed: u64,
+    implicit: bool,
+) -> FlowBox<D> {
     use sieve_core::closure::Material;
     use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
     let mut flow: FlowBox<D> = Box::new(Flow::zeroed());
@@ -614,6 +620,9 @@ fn flow_scene<const D: usize>(cells: [usize; D], h: f64, block: [f64; D], seed: 
     let mut cfg = FlowConfig::new(Material::glass_beads());
     cfg.free_surface_push = true;
     cfg.gravity[D - 1] = -9.81;
+    if implicit {
+        cfg.pressure = sieve_core::flow::PressureMode::Implicit;
+    }
     let wall = FlowSide::wall(Slip::Friction(0.5));
     flow.setup(grid, [[wall, wall]; D], cfg).expect("setup");
     let c_max = (1.0 - cfg.margin) * cfg.material.phi_rcp;
@@ -713,15 +722,17 @@ fn flow_slabs() -> i32 {
     };
     let world = universe.world();
     let mut bad = 0;
-    let collapse = || flow_scene([20, 24], 0.005, [0.05, 0.09], 0);
-    bad += flow_case(&world, collapse, 120, "2D collapse").0;
-    for seed in 1..=4 {
-        let random = || flow_scene([12, 24], 0.005, [0.0; 2], seed);
-        bad += flow_case(&world, random, 4, "2D random state").0;
+    for implicit in [false, true] {
+        let collapse = || flow_scene([20, 24], 0.005, [0.05, 0.09], 0, implicit);
+        bad += flow_case(&world, collapse, 120, "2D collapse").0;
+        for seed in 1..=4 {
+            let random = || flow_scene([12, 24], 0.005, [0.0; 2], seed, implicit);
+            bad += flow_case(&world, random, 4, "2D random state").0;
+        }
     }
-    let collapse_3d = || flow_scene([6, 5, 16], 0.005, [0.015, 0.02, 0.06], 0);
+    let collapse_3d = || flow_scene([6, 5, 16], 0.005, [0.015, 0.02, 0.06], 0, false);
     bad += flow_case(&world, collapse_3d, 40, "3D collapse").0;
-    let timed = || flow_scene([64, 64], 0.0025, [0.08, 0.12], 0);
+    let timed = || flow_scene([64, 64], 0.0025, [0.08, 0.12], 0, false);
     let (b, slabs, serial) = flow_case(&world, timed, 50, "64 x 64 collapse");
     bad += b;
     let mut all_bad = 0i32;
@@ -734,7 +745,7 @@ fn flow_slabs() -> i32 {
     );
     if world.rank() == 0 {
         println!(
-            "mpi_check --flow: 8 flows on {} ranks, {}; 64 x 64 collapse: {:.2} ms per step across the ranks, {:.2} ms serially on one",
+            "mpi_check --flow: 13 flows (explicit and implicit pressure) on {} ranks, {}; 64 x 64 collapse: {:.2} ms per step across the ranks, {:.2} ms serially on one",
             world.size(),
             if all_bad == 0 {
                 "every state array, step, residual and CG count with the serial bits after every step"
