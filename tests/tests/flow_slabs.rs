@@ -16,6 +16,7 @@ use sieve_core::closure::Material;
 use sieve_core::flow::slab::{load_slab, Slab, SlabError};
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, PressureMode, Slip, Stress};
 use sieve_core::fork::Serial;
+use sieve_core::frame::{Frame, Rotation};
 use sieve_core::Grid;
 use std::ops::Range;
 
@@ -343,6 +344,29 @@ fn random_states_on_slabs_have_the_serial_bits() {
         };
         check(make, &[&[0, 4, 8, 12]], 4, &format!("random state {seed}"));
     }
+}
+
+#[test]
+fn a_box_in_its_rotating_frame_on_slabs_has_the_serial_bits() {
+    // a half-filled box turning at 3 rad/s about a point off its centre, in its own frame:
+    // gravity turns, and the centrifugal bounds are the box's, not a slab's
+    let make = || {
+        let mut flow = boxed::<2>();
+        let grid = Grid::new([16, 32], [0.0; 2], [0.08, 0.16], N).unwrap();
+        let mut cfg = FlowConfig::new(Material::glass_beads());
+        cfg.gravity = [0.0, -9.81];
+        cfg.free_surface_push = true;
+        cfg.frame = Frame::Rotating(Rotation::new(3.0, [0.04, 0.02], 0).unwrap());
+        let wall = FlowSide::wall(Slip::Friction(0.5));
+        flow.setup(grid, [[wall, wall], [wall, wall]], cfg).unwrap();
+        for i in 0..grid.len() {
+            let c = if grid.center(i)[1] < 0.08 { 0.6 } else { 0.0 };
+            flow.set_cell(i, c, [0.0; 2], 0.0);
+        }
+        flow.prepare().unwrap();
+        flow
+    };
+    check(make, &[&[0, 16], &[0, 8, 16, 24]], 120, "rotating box");
 }
 
 #[test]

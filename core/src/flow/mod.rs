@@ -395,6 +395,11 @@ pub struct FlowCounters<R, const D: usize> {
 #[derive(Clone, Debug)]
 pub struct Flow<R: Real, const D: usize, const N: usize> {
     grid: Grid<R, D>,
+    /// The box whose extent bounds a rotating frame's centrifugal acceleration: the grid,
+    /// or on a slab the whole grid it is cut from ([`slab::load_slab`]).
+    frame_box: Grid<R, D>,
+    /// Rows of `frame_box` below the grid's first row (0 but on a slab).
+    frame_rows: usize,
     bc: FlowBoundaries<R, D>,
     cfg: FlowConfig<R, D>,
     /// Volume fraction.
@@ -535,6 +540,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let zd = [[R::ZERO; N]; D];
         Self {
             grid: Grid::unit(),
+            frame_box: Grid::unit(),
+            frame_rows: 0,
             bc: [[side; 2]; D],
             cfg: FlowConfig {
                 material: Material {
@@ -683,6 +690,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             }
         }
         self.grid = grid;
+        self.frame_box = grid;
+        self.frame_rows = 0;
         self.bc = bc;
         self.cfg = cfg;
         let n = grid.len();
@@ -852,7 +861,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let mut b = self.g_now[a].abs();
             if let Frame::Rotating(rot) = &self.cfg.frame {
                 if rot.in_plane(a) {
-                    let (lo, cells) = (self.grid.origin()[a], self.grid.cells()[a]);
+                    let (lo, cells) = (self.frame_box.origin()[a], self.frame_box.cells()[a]);
                     let hi = lo + h[a] * R::from_usize(cells);
                     b += rot
                         .centrifugal(a, lo)
@@ -974,7 +983,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
             Frame::Rotating(rot) => {
-                let (lo, h, cells) = (self.grid.origin(), self.grid.spacing(), self.grid.cells());
+                let fb = &self.frame_box;
+                let (lo, h, cells) = (fb.origin(), fb.spacing(), fb.cells());
                 let mut plane_g2 = R::ZERO;
                 for a in 0..D {
                     if rot.in_plane(a) {

@@ -10,8 +10,9 @@
 //! - the implicit solves are [`cg_slab::solve`] on the slab's rows, with the serial
 //!   iterations and bits, the solution's halo rows refreshed after each.
 //!
-//! Not yet on slabs ([`load_slab`] refuses them): embedded walls, a rotating frame, and sides along the cut that move mass (inflow, outflow, openings), whose
-//! books would need sums over the owned boundary cells.
+//! Not yet on slabs ([`load_slab`] refuses them): embedded walls, and sides along the cut
+//! that move mass (inflow, outflow, openings), whose books would need sums over the owned
+//! boundary cells.
 
 use super::cg::{Scratch, Solve, Stencil, Stop};
 use super::cg_slab;
@@ -20,7 +21,6 @@ use super::reach::Reach;
 use super::{Flow, FlowError, FlowSide, Slip};
 use crate::boundary::Boundary;
 use crate::fork::Fork;
-use crate::frame::Frame;
 use crate::real::Real;
 use core::ops::Range;
 
@@ -111,9 +111,6 @@ pub fn load_slab<R: Real, const D: usize, const M: usize, const N: usize>(
     if global.walls.on {
         return Err(SlabError::NotYet("embedded walls"));
     }
-    if !matches!(cfg.frame, Frame::Lab) {
-        return Err(SlabError::NotYet("a rotating frame"));
-    }
     let moves_mass = |s: &FlowSide<R, D>| s.kind == Boundary::Inflow || s.kind == Boundary::Outflow;
     if global.bc[..D - 1]
         .iter()
@@ -175,6 +172,9 @@ pub fn load_slab<R: Real, const D: usize, const M: usize, const N: usize>(
             }
         });
     });
+    // a rotating frame's bounds are the box's, not the slab's
+    local.frame_box = grid;
+    local.frame_rows = first;
     local.restore_counters(global.counters());
     local.prepared = true;
     Ok(SlabPlan {

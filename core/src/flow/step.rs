@@ -429,8 +429,14 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         match &self.cfg.frame {
             Frame::Lab => self.g_now[a],
             Frame::Rotating(rot) => {
-                let k = R::from_usize(self.grid.coord(l, a) + 1);
-                let x = self.grid.origin()[a] + k * self.grid.spacing()[a];
+                // counted from the box's first face, so that a slab's faces lie where the
+                // whole grid's do to the bit (`origin + k h`, never `(origin + k0 h) + k h`)
+                let mut k = self.grid.coord(l, a) + 1;
+                if a == D - 1 {
+                    k += self.frame_rows;
+                }
+                let b = &self.frame_box;
+                let x = b.origin()[a] + R::from_usize(k) * b.spacing()[a];
                 self.g_now[a] + rot.centrifugal(a, x)
             }
         }
