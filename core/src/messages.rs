@@ -8,6 +8,8 @@
 //! indices (x fastest, then y, then z), the order of `final.csv`.
 
 use crate::flow::coupled::CouplingError;
+use crate::flow::cycle_slab::PlanError;
+use crate::flow::slab::{SlabError, HALO};
 use crate::flow::FlowError;
 use crate::grid::GridError;
 use crate::segregation::SetupError;
@@ -174,6 +176,39 @@ impl fmt::Display for FlowError {
     }
 }
 
+impl fmt::Display for PlanError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            PlanError::PeriodicCut => "a periodic last axis cannot be cut into slabs yet",
+            PlanError::OddCut => {
+                "a slab starts on an odd row, which the multigrid's coarse levels cannot cut"
+            }
+            PlanError::BadCuts => {
+                "the slabs' first rows must rise from 0 within the grid, one per slab"
+            }
+        })
+    }
+}
+
+impl fmt::Display for SlabError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            SlabError::Plan(e) => e.fmt(f),
+            SlabError::Rows { index, rows } => write!(
+                f,
+                "slab {index} owns {rows} rows; every slab needs at least {HALO} (its halo's depth)"
+            ),
+            SlabError::Capacity { cells, capacity } => write!(
+                f,
+                "a slab needs {cells} cells, more than the flow solver's compiled capacity {capacity}"
+            ),
+            SlabError::NotYet(what) => write!(f, "{what} do not run on slabs of rows yet"),
+            SlabError::Unprepared => f.write_str("the flow to cut into slabs is not prepared"),
+            SlabError::Setup(e) => e.fmt(f),
+        }
+    }
+}
+
 impl fmt::Display for CouplingError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -272,6 +307,8 @@ impl fmt::Display for Reject {
 impl core::error::Error for GridError {}
 impl core::error::Error for SetupError {}
 impl core::error::Error for FlowError {}
+impl core::error::Error for PlanError {}
+impl core::error::Error for SlabError {}
 impl core::error::Error for CouplingError {}
 impl core::error::Error for ConfigError {}
 impl core::error::Error for SnapshotError {}

@@ -667,7 +667,7 @@ fn flow_case<const D: usize, C: mpi::traits::Communicator>(
     let plan = match load_slab(&*whole, &starts, rank, &mut *flow) {
         Ok(p) => p,
         Err(e) => {
-            eprintln!("mpi_check --flow: {what}: rank {rank}: {e:?}");
+            eprintln!("mpi_check --flow: {what}: rank {rank}: {e}");
             return (1, 0.0, 0.0);
         }
     };

@@ -158,6 +158,13 @@ fn check<const D: usize>(
     whole
 }
 
+/// The glass beads under gravity along the last axis.
+fn beads<const D: usize>() -> FlowConfig<f64, D> {
+    let mut cfg = FlowConfig::new(Material::glass_beads());
+    cfg.gravity[D - 1] = -9.81;
+    cfg
+}
+
 /// A prepared flow in a box of friction walls: a block at `c = 0.6` in the corner below
 /// `block`, at rest (a column that collapses).
 fn collapse<const D: usize>(
@@ -180,12 +187,9 @@ fn thrown<const D: usize>(
 ) -> Box<Flow<f64, D, N>> {
     let mut flow = boxed::<D>();
     let grid = Grid::new(cells, [0.0; D], size, N).unwrap();
-    let mut cfg = FlowConfig::new(Material::glass_beads());
+    let mut cfg = beads::<D>();
     cfg.free_surface_push = true;
     cfg.pressure = pressure;
-    let mut g = [0.0; D];
-    g[D - 1] = -9.81;
-    cfg.gravity = g;
     let wall = FlowSide::wall(Slip::Friction(30f64.to_radians().tan()));
     flow.setup(grid, [[wall, wall]; D], cfg).unwrap();
     for i in 0..grid.len() {
@@ -249,8 +253,7 @@ fn a_sheared_periodic_layer_with_the_objective_stress_on_slabs_has_the_serial_bi
     let make = || {
         let mut flow = boxed::<2>();
         let grid = Grid::new([8, 24], [0.0; 2], [0.04, 0.12], N).unwrap();
-        let mut cfg = FlowConfig::new(Material::glass_beads());
-        cfg.gravity = [0.0, -9.81];
+        let mut cfg = beads::<2>();
         cfg.stress = Stress::Objective;
         let floor = FlowSide::wall(Slip::NoSlip);
         let lid = FlowSide::moving_wall([0.5, 0.0]);
@@ -276,8 +279,7 @@ fn a_silo_discharging_through_its_floor_on_slabs_has_the_serial_bits() {
         let make = || {
             let mut flow = boxed::<2>();
             let grid = Grid::new([16, 32], [0.0; 2], [0.08, 0.16], N).unwrap();
-            let mut cfg = FlowConfig::new(Material::glass_beads());
-            cfg.gravity = [0.0, -9.81];
+            let mut cfg = beads::<2>();
             cfg.free_surface_push = true;
             cfg.pressure = pressure;
             cfg.viscous_share = true;
@@ -320,8 +322,7 @@ fn random_states_on_slabs_have_the_serial_bits() {
             };
             let mut flow = boxed::<2>();
             let grid = Grid::new([12, 16], [0.0; 2], [0.06, 0.08], N).unwrap();
-            let mut cfg = FlowConfig::new(Material::glass_beads());
-            cfg.gravity = [0.0, -9.81];
+            let mut cfg = beads::<2>();
             cfg.free_surface_push = seed % 2 == 0;
             if seed % 3 == 0 {
                 cfg.pressure = PressureMode::Implicit;
@@ -353,8 +354,7 @@ fn a_box_in_its_rotating_frame_on_slabs_has_the_serial_bits() {
     let make = || {
         let mut flow = boxed::<2>();
         let grid = Grid::new([16, 32], [0.0; 2], [0.08, 0.16], N).unwrap();
-        let mut cfg = FlowConfig::new(Material::glass_beads());
-        cfg.gravity = [0.0, -9.81];
+        let mut cfg = beads::<2>();
         cfg.free_surface_push = true;
         cfg.frame = Frame::Rotating(Rotation::new(3.0, [0.04, 0.02], 0).unwrap());
         let wall = FlowSide::wall(Slip::Friction(0.5));
@@ -403,10 +403,34 @@ fn what_does_not_run_on_slabs_is_refused_before_it_starts() {
     open.setup(grid, [[wall, out], [wall, wall]], *flow.config())
         .unwrap();
     open.prepare().unwrap();
+    let refused = load_slab(&*open, &[0, 12], 1, &mut *local).err();
     assert_eq!(
-        load_slab(&*open, &[0, 12], 1, &mut *local).err(),
+        refused,
         Some(SlabError::NotYet(
             "inflow, outflow or openings on a side along the cut"
         ))
+    );
+    // each refusal reads as one line in words
+    assert_eq!(
+        refused.unwrap().to_string(),
+        "inflow, outflow or openings on a side along the cut do not run on slabs of rows yet"
+    );
+    let short = load_slab(&*flow, &[0, 2, 12], 0, &mut *local)
+        .err()
+        .unwrap();
+    assert_eq!(
+        short.to_string(),
+        "slab 0 owns 2 rows; every slab needs at least 4 (its halo's depth)"
+    );
+    let odd = load_slab(&*flow, &[0, 11], 0, &mut *local).err().unwrap();
+    assert!(odd.to_string().contains("odd row"), "{odd}");
+    // a flow that was never prepared has no pressures or coefficients to hand on
+    let mut unprepared = boxed::<2>();
+    unprepared
+        .setup(grid, *flow.boundaries(), *flow.config())
+        .unwrap();
+    assert_eq!(
+        load_slab(&*unprepared, &[0, 12], 0, &mut *local).err(),
+        Some(SlabError::Unprepared)
     );
 }

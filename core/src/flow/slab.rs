@@ -55,6 +55,8 @@ pub enum SlabError {
     },
     /// A part of the model that does not run on slabs yet.
     NotYet(&'static str),
+    /// The flow to cut was not prepared ([`Flow::prepare`]).
+    Unprepared,
     /// The slab's solver refused its set-up.
     Setup(FlowError),
 }
@@ -108,6 +110,9 @@ pub fn load_slab<R: Real, const D: usize, const M: usize, const N: usize>(
     local: &mut Flow<R, D, N>,
 ) -> Result<SlabPlan<D>, SlabError> {
     let cfg = *global.config();
+    if !global.prepared {
+        return Err(SlabError::Unprepared);
+    }
     if global.walls.on {
         return Err(SlabError::NotYet("embedded walls"));
     }
@@ -126,20 +131,16 @@ pub fn load_slab<R: Real, const D: usize, const M: usize, const N: usize>(
     let plan =
         Plan::new(cells, global.periodic(), starts, index, D * N).map_err(SlabError::Plan)?;
     let total = cells[D - 1];
-    for (k, w) in starts.windows(2).enumerate() {
-        if starts.len() > 1 && w[1] - w[0] < HALO {
-            return Err(SlabError::Rows {
-                index: k,
-                rows: w[1] - w[0],
-            });
+    if starts.len() > 1 {
+        let ends = starts[1..].iter().copied().chain([total]);
+        for (k, (&start, end)) in starts.iter().zip(ends).enumerate() {
+            if end - start < HALO {
+                return Err(SlabError::Rows {
+                    index: k,
+                    rows: end - start,
+                });
+            }
         }
-    }
-    let last = *starts.last().unwrap_or(&0);
-    if starts.len() > 1 && total - last < HALO {
-        return Err(SlabError::Rows {
-            index: starts.len() - 1,
-            rows: total - last,
-        });
     }
     let rows = starts[index]..starts.get(index + 1).copied().unwrap_or(total);
     let halo = [
