@@ -205,6 +205,9 @@ impl fmt::Display for SlabError {
             SlabError::NotYet(what) => write!(f, "{what} do not run on slabs of rows yet"),
             SlabError::Unprepared => f.write_str("the flow to cut into slabs is not prepared"),
             SlabError::Setup(e) => e.fmt(f),
+            SlabError::Segregation(e) => {
+                write!(f, "the segregation solver of a slab refused its set-up: {e}")
+            }
         }
     }
 }
@@ -222,6 +225,10 @@ impl fmt::Display for CouplingError {
             CouplingError::GeometryNeedsCoupled => f.write_str(
                 "cut-cell walls need the coupled mode (the flow's face mass fluxes carry the small grains)",
             ),
+            CouplingError::SlabsNeedCoupled => f.write_str(
+                "a run on slabs of rows needs the coupled mode (the flow's face mass fluxes carry the small grains)",
+            ),
+            CouplingError::OtherSlab => f.write_str("another slab of the run stopped"),
             CouplingError::NotSteady(r) => write!(
                 f,
                 "the flow did not become steady within the step limit (last residual {r:e} 1/s)"

@@ -10,7 +10,7 @@
 //! a sheared periodic layer with the objective stress (its cross terms read across the cut),
 //! and a 3D collapse.
 
-use crate::common::thread_links::ThreadLinks;
+use crate::common::thread_links::{assert_serial_rows, on_threads};
 use sieve_core::boundary::{Opening, Openings};
 use sieve_core::closure::Material;
 use sieve_core::flow::slab::{load_slab, Slab, SlabError};
@@ -68,32 +68,20 @@ fn on_slabs<const D: usize>(
     starts: &[usize],
     steps: usize,
 ) -> Vec<(Range<usize>, Vec<After>)> {
-    std::thread::scope(|scope| {
-        let handles: Vec<_> = ThreadLinks::chain(starts.len())
-            .into_iter()
-            .enumerate()
-            .map(|(k, mut links)| {
-                std::thread::Builder::new()
-                    .stack_size(64 << 20)
-                    .spawn_scoped(scope, move || {
-                        let mut flow = boxed::<D>();
-                        let plan = load_slab(start, starts, k, &mut *flow).unwrap();
-                        let mut memory = vec![0.0; plan.memory_len()];
-                        let mut slab = Slab::new(&plan, &mut links, &mut memory);
-                        let own = plan.owned_cells();
-                        let history = (0..steps)
-                            .map(|_| {
-                                let dt = flow.stable_dt_reaching(&mut slab);
-                                flow.step_reaching(dt, &Serial, &mut slab);
-                                after(&flow, dt, own.clone())
-                            })
-                            .collect();
-                        (plan.global_cells(), history)
-                    })
-                    .unwrap()
+    on_threads(starts.len(), |k, mut links| {
+        let mut flow = boxed::<D>();
+        let plan = load_slab(start, starts, k, &mut *flow).unwrap();
+        let mut memory = vec![0.0; plan.memory_len()];
+        let mut slab = Slab::new(&plan, &mut links, &mut memory);
+        let own = plan.owned_cells();
+        let history = (0..steps)
+            .map(|_| {
+                let dt = flow.stable_dt_reaching(&mut slab);
+                flow.step_reaching(dt, &Serial, &mut slab);
+                after(&flow, dt, own.clone())
             })
             .collect();
-        handles.into_iter().map(|h| h.join().unwrap()).collect()
+        (plan.global_cells(), history)
     })
 }
 
@@ -121,20 +109,7 @@ fn check<const D: usize>(
                 );
                 assert_eq!(got.dt.to_bits(), expected.dt.to_bits(), "{at}: dt");
                 for ((name, mine), (_, all)) in got.arrays.iter().zip(&expected.arrays) {
-                    let serial = &all[cells.clone()];
-                    if let Some(j) =
-                        (0..mine.len()).find(|&j| mine[j].to_bits() != serial[j].to_bits())
-                    {
-                        let cell = cells.start + j;
-                        panic!(
-                            "{at}: first divergence in {name} at cell {cell} (row {}, column {}): \
-                             {} on the slab, {} serially",
-                            cell / plane,
-                            cell % plane,
-                            mine[j],
-                            serial[j]
-                        );
-                    }
+                    assert_serial_rows(&at, name, mine, all, cells.start, plane);
                 }
                 assert_eq!(got.cg, expected.cg, "{at}: CG iterations");
                 // the floor's book is the first slab's, the lid's the last one's

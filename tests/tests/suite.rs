@@ -10,6 +10,7 @@ mod silo_common;
 
 mod bounds;
 mod column_a;
+mod coupled_slabs;
 mod coupled_step_limit;
 mod direction;
 mod direction_flow;

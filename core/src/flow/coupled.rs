@@ -28,12 +28,13 @@
 //! the flow's limiter had cut a face flux: column-collapse lost 0.265 % of its small grains.)
 //! Lie splitting (segregation, then transport) is first order in time like each stage.
 
+use super::reach::{Reach, Whole};
 use super::{Flow, FlowError};
 use crate::closure::Packing;
 use crate::fork::{Fork, Serial};
 use crate::geometry::CutCells;
 use crate::real::Real;
-use crate::segregation::{Discharge, Segregation, SetupError};
+use crate::segregation::{add_nonzero, Discharge, Segregation, SetupError};
 
 /// Most sub-steps of the percolation stage within one coupled step ([`Coupled::step_with`]).
 /// The percolation stage costs a few per cent of a flow step (no linear solve), and its limit
@@ -98,6 +99,10 @@ pub enum CouplingError {
     NotSteady(R64),
     /// Cut-cell walls need the coupled mode (the flow's face mass fluxes carry phi).
     GeometryNeedsCoupled,
+    /// A run on slabs of rows needs the coupled mode.
+    SlabsNeedCoupled,
+    /// Another slab of a run on slabs stopped (its own error says why).
+    OtherSlab,
 }
 
 /// A residual as f64 (keeps [`CouplingError`] non-generic).
@@ -134,6 +139,10 @@ pub struct Coupled<'a, R: Real, const D: usize, const N: usize> {
     /// driver's `stable_dt` and the step both read it, and on cut cells it is a pass over
     /// every cell (once per step, not twice).
     percolation_dt: R,
+    /// On a slab ([`Self::on_slab`]): the flush floor of the segregation
+    /// (docs/model.md 5.6), applied by this driver to the owned cells, since the slab's
+    /// solver steps with the flush off (its halo rows must not flush). 0 on the whole grid.
+    slab_floor: R,
 }
 
 impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
@@ -187,6 +196,7 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
             last: None,
             geo: None,
             percolation_dt: R::MAX,
+            slab_floor: R::ZERO,
         }
     }
 
@@ -408,18 +418,67 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     /// [`Self::step_with`] with the flow's linear solves on the threads of `fork` (the same
     /// bits for any number of threads: [`Flow::step_on`]).
     pub fn step_with_on<F: Fork>(&mut self, dt: R, fork: &F) -> Result<(), CouplingError> {
+        self.step_with_reaching(dt, fork, &mut Whole)
+    }
+
+    /// [`Self::step_with_on`] on a subdomain whose view past its own cells is `reach`
+    /// ([`Flow::step_reaching`]; docs/parallel.md, "The coupled step on slabs"). With
+    /// [`Whole`] it is the serial step. On a slab ([`Self::on_slab`]) the owned cells get the
+    /// serial bits because:
+    /// - after each percolation sub-step the driver flushes the owned cells (the running
+    ///   counter continued from slab to slab in cell order) and refreshes the halo rows of
+    ///   `q`, whose outer rows the sub-step updated against the slab's wall;
+    /// - the carried transport of an owned cell reads the flow's face mass flux at the cut
+    ///   (the serial one: [`super::slab::HALO`]) and the first halo row's `q` and `c`; the
+    ///   guard's sum continues the slabs below;
+    /// - before the prepare every state array of the segregation is refreshed, so every
+    ///   halo row but the outermost (a one-sided gradient) derives the serial coefficients,
+    ///   and the rates count the owned cells only, their maximum taken across the slabs.
+    ///
+    /// Every call is collective on slabs: a slab whose segregation rejects its fields
+    /// returns that error, the others [`CouplingError::OtherSlab`].
+    pub fn step_with_reaching<F: Fork, Re: Reach<R, D, N>>(
+        &mut self,
+        dt: R,
+        fork: &F,
+        reach: &mut Re,
+    ) -> Result<(), CouplingError> {
         let limit = self.percolation_dt();
+        let (whole, floor) = (reach.whole(), self.slab_floor);
         // Every stage's hot loops at the fork's instruction set (docs/simd.md).
-        self.seg
-            .step_percolation_substeps_on::<F::Isa>(dt, limit, PERCOLATION_SUBSTEPS, self.geo);
-        self.flow.step_on(dt, fork);
+        self.seg.step_percolation_substeps_then::<F::Isa>(
+            dt,
+            limit,
+            PERCOLATION_SUBSTEPS,
+            self.geo,
+            |seg, before| {
+                if !whole {
+                    end_slab_substep(seg, floor, before, reach);
+                }
+            },
+        );
+        self.flow.step_reaching(dt, fork, reach);
         let d = match self.geo {
             Some(g) => self
                 .seg
                 .carry_mass_fluxes_embedded(self.flow.mass_fluxes(), g),
-            None => self
-                .seg
-                .carry_mass_fluxes_on::<F::Isa>(self.flow.mass_fluxes()),
+            None => self.seg.carry_mass_fluxes_summing::<F::Isa>(
+                self.flow.mass_fluxes(),
+                |moved, any| {
+                    if whole {
+                        let mut sum = R::ZERO;
+                        if any {
+                            add_nonzero(&mut sum, moved);
+                        }
+                        sum
+                    } else {
+                        reach.sum_in_order(R::ZERO, |mut sum| {
+                            add_nonzero(&mut sum, moved);
+                            sum
+                        })
+                    }
+                },
+            ),
         };
         for a in 0..D {
             for side in 0..2 {
@@ -435,8 +494,55 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
             self.seg
                 .set_flow_state(i, self.flow.temperature(i), self.flow.velocity(i));
         }
-        self.prepare_segregation_with(fork)
-            .map_err(CouplingError::Segregation)
+        if !whole {
+            // the inflow state is set once and never changes
+            self.seg.for_each_state_array_mut(|name, a| {
+                if name != "inflow" {
+                    reach.refresh(a);
+                }
+            });
+        }
+        self.prepare_segregation_reaching(fork, reach)
+    }
+
+    /// [`Self::stable_dt`] (coupled mode) across the subdomains of `reach`: the flow's limit
+    /// ([`Flow::stable_dt_reaching`]) capped by the percolation's, which the prepare took
+    /// across them already.
+    pub fn stable_dt_reaching<Re: Reach<R, D, N>>(&self, reach: &mut Re) -> R {
+        self.flow
+            .stable_dt_reaching(reach)
+            .min(R::from_usize(PERCOLATION_SUBSTEPS) * self.percolation_dt())
+    }
+
+    /// The segregation's prepare after a step: on a slab over the owned cells, the
+    /// percolation limit the smallest of the slabs' (`C / max rate` is the minimum of `C /
+    /// rate` exactly: division rounds monotonically), its negation's maximum.
+    fn prepare_segregation_reaching<F: Fork, Re: Reach<R, D, N>>(
+        &mut self,
+        fork: &F,
+        reach: &mut Re,
+    ) -> Result<(), CouplingError> {
+        if reach.whole() {
+            return self
+                .prepare_segregation_with(fork)
+                .map_err(CouplingError::Segregation);
+        }
+        let own = reach.owned(self.seg.grid().len());
+        let mine = self.seg.prepare_owned_with(fork, own);
+        // a slab that failed sends a positive value: every slab learns of it
+        let sent = match mine {
+            Ok(()) => -self.seg.stable_dt_percolation(),
+            Err(_) => R::ONE,
+        };
+        let most = reach.max(sent);
+        match mine {
+            Err(e) => Err(CouplingError::Segregation(e)),
+            Ok(()) if most > R::ZERO => Err(CouplingError::OtherSlab),
+            Ok(()) => {
+                self.percolation_dt = -most;
+                Ok(())
+            }
+        }
     }
 
     /// Steps until the segregation clock reaches `t_end` (last step may overshoot by less than
@@ -515,4 +621,60 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
         self.prepare_segregation()
             .map_err(CouplingError::Segregation)
     }
+
+    /// The driver of one slab of a coupled run cut into slabs of rows (coupled mode; docs/
+    /// parallel.md, "The coupled step on slabs"): `flow` and `seg` as
+    /// [`super::coupled_slab::load_coupled_slab`] set them up, `totals` the whole run's so
+    /// far, `floor` its segregation's flush floor. Prepares the segregation over the owned
+    /// cells with the percolation limit across the slabs (collective: every slab calls it).
+    /// Step it with [`Self::stable_dt_reaching`] and [`Self::step_with_reaching`].
+    pub fn on_slab<Re: Reach<R, D, N>>(
+        flow: &'a mut Flow<R, D, N>,
+        seg: &'a mut Segregation<R, D, N>,
+        cfg: CouplingConfig<R>,
+        totals: CoupledTotals<R, D>,
+        floor: R,
+        reach: &mut Re,
+    ) -> Result<Self, CouplingError> {
+        if cfg.mode != Mode::Coupled {
+            return Err(CouplingError::SlabsNeedCoupled);
+        }
+        if flow.grid() != seg.grid() {
+            return Err(CouplingError::GridMismatch);
+        }
+        let mut s = Self::unprepared(flow, seg, cfg);
+        s.out_small = totals.out_small;
+        s.out_total = totals.out_total;
+        s.guarded = totals.guarded;
+        s.slab_floor = floor;
+        s.sync_gravity();
+        s.prepare_segregation_reaching(&Serial, reach)?;
+        Ok(s)
+    }
+}
+
+/// The end of a percolation sub-step on a slab ([`Coupled::step_with_reaching`]): the flush
+/// of the owned cells, when due, into the running counter in cell order across the slabs,
+/// then the halo rows of `q` (and of its carry when compensated) from their owners.
+fn end_slab_substep<R: Real, const D: usize, const N: usize, Re: Reach<R, D, N>>(
+    seg: &mut Segregation<R, D, N>,
+    floor: R,
+    before: u64,
+    reach: &mut Re,
+) {
+    if seg.flush_due(floor, before) {
+        let counter = seg.flushed_tracked();
+        let total = reach.sum_in_order(counter, |mut sum| {
+            let mut excess = seg.tracked_excess();
+            seg.end_owned_step(floor, before, &mut excess, |_, v| sum += v);
+            sum
+        });
+        seg.set_flushed_tracked(total);
+    }
+    let compensated = seg.config().compensated;
+    seg.for_each_state_array_mut(|name, a| {
+        if name == "q" || (compensated && name == "carry") {
+            reach.refresh(a);
+        }
+    });
 }

@@ -76,6 +76,7 @@
 pub mod cg;
 pub mod cg_slab;
 pub mod coupled;
+pub mod coupled_slab;
 pub mod cycle_slab;
 pub mod line_slab;
 mod objective;

@@ -103,7 +103,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             self.spare.rhs[i] = a2;
         }
         let own = reach.owned(n);
-        let vnorm = reach.sum_in_order(|mut sum| {
+        let vnorm = reach.sum_in_order(R::ZERO, |mut sum| {
             for i in own {
                 let v = self.mass_factor(i);
                 sum += v * v;

@@ -27,9 +27,11 @@ pub trait Reach<R: Real, const D: usize, const N: usize> {
     /// values their owners hold.
     fn refresh(&mut self, field: &mut [R]);
 
-    /// A sum over all cells in cell order: `part(s)` continues the serial running sum `s`
-    /// over the owned cells and returns it; the result is the serial sum's bits.
-    fn sum_in_order(&mut self, part: impl FnOnce(R) -> R) -> R;
+    /// A sum over all cells in cell order, starting from `start` (the same value on every
+    /// subdomain: a running counter that all of them hold): `part(s)` continues the serial
+    /// running sum `s` over the owned cells and returns it; the result is the serial sum's
+    /// bits.
+    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R;
 
     /// The largest of every subdomain's `x` (exact: a maximum does not round).
     fn max(&mut self, x: R) -> R;
@@ -68,8 +70,8 @@ impl<R: Real, const D: usize, const N: usize> Reach<R, D, N> for Whole {
     fn refresh(&mut self, _field: &mut [R]) {}
 
     #[inline(always)]
-    fn sum_in_order(&mut self, part: impl FnOnce(R) -> R) -> R {
-        part(R::ZERO)
+    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
+        part(start)
     }
 
     #[inline(always)]

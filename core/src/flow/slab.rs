@@ -22,6 +22,7 @@ use super::{Flow, FlowError, FlowSide, Slip};
 use crate::boundary::Boundary;
 use crate::fork::Fork;
 use crate::real::Real;
+use crate::segregation::SetupError;
 use core::ops::Range;
 
 /// Halo rows of a flow slab. Within one step the values of a halo row go wrong from the
@@ -59,6 +60,8 @@ pub enum SlabError {
     Unprepared,
     /// The slab's solver refused its set-up.
     Setup(FlowError),
+    /// The slab's segregation solver refused its set-up (a coupled run on slabs).
+    Segregation(SetupError),
 }
 
 /// Where one slab's rows lie, and its part of the solves' preconditioner.
@@ -267,8 +270,8 @@ impl<R: Real, L: Links<R>, const D: usize, const N: usize> Reach<R, D, N> for Sl
         self.swap_halos(field);
     }
 
-    fn sum_in_order(&mut self, part: impl FnOnce(R) -> R) -> R {
-        self.chain(R::ZERO, part)
+    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
+        self.chain(start, part)
     }
 
     fn max(&mut self, x: R) -> R {

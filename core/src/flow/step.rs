@@ -825,7 +825,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let u_ref = self.boundary_speed(R::from_f64(1e-6), reach);
         let own = reach.owned(n);
         let mass_norm = reach
-            .sum_in_order(|mut sum| {
+            .sum_in_order(R::ZERO, |mut sum| {
                 for i in own {
                     let cd = self.mass_factor(i) * self.c[i].max(vac) / dt;
                     sum += cd * cd;

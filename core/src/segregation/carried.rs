@@ -144,8 +144,21 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// [`Self::carry_mass_fluxes`] with its passes over the cells run by `I` (the same bits
     /// for every `I`).
     pub fn carry_mass_fluxes_on<I: Isa>(&mut self, fx: MassFluxes<'_, R, D, N>) -> Discharge<R, D> {
+        self.carry_mass_fluxes_summing::<I>(fx, serial_guard_sum)
+    }
+
+    /// [`Self::carry_mass_fluxes_on`] with the guard's sum left to `guard_sum(moved, any)`:
+    /// `moved` holds what the guard moved in each counted cell (all of them, or a
+    /// subdomain's owned ones: [`Self::prepare_owned_with`]), in cell order, `any` whether
+    /// any local cell moved. The serial sum adds the nonzero ones from 0 (`add_nonzero`); a
+    /// slab continues the sum of the slabs below ([`crate::flow::reach::Reach::sum_in_order`]).
+    pub fn carry_mass_fluxes_summing<I: Isa>(
+        &mut self,
+        fx: MassFluxes<'_, R, D, N>,
+        guard_sum: impl FnOnce(&[R], bool) -> R,
+    ) -> Discharge<R, D> {
         if self.transport == Transport::Limited {
-            return self.carry_limited(fx, None);
+            return self.carry_limited(fx, None, guard_sum);
         }
         let n = self.grid.len();
         let grid = self.grid;
@@ -170,15 +183,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 )
             },
         ));
-        let mut guarded = R::ZERO;
-        if any {
-            for &moved in &self.rhs[..n] {
-                if moved != R::ZERO {
-                    guarded += moved;
-                }
-            }
-        }
-        out.guarded = guarded * vol;
+        let counted = self.tally.0.min(n)..self.tally.1.min(n);
+        out.guarded = guard_sum(&self.rhs[counted], any) * vol;
         // Pass C: what each cell receives, in the same face order.
         self.receive_faces(fx, &mut out, |i| i);
         // Pass D: c = tracked + untracked.
@@ -275,7 +281,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 /// and the amount that moved: `-q`, `c - q`, or 0 where `q` was in range (a guarded cell
 /// moves a nonzero amount).
 #[inline(always)]
-fn guard<R: Real>(q: R, c: R) -> (R, R) {
+pub(super) fn guard<R: Real>(q: R, c: R) -> (R, R) {
     if q < R::ZERO {
         (R::ZERO, -q)
     } else if q > c {
@@ -286,14 +292,34 @@ fn guard<R: Real>(q: R, c: R) -> (R, R) {
 }
 
 /// [`guard`], the amount moved added to `guarded` (`guarded - q` is `guarded + (-q)` to the
-/// bit). Shared by the donor and the limited transport.
+/// bit): the donor rule on cut cells.
 #[inline(always)]
-pub(super) fn guard_tracked<R: Real>(q: R, c: R, guarded: &mut R) -> R {
+fn guard_tracked<R: Real>(q: R, c: R, guarded: &mut R) -> R {
     let (kept, moved) = guard(q, c);
     if moved != R::ZERO {
         *guarded += moved;
     }
     kept
+}
+
+/// The guard's sum of one carried transport on the whole grid: the nonzero amounts moved, in
+/// cell order, from 0 (none if `any` is false).
+pub(crate) fn serial_guard_sum<R: Real>(moved: &[R], any: bool) -> R {
+    let mut sum = R::ZERO;
+    if any {
+        add_nonzero(&mut sum, moved);
+    }
+    sum
+}
+
+/// Adds the nonzero values of `moved` to `sum`, in order: the guard's sum of the carried
+/// transport (a zero adds nothing, so a subdomain may continue the sum of others).
+pub(crate) fn add_nonzero<R: Real>(sum: &mut R, moved: &[R]) {
+    for &m in moved {
+        if m != R::ZERO {
+            *sum += m;
+        }
+    }
 }
 
 /// Pass B of [`Segregation::carry_mass_fluxes`] over the cells: the tracked `q + carry`
@@ -363,7 +389,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         geo: &CutCells<R, D, N>,
     ) -> Discharge<R, D> {
         if self.transport == Transport::Limited {
-            return self.carry_limited(fx, Some(geo));
+            return self.carry_limited(fx, Some(geo), serial_guard_sum);
         }
         let n = self.grid.len();
         let grid = self.grid;

@@ -47,7 +47,7 @@
 //! is used. So the solver's size is unchanged (the firmware's soft sensor does not use this
 //! path: its own-velocity transport stays the donor rule).
 
-use super::carried::{guard_tracked, small_part, Discharge, MassFluxes};
+use super::carried::{guard, small_part, Discharge, MassFluxes};
 use super::Segregation;
 use crate::boundary::Boundary;
 use crate::geometry::CutCells;
@@ -229,6 +229,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         &mut self,
         fx: MassFluxes<'_, R, D, N>,
         geo: Option<&CutCells<R, D, N>>,
+        guard_sum: impl FnOnce(&[R], bool) -> R,
     ) -> Discharge<R, D> {
         let n = self.grid.len();
         let grid = self.grid;
@@ -257,12 +258,14 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             self.gather_outflow_at_masters(g);
         }
         // Pass B1: the tracked fraction into [0, c] (round-off guard, as the donor rule), the
-        // carry folded in, qhat of every cell into `flux`.
-        let mut guarded = R::ZERO;
+        // carry folded in, qhat of every cell into `flux`, what the guard moved into `carry`
+        // (summed by `guard_sum` over the counted cells, then overwritten by pass S).
+        let mut any = false;
         for i in 0..n {
             let c = self.c[i];
-            let q = guard_tracked(self.q[i] + self.carry[i], c, &mut guarded);
-            self.carry[i] = R::ZERO;
+            let (q, moved) = guard(self.q[i] + self.carry[i], c);
+            any |= moved != R::ZERO;
+            self.carry[i] = moved;
             self.q[i] = q;
             self.flux[i] = if c > R::ZERO {
                 (q / c).min(R::ONE)
@@ -270,7 +273,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                 R::ZERO
             };
         }
-        out.guarded = guarded * vol;
+        let counted = self.tally.0.min(n)..self.tally.1.min(n);
+        out.guarded = guard_sum(&self.carry[counted], any) * vol;
         // Pass S: van Leer slopes of qhat, axis 0 into `carry`, axis a into `k[a]`.
         for a in 0..D {
             for i in 0..n {

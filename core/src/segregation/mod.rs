@@ -16,6 +16,7 @@ mod limited;
 mod step;
 
 pub use crate::hot::{Baseline, HotLoop, Isa};
+pub(crate) use carried::add_nonzero;
 pub use carried::{Discharge, MassFluxes};
 pub use flux::Scheme;
 pub use limited::Transport;
@@ -535,6 +536,28 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// prepare on a pool. The same bits for any fork.
     pub fn prepare_with<F: Fork>(&mut self, fork: &F) -> Result<(), SetupError> {
         let n = self.grid.len();
+        self.prepare_over(fork, 0..n)
+    }
+
+    /// [`Self::prepare_with`] for a subdomain (as [`Self::prepare_owned`]): the stable rates
+    /// over the cells `owned` only, and from here on the bound maxima and the books count
+    /// them only. A coupled step on slabs prepares so after every step
+    /// ([`crate::flow::coupled::Coupled::step_with_reaching`]).
+    pub fn prepare_owned_with<F: Fork>(
+        &mut self,
+        fork: &F,
+        owned: core::ops::Range<usize>,
+    ) -> Result<(), SetupError> {
+        self.tally = (owned.start, owned.end);
+        self.prepare_over(fork, owned)
+    }
+
+    /// The checks of every cell, then the coefficients with the rates over `owned`.
+    fn prepare_over<F: Fork>(
+        &mut self,
+        fork: &F,
+        owned: core::ops::Range<usize>,
+    ) -> Result<(), SetupError> {
         // The checks of every cell as one branch-free pass (vectorises; a coupled run
         // prepares after every step); the loop below names the first failing cell.
         if !F::Isa::run(Call(
@@ -543,7 +566,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         )) {
             self.first_invalid_cell()?;
         }
-        self.derive_coefficients_cut(fork, 0..n);
+        self.derive_coefficients_cut(fork, owned);
         self.detect_uniform();
         self.prepared = true;
         Ok(())
@@ -943,17 +966,33 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         max_substeps: usize,
         geo: Option<&crate::geometry::CutCells<R, D, N>>,
     ) -> usize {
+        self.step_percolation_substeps_then::<I>(dt, stable_dt, max_substeps, geo, |_, _| {})
+    }
+
+    /// [`Self::step_percolation_substeps_on`] calling `after(self, steps_before)` after each
+    /// sub-step (`steps_before`: the step counter before it, on which the flush depends): a
+    /// slab's driver flushes its owned cells and refreshes its halo rows there
+    /// ([`crate::flow::coupled::Coupled::step_with_reaching`]).
+    pub fn step_percolation_substeps_then<I: Isa>(
+        &mut self,
+        dt: R,
+        stable_dt: R,
+        max_substeps: usize,
+        geo: Option<&crate::geometry::CutCells<R, D, N>>,
+        mut after: impl FnMut(&mut Self, u64),
+    ) -> usize {
         let (time, steps) = (self.time, self.steps);
         let mut k = 1;
         while k < max_substeps && R::from_usize(k) * stable_dt < dt {
             k += 1;
         }
         let sub = dt / R::from_usize(k);
-        for _ in 0..k {
+        for j in 0..k {
             match geo {
                 Some(g) => self.step_percolation_embedded_on::<I>(sub, g),
                 None => self.step_percolation_on::<I>(sub),
             }
+            after(self, steps + j as u64);
         }
         self.time = time + dt;
         self.steps = steps + 1;
@@ -1160,12 +1199,14 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// subdomains' dt to the bit. From here on the box step's bound maxima
     /// ([`Self::tracked_excess`]) count the `owned` cells only.
     pub fn prepare_owned(&mut self, owned: core::ops::Range<usize>) -> Result<(), SetupError> {
-        self.prepare()?;
-        self.tally = (owned.start, owned.end);
-        if owned != (0..self.grid.len()) {
-            self.derive_coefficients::<Baseline>(owned);
-        }
-        Ok(())
+        self.prepare_owned_with(&SerialAt::<Baseline>::new(), owned)
+    }
+
+    /// Whether the step after `steps_before` steps flushes (docs/model.md 5.6) with `floor`:
+    /// every step when compensated, else every `step::FLUSH_EVERY` steps; never with a
+    /// floor of 0.
+    pub fn flush_due(&self, floor: R, steps_before: u64) -> bool {
+        floor > R::ZERO && (self.cfg.compensated || steps_before % step::FLUSH_EVERY == 0)
     }
 
     /// The end of a step of a subdomain (docs/parallel.md, [`crate::decomp`]), on its owned

@@ -1,5 +1,6 @@
 //! Slabs on threads: the tests' stand-in for the MPI ranks of the slab solves and the flow
-//! on slabs (core/src/flow/cycle_slab.rs `Links`).
+//! on slabs (core/src/flow/cycle_slab.rs `Links`), and the comparison of a slab's rows with
+//! the serial run's.
 
 use sieve_core::flow::cycle_slab::Links;
 use sieve_core::sum;
@@ -107,4 +108,49 @@ impl<R: Real> Links<R> for ThreadLinks<R> {
         barrier.wait();
         sum::sum(&all)
     }
+}
+
+/// Asserts that a slab's owned `mine` (global cells from `first`) has the serial bits of
+/// `all` (the whole grid's array `name`), naming the first cell that differs with its row and
+/// column (`plane` cells per row) in the words of issue 12 ("name the first step where two
+/// decompositions diverge"; `at` names the scene, the cut, the step and the slab).
+pub fn assert_serial_rows(
+    at: &str,
+    name: &str,
+    mine: &[f64],
+    all: &[f64],
+    first: usize,
+    plane: usize,
+) {
+    let serial = &all[first..first + mine.len()];
+    if let Some(j) = (0..mine.len()).find(|&j| mine[j].to_bits() != serial[j].to_bits()) {
+        let cell = first + j;
+        panic!(
+            "{at}: first divergence in {name} at cell {cell} (row {}, column {}): \
+             {} on the slab, {} serially",
+            cell / plane,
+            cell % plane,
+            mine[j],
+            serial[j]
+        );
+    }
+}
+
+/// Runs `slab(k, links)` for each of `slabs` slabs on its own thread, as MPI ranks would run
+/// them, and returns the results in slab order (64 MiB stacks: a step's frames are deep).
+pub fn on_threads<T: Send>(slabs: usize, slab: impl Fn(usize, ThreadLinks) -> T + Sync) -> Vec<T> {
+    let slab = &slab;
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = ThreadLinks::chain(slabs)
+            .into_iter()
+            .enumerate()
+            .map(|(k, links)| {
+                std::thread::Builder::new()
+                    .stack_size(64 << 20)
+                    .spawn_scoped(scope, move || slab(k, links))
+                    .unwrap()
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    })
 }

@@ -1,0 +1,473 @@
+//! The coupled step (percolation, flow, carried transport, back-coupled packing) on slabs of
+//! rows (core/src/flow/coupled_slab.rs), each slab on its own thread as a rank of an MPI run
+//! would step it: after every step the owned rows of every slab hold the serial run's bits in
+//! every state array of the flow and of the segregation, and the step, the flush counter, the
+//! guard's total, the bound maxima and the discharge books are the serial ones. A failure
+//! names the first step, array and cell where the slabs left the serial run (issue 12).
+//!
+//! The scenes are the coupled hard cases: a mixed column collapsing onto a floor with the
+//! packing limits back-coupled (free surfaces, empty cells, a bed near maximal packing), a
+//! silo draining its fines through an orifice in the floor with a coarse flush floor (the
+//! flush of the percolation's sub-steps at the cuts), the compensated update, random states,
+//! a box in its rotating frame and a 3D collapse.
+
+use crate::common::thread_links::{assert_serial_rows, on_threads};
+use sieve_core::boundary::{Boundary, Opening, Openings};
+use sieve_core::closure::{Material, Packing};
+use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
+use sieve_core::flow::coupled_slab::load_coupled_slab;
+use sieve_core::flow::slab::{Slab, SlabError};
+use sieve_core::flow::{Flow, FlowConfig, FlowSide, PressureMode, Slip};
+use sieve_core::fork::Serial;
+use sieve_core::frame::{Frame, Rotation};
+use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig, Transport};
+use sieve_core::Grid;
+use std::ops::Range;
+
+const N: usize = 1024;
+
+/// A coupled run's two solvers and its coupling, before the driver is built.
+struct Scene<const D: usize> {
+    flow: Box<Flow<f64, D, N>>,
+    seg: Box<Segregation<f64, D, N>>,
+    coupling: CouplingConfig<f64>,
+}
+
+/// What one step left: the step, the running counters and books, and every state array of
+/// both solvers over some cells (`flow.` and `seg.` before the names of
+/// [`Flow::for_each_state_array`] and [`Segregation::for_each_state_array`]).
+struct After {
+    dt: f64,
+    cg: [u32; 4],
+    flushed: f64,
+    guarded: f64,
+    excess: [f64; 2],
+    /// small grains and all grains out through `[axis][side]`
+    out: Vec<[[f64; 2]; 2]>,
+    arrays: Vec<(String, Vec<f64>)>,
+}
+
+fn after<const D: usize>(cpl: &Coupled<'_, f64, D, N>, dt: f64, cells: Range<usize>) -> After {
+    let mut arrays = vec![];
+    cpl.flow.for_each_state_array(|name, a| {
+        arrays.push((format!("flow.{name}"), a[cells.clone()].to_vec()))
+    });
+    cpl.seg.for_each_state_array(|name, a| {
+        arrays.push((format!("seg.{name}"), a[cells.clone()].to_vec()))
+    });
+    let (small, total) = (cpl.discharged_small(), cpl.discharged_total());
+    After {
+        dt,
+        cg: cpl.flow.last_cg_iterations(),
+        flushed: cpl.seg.flushed_tracked(),
+        guarded: cpl.guarded_mass(),
+        excess: cpl.seg.tracked_excess(),
+        out: (0..D).map(|a| [small[a], total[a]]).collect(),
+        arrays,
+    }
+}
+
+/// `steps` serial coupled steps of `scene`, each at its stable step.
+fn serial<const D: usize>(mut scene: Scene<D>, steps: usize) -> Vec<After> {
+    let mut cpl = Coupled::new(&mut scene.flow, &mut scene.seg, scene.coupling).unwrap();
+    let n = cpl.flow.len();
+    (0..steps)
+        .map(|_| {
+            let dt = cpl.stable_dt();
+            cpl.step_with(dt).unwrap();
+            after(&cpl, dt, 0..n)
+        })
+        .collect()
+}
+
+/// The same steps on slabs cut at the rows `starts`, each slab on a thread: per slab, the
+/// global cells it owns and what each step left in them.
+fn on_slabs<const D: usize>(
+    start: &Coupled<'_, f64, D, N>,
+    starts: &[usize],
+    steps: usize,
+) -> Vec<(Range<usize>, Vec<After>)> {
+    on_threads(starts.len(), |k, mut links| {
+        let mut flow: Box<Flow<f64, D, N>> = Box::new(Flow::zeroed());
+        let mut seg: Box<Segregation<f64, D, N>> = Box::new(Segregation::zeroed());
+        let plan = load_coupled_slab(start, starts, k, &mut flow, &mut seg).unwrap();
+        let mut memory = vec![0.0; plan.memory_len()];
+        let mut slab = Slab::new(&plan, &mut links, &mut memory);
+        let floor = start.seg.config().flush_below;
+        let (cfg, totals) = (*start.config(), start.totals());
+        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, cfg, totals, floor, &mut slab).unwrap();
+        let own = plan.owned_cells();
+        let history = (0..steps)
+            .map(|_| {
+                let dt = cpl.stable_dt_reaching(&mut slab);
+                cpl.step_with_reaching(dt, &Serial, &mut slab).unwrap();
+                after(&cpl, dt, own.clone())
+            })
+            .collect();
+        (plan.global_cells(), history)
+    })
+}
+
+/// Steps the scene `make` builds serially and on slabs cut at each of `cuts`, and asserts
+/// the serial bits after every step, naming the first step, array and cell that differ.
+/// Returns the serial run's steps.
+fn check<const D: usize>(
+    make: impl Fn() -> Scene<D>,
+    cuts: &[&[usize]],
+    steps: usize,
+    what: &str,
+) -> Vec<After> {
+    let mut start = make();
+    let start = Coupled::new(&mut start.flow, &mut start.seg, start.coupling).unwrap();
+    let whole = serial(make(), steps);
+    let plane = start.flow.len() / start.flow.grid().cells()[D - 1];
+    for starts in cuts {
+        let slabs = on_slabs(&start, starts, steps);
+        for (step, expected) in whole.iter().enumerate() {
+            let at = format!("{what}, cut at rows {starts:?}, step {}", step + 1);
+            // the bound maxima of the whole grid: the largest of the slabs' (exact, but for
+            // the sign of a zero: a maximum of +0 and -0 may be either)
+            let most = slabs.iter().fold([f64::MIN; 2], |m, (_, h)| {
+                [m[0].max(h[step].excess[0]), m[1].max(h[step].excess[1])]
+            });
+            assert_eq!(most, expected.excess, "{at}: bounds");
+            for (k, (cells, history)) in slabs.iter().enumerate() {
+                let got = &history[step];
+                let at = format!("{at}, slab {k}");
+                assert_eq!(got.dt.to_bits(), expected.dt.to_bits(), "{at}: dt");
+                for ((name, mine), (_, all)) in got.arrays.iter().zip(&expected.arrays) {
+                    assert_serial_rows(&at, name, mine, all, cells.start, plane);
+                }
+                assert_eq!(got.cg, expected.cg, "{at}: CG iterations");
+                assert_eq!(
+                    got.flushed.to_bits(),
+                    expected.flushed.to_bits(),
+                    "{at}: flushed"
+                );
+                assert_eq!(
+                    got.guarded.to_bits(),
+                    expected.guarded.to_bits(),
+                    "{at}: guarded"
+                );
+                // the sides along the cut are walls or periodic: nothing crosses them; the
+                // floor's books are the first slab's, the lid's the last one's
+                for a in 0..D {
+                    for side in 0..2 {
+                        let owner = match (a + 1 == D, side) {
+                            (false, _) => k,
+                            (true, 0) => 0,
+                            (true, _) => slabs.len() - 1,
+                        };
+                        if k == owner {
+                            for (p, phase) in ["small", "all"].iter().enumerate() {
+                                assert_eq!(
+                                    got.out[a][p][side].to_bits(),
+                                    expected.out[a][p][side].to_bits(),
+                                    "{at}: {phase} grains out through side {side} of axis {a}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    whole
+}
+
+/// The glass beads under gravity along the last axis.
+fn beads<const D: usize>() -> FlowConfig<f64, D> {
+    let mut cfg = FlowConfig::new(Material::glass_beads());
+    cfg.gravity[D - 1] = -9.81;
+    cfg.free_surface_push = true;
+    cfg
+}
+
+/// A segregation solver for the flow's grid: the direction from the flow, walls where the
+/// flow has walls (open where it has outlets), fines at `phi = fines(x) c`, and the coupled
+/// mode with back-coupled packing limits.
+fn scene<const D: usize>(
+    flow: Box<Flow<f64, D, N>>,
+    fines: impl Fn(usize, [f64; D]) -> f64,
+    tune: impl Fn(&mut SegregationConfig<f64, D>),
+) -> Scene<D> {
+    let grid = *flow.grid();
+    let mut cfg = SegregationConfig::new();
+    cfg.s0 = 0.2;
+    cfg.gravity[D - 1] = -9.81;
+    cfg.direction = DirectionMode::Flow;
+    tune(&mut cfg);
+    let mut bc = [[Boundary::Wall; 2]; D];
+    for (a, sides) in flow.boundaries().iter().enumerate() {
+        for (s, side) in sides.iter().enumerate() {
+            if side.kind == Boundary::Periodic {
+                bc[a][s] = Boundary::Periodic;
+            }
+        }
+    }
+    let mut seg: Box<Segregation<f64, D, N>> = Box::new(Segregation::zeroed());
+    seg.setup(grid, bc, cfg).unwrap();
+    for i in 0..grid.len() {
+        let c = flow.c(i);
+        seg.set_cell(
+            i,
+            c,
+            flow.temperature(i),
+            flow.velocity(i),
+            fines(i, grid.center(i)) * c,
+        );
+    }
+    let mut coupling = CouplingConfig::new(Mode::Coupled);
+    coupling.packing = Packing::FitHalf;
+    Scene {
+        flow,
+        seg,
+        coupling,
+    }
+}
+
+/// A flow in a box of friction walls, `c(x)` at rest, prepared.
+fn boxed_flow<const D: usize>(
+    cells: [usize; D],
+    size: [f64; D],
+    cfg: FlowConfig<f64, D>,
+    floor: FlowSide<f64, D>,
+    c: impl Fn([f64; D]) -> f64,
+) -> Box<Flow<f64, D, N>> {
+    let mut flow: Box<Flow<f64, D, N>> = Box::new(Flow::zeroed());
+    let grid = Grid::new(cells, [0.0; D], size, N).unwrap();
+    let wall = FlowSide::wall(Slip::Friction(30f64.to_radians().tan()));
+    let mut bc = [[wall, wall]; D];
+    bc[D - 1][0] = floor;
+    flow.setup(grid, bc, cfg).unwrap();
+    for i in 0..grid.len() {
+        let ci = c(grid.center(i));
+        flow.set_cell(i, ci, [0.0; D], if ci > 0.0 { 1e-4 } else { 0.0 });
+    }
+    flow.prepare().unwrap();
+    flow
+}
+
+/// A mixed block in the corner below `block` (fines in its upper half) that collapses.
+fn collapse<const D: usize>(
+    cells: [usize; D],
+    size: [f64; D],
+    block: [f64; D],
+    pressure: PressureMode,
+) -> Scene<D> {
+    let mut cfg = beads::<D>();
+    cfg.pressure = pressure;
+    let wall = FlowSide::wall(Slip::Friction(30f64.to_radians().tan()));
+    let inside = move |x: [f64; D]| (0..D).all(|a| x[a] < block[a]);
+    let flow = boxed_flow(
+        cells,
+        size,
+        cfg,
+        wall,
+        |x| if inside(x) { 0.6 } else { 0.0 },
+    );
+    let fines = move |_, x: [f64; D]| {
+        if x[D - 1] > 0.5 * block[D - 1] {
+            0.7
+        } else {
+            0.2
+        }
+    };
+    scene(flow, fines, |_| {})
+}
+
+#[test]
+fn a_mixed_column_collapsing_on_slabs_has_the_serial_bits() {
+    // 20 x 24 cells of 5 mm; the block falls and spreads across every cut, its packing limits
+    // following its composition
+    let cuts: [&[usize]; 3] = [&[0, 12], &[0, 6, 12, 18], &[0, 4, 8, 12, 16, 20]];
+    let make = || collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
+    check(make, &cuts, 60, "2D mixed collapse");
+    let make = || collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Implicit);
+    check(make, &cuts[..2], 40, "2D mixed collapse, implicit pressure");
+}
+
+/// A silo of 16 x 32 cells draining through a central orifice in its floor, fines in a band
+/// at mid-height, with the segregation tuned by `tune`.
+fn silo(pressure: PressureMode, tune: impl Fn(&mut SegregationConfig<f64, 2>)) -> Scene<2> {
+    let mut cfg = beads::<2>();
+    cfg.pressure = pressure;
+    cfg.viscous_share = pressure == PressureMode::Implicit;
+    let mut floor = FlowSide::wall(Slip::Friction(30f64.to_radians().tan()));
+    floor.openings = Openings::one(Opening {
+        lower: [0.03, 0.0],
+        upper: [0.05, 0.0],
+    });
+    let bed = |x: [f64; 2]| if x[1] < 0.12 { 0.6 } else { 0.0 };
+    let flow = boxed_flow([16, 32], [0.08, 0.16], cfg, floor, bed);
+    let band = |_, x: [f64; 2]| {
+        if (0.05..0.08).contains(&x[1]) {
+            0.9
+        } else {
+            0.0
+        }
+    };
+    scene(flow, band, tune)
+}
+
+#[test]
+fn a_silo_draining_its_fines_on_slabs_has_the_serial_bits() {
+    // The orifice is the first slab's. A flush floor of 1e-9 (the default is far below any
+    // fraction a short run makes) flushes the fines' thin front as it spreads from the band:
+    // the flush of the percolation's sub-steps runs on the owned cells, its counter continued
+    // from slab to slab.
+    for pressure in [PressureMode::Explicit, PressureMode::Implicit] {
+        let make = || silo(pressure, |s| s.flush_below = 1e-9);
+        let what = format!("2D silo, {pressure:?} pressure");
+        let whole = check(make, &[&[0, 8], &[0, 4, 12, 20, 26]], 240, &what);
+        let last = whole.last().unwrap();
+        // grains left through the floor, and something was flushed
+        assert!(
+            last.out[1][1][0] > 1e-5,
+            "{what}: discharged {:?}",
+            last.out
+        );
+        assert!(last.flushed != 0.0, "{what}: nothing flushed");
+    }
+}
+
+#[test]
+fn the_compensated_update_on_slabs_has_the_serial_bits() {
+    // the two-sum update carries each cell's rounding error (the `carry` array, refreshed at
+    // the cuts) and flushes after every sub-step
+    let make = || {
+        silo(PressureMode::Explicit, |s| {
+            s.compensated = true;
+            s.flush_below = 1e-9;
+        })
+    };
+    check(make, &[&[0, 4, 12, 20, 26]], 120, "2D silo, compensated");
+}
+
+#[test]
+fn the_limited_transport_on_slabs_has_the_serial_bits() {
+    // model.md 5.7: the face value at a cut reads the first halo row's slopes, bounds and
+    // limiter, which read the second halo row
+    let make = || {
+        let mut s = silo(PressureMode::Explicit, |s| s.flush_below = 1e-9);
+        s.seg.set_transport(Transport::Limited);
+        s
+    };
+    check(
+        make,
+        &[&[0, 8], &[0, 4, 12, 20, 26]],
+        240,
+        "2D silo, limited transport",
+    );
+    let make = || {
+        let mut s = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Implicit);
+        s.seg.set_transport(Transport::Limited);
+        s
+    };
+    check(
+        make,
+        &[&[0, 6, 12, 18]],
+        40,
+        "2D mixed collapse, limited transport",
+    );
+}
+
+#[test]
+fn random_coupled_states_on_slabs_have_the_serial_bits() {
+    // random content (empty to packed) and composition, velocities and temperatures: the
+    // limiters bind and the fines' fronts are steep next to the cuts; every other state with
+    // the limited transport
+    for seed in 1..=12u64 {
+        let make = || {
+            let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+            let mut next = move || {
+                state = state
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                (state >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let mut cfg = beads::<2>();
+            if seed % 3 == 0 {
+                cfg.pressure = PressureMode::Implicit;
+            }
+            let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+            let grid = Grid::new([12, 16], [0.0; 2], [0.06, 0.08], N).unwrap();
+            let wall = FlowSide::wall(Slip::Friction(0.5));
+            flow.setup(grid, [[wall, wall], [wall, wall]], cfg).unwrap();
+            let c_max = (1.0 - cfg.margin) * cfg.material.phi_rcp;
+            let mut fines = vec![0.0; grid.len()];
+            for (i, f) in fines.iter_mut().enumerate() {
+                let c = match (next() * 4.0) as u32 {
+                    0 => 0.0,
+                    1 => c_max * (1.0 - 1e-3 * next()),
+                    _ => c_max * next(),
+                };
+                let u = [next() - 0.5, 2.0 * next() - 1.0];
+                flow.set_cell(i, c, u, 1e-3 * next());
+                *f = if next() < 0.3 { 0.0 } else { next() };
+            }
+            flow.prepare().unwrap();
+            let mut s = scene(flow, |i, _| fines[i], |_| {});
+            if seed % 2 == 0 {
+                s.seg.set_transport(Transport::Limited);
+            }
+            s
+        };
+        check(make, &[&[0, 4, 8, 12]], 4, &format!("random state {seed}"));
+    }
+}
+
+#[test]
+fn a_mixed_box_in_its_rotating_frame_on_slabs_has_the_serial_bits() {
+    // a half-filled box turning at 3 rad/s about a point off its centre, in its own frame:
+    // the segregation's gravity turns with the frame on every slab alike
+    let make = || {
+        let mut cfg = beads::<2>();
+        cfg.frame = Frame::Rotating(Rotation::new(3.0, [0.04, 0.02], 0).unwrap());
+        let wall = FlowSide::wall(Slip::Friction(0.5));
+        let bed = |x: [f64; 2]| if x[1] < 0.08 { 0.6 } else { 0.0 };
+        let flow = boxed_flow([16, 32], [0.08, 0.16], cfg, wall, bed);
+        scene(flow, |_, x| if x[0] < 0.04 { 0.8 } else { 0.1 }, |_| {})
+    };
+    check(make, &[&[0, 8, 16, 24]], 120, "rotating mixed box");
+}
+
+#[test]
+fn a_mixed_3d_collapse_on_slabs_has_the_serial_bits() {
+    let make = || {
+        collapse(
+            [6, 5, 16],
+            [0.03, 0.025, 0.08],
+            [0.015, 0.02, 0.06],
+            PressureMode::Explicit,
+        )
+    };
+    check(make, &[&[0, 8], &[0, 4, 8, 12]], 30, "3D mixed collapse");
+}
+
+#[test]
+fn what_does_not_run_on_slabs_is_refused_before_it_starts() {
+    let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+    let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
+    // the frozen mode hands the flow over once: not a step on slabs
+    let mut frozen = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
+    frozen.coupling.mode = Mode::Prescribed;
+    let cpl = Coupled::new(&mut frozen.flow, &mut frozen.seg, frozen.coupling).unwrap();
+    let refused = load_coupled_slab(&cpl, &[0, 12], 0, &mut flow, &mut seg).err();
+    assert_eq!(
+        refused,
+        Some(SlabError::NotYet("the prescribed and frozen modes"))
+    );
+    assert_eq!(
+        refused.unwrap().to_string(),
+        "the prescribed and frozen modes do not run on slabs of rows yet"
+    );
+    // the flow slab's own refusals come through
+    let plain = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
+    let mut plain = plain;
+    let cpl = Coupled::new(&mut plain.flow, &mut plain.seg, plain.coupling).unwrap();
+    assert_eq!(
+        load_coupled_slab(&cpl, &[0, 2, 12], 0, &mut flow, &mut seg).err(),
+        Some(SlabError::Rows { index: 0, rows: 2 })
+    );
+}
