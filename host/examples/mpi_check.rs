@@ -34,6 +34,13 @@
 //! iterations have the serial bits, 1 if not (naming the first step, array and cell that
 //! differ); then times the steps of a 64 x 64 collapse against the serial ones.
 //!
+//! `mpirun -np K target/release/examples/mpi_check --coupled`: the same for the coupled step
+//! (`sieve_core::flow::coupled_slab`: percolation, flow, carried transport and back-coupled
+//! packing of a mixed collapse and random coupled states in 2D, explicit and implicit
+//! pressure, and a 3D collapse): every state array of the flow and the segregation, the
+//! step, the flush counter and the guard's total after every step. `--coupled-time SIZE`
+//! steps a SIZE x SIZE collapse (16 to 64) on the slabs alone, for timings and profiles.
+//!
 //! Needs the `mpi` feature (OpenMPI: `apt-get install libopenmpi-dev openmpi-bin libclang-dev`).
 
 use sieve::output::vtk::read_vti;
@@ -647,7 +654,7 @@ fn flow_scene<const D: usize>(
 /// rank saw a difference, seconds of the slab steps, seconds of the serial ones).
 fn flow_case<const D: usize, C: mpi::traits::Communicator>(
     world: &C,
-    make: impl Fn() -> FlowBox<D>,
+    make: &dyn Fn() -> FlowBox<D>,
     steps: usize,
     what: &str,
 ) -> (i32, f64, f64) {
@@ -713,47 +720,269 @@ fn flow_case<const D: usize, C: mpi::traits::Communicator>(
     (0, on_slabs, serial)
 }
 
+/// The ranks' verdict: how many saw a difference, and the slowest rank's seconds.
+fn across<C: mpi::traits::Communicator>(world: &C, bad: i32, seconds: f64) -> (i32, f64) {
+    use mpi::collective::{CommunicatorCollectives, SystemOperation};
+    let (mut all_bad, mut slowest) = (0i32, 0.0f64);
+    world.all_reduce_into(&bad, &mut all_bad, SystemOperation::sum());
+    world.all_reduce_into(&seconds, &mut slowest, SystemOperation::max());
+    (all_bad, slowest)
+}
+
 /// `--flow`: returns the exit code.
 fn flow_slabs() -> i32 {
+    slab_cases(
+        "--flow",
+        "every state array, step, residual and CG count",
+        |world, _, make: &dyn Fn() -> FlowBox<2>, steps, what| flow_case(world, make, steps, what),
+        |world, make: &dyn Fn() -> FlowBox<3>, steps, what| flow_case(world, make, steps, what),
+    )
+}
+
+/// The flows of `--flow` and `--coupled` on this rank's slab, by `case_2d` and `case_3d` (the
+/// random states' seed, the scene, its steps and its name; each returns what
+/// [`flow_case`] does): a collapse for 120 steps and 4 random states of 4 steps, each with
+/// the explicit and the implicit pressure, a 3D collapse for 40 steps, and a 64 x 64
+/// collapse timed over 50. Prints the verdict on rank 0 and returns the exit code.
+fn slab_cases<C2, C3>(flag: &str, compared: &str, case_2d: C2, case_3d: C3) -> i32
+where
+    C2: Fn(
+        &mpi::topology::SimpleCommunicator,
+        u64,
+        &dyn Fn() -> FlowBox<2>,
+        usize,
+        &str,
+    ) -> (i32, f64, f64),
+    C3: Fn(
+        &mpi::topology::SimpleCommunicator,
+        &dyn Fn() -> FlowBox<3>,
+        usize,
+        &str,
+    ) -> (i32, f64, f64),
+{
     use mpi::traits::*;
     let Some(universe) = mpi::initialize() else {
-        eprintln!("mpi_check --flow: MPI is already initialised");
+        eprintln!("mpi_check {flag}: MPI is already initialised");
         return 1;
     };
     let world = universe.world();
     let mut bad = 0;
     for implicit in [false, true] {
         let collapse = || flow_scene([20, 24], 0.005, [0.05, 0.09], 0, implicit);
-        bad += flow_case(&world, collapse, 120, "2D collapse").0;
+        bad += case_2d(&world, 0, &collapse, 120, "2D collapse").0;
         for seed in 1..=4 {
             let random = || flow_scene([12, 24], 0.005, [0.0; 2], seed, implicit);
-            bad += flow_case(&world, random, 4, "2D random state").0;
+            bad += case_2d(&world, seed, &random, 4, "2D random state").0;
         }
     }
     let collapse_3d = || flow_scene([6, 5, 16], 0.005, [0.015, 0.02, 0.06], 0, false);
-    bad += flow_case(&world, collapse_3d, 40, "3D collapse").0;
+    bad += case_3d(&world, &collapse_3d, 40, "3D collapse").0;
     let timed = || flow_scene([64, 64], 0.0025, [0.08, 0.12], 0, false);
-    let (b, slabs, serial) = flow_case(&world, timed, 50, "64 x 64 collapse");
-    bad += b;
-    let mut all_bad = 0i32;
-    world.all_reduce_into(&bad, &mut all_bad, mpi::collective::SystemOperation::sum());
-    let mut slowest = 0.0f64;
-    world.all_reduce_into(
-        &slabs,
-        &mut slowest,
-        mpi::collective::SystemOperation::max(),
-    );
+    let (b, slabs, serial) = case_2d(&world, 0, &timed, 50, "64 x 64 collapse");
+    let (all_bad, slowest) = across(&world, bad + b, slabs);
     if world.rank() == 0 {
         println!(
-            "mpi_check --flow: 13 flows (explicit and implicit pressure) on {} ranks, {}; 64 x 64 collapse: {:.2} ms per step across the ranks, {:.2} ms serially on one",
+            "mpi_check {flag}: 13 runs (explicit and implicit pressure) on {} ranks, {}; 64 x 64 collapse: {:.2} ms per step across the ranks, {:.2} ms serially on one",
             world.size(),
             if all_bad == 0 {
-                "every state array, step, residual and CG count with the serial bits after every step"
+                format!("{compared} with the serial bits after every step")
             } else {
-                "SOME DIFFERENT"
+                "SOME DIFFERENT".into()
             },
             1e3 * slowest / 50.0,
             1e3 * serial / 50.0
+        );
+    }
+    drop(universe);
+    i32::from(all_bad != 0)
+}
+
+type SegBox<const D: usize> = Box<sieve_core::Segregation<f64, D, N_FLOW>>;
+
+/// The segregation of a coupled run on `flow`'s grid (the direction from the flow, fines in
+/// the upper half or, with `seed > 0`, at random fractions), coupled with back-coupled
+/// packing limits and a flush floor of 1e-9 (so that the flush runs at the cuts).
+fn coupled_scene<const D: usize>(
+    flow: &sieve_core::flow::Flow<f64, D, N_FLOW>,
+    seed: u64,
+) -> (SegBox<D>, sieve_core::flow::coupled::CouplingConfig<f64>) {
+    use sieve_core::flow::coupled::{CouplingConfig, Mode};
+    use sieve_core::segregation::{DirectionMode, SegregationConfig};
+    let grid = *flow.grid();
+    let mut cfg = SegregationConfig::new();
+    cfg.s0 = 0.2;
+    cfg.gravity[D - 1] = -9.81;
+    cfg.direction = DirectionMode::Flow;
+    cfg.flush_below = 1e-9;
+    let mut seg: SegBox<D> = Box::new(sieve_core::Segregation::zeroed());
+    seg.setup(grid, [[sieve_core::Boundary::Wall; 2]; D], cfg)
+        .expect("segregation setup");
+    let rows = grid.cells()[D - 1];
+    let mut state = seed;
+    for i in 0..grid.len() {
+        let c = flow.c(i);
+        let fines = match seed {
+            0 if grid.coord(i, D - 1) >= rows / 2 => 0.7,
+            0 => 0.2,
+            _ => lcg(&mut state),
+        };
+        seg.set_cell(i, c, flow.temperature(i), flow.velocity(i), fines * c);
+    }
+    let mut coupling = CouplingConfig::new(Mode::Coupled);
+    coupling.packing = sieve_core::closure::Packing::FitHalf;
+    (seg, coupling)
+}
+
+/// [`flow_case`] for the coupled step (flow and segregation, `Coupled::step_with_reaching`):
+/// every state array of both solvers, the step, the flush counter and the guard's total
+/// compared after every step (the slabs alone, for timing and profiles, without `compare`);
+/// returns (1 if this rank saw a difference, seconds of the slab
+/// steps, seconds of the serial ones).
+fn coupled_case<const D: usize, C: mpi::traits::Communicator>(
+    world: &C,
+    seed: u64,
+    make: &dyn Fn() -> FlowBox<D>,
+    steps: usize,
+    what: &str,
+    compare: bool,
+) -> (i32, f64, f64) {
+    use sieve_core::flow::coupled::Coupled;
+    use sieve_core::flow::coupled_slab::load_coupled_slab;
+    use sieve_core::flow::slab::Slab;
+    use sieve_core::fork::Serial;
+    let (rank, size) = (world.rank() as usize, world.size() as usize);
+    let mut flow_all = make();
+    let (mut seg_all, coupling) = coupled_scene(&flow_all, seed);
+    let mut whole = Coupled::new(&mut flow_all, &mut seg_all, coupling).expect("coupled");
+    let rows = whole.flow.grid().cells()[D - 1];
+    let plane = whole.flow.len() / rows;
+    let starts = slab_starts(rows, size, 2);
+    assert_eq!(starts.len(), size, "{what}: every rank needs rows");
+    let parts: Vec<_> = (0..size)
+        .map(|k| starts[k] * plane..starts.get(k + 1).map_or(rows, |&e| e) * plane)
+        .collect();
+    let mut links = sieve::rank_links::RankLinks::new(world, parts);
+    let mut flow: FlowBox<D> = Box::new(sieve_core::flow::Flow::zeroed());
+    let mut seg: SegBox<D> = Box::new(sieve_core::Segregation::zeroed());
+    let plan = match load_coupled_slab(&whole, &starts, rank, &mut flow, &mut seg) {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("mpi_check --coupled: {what}: rank {rank}: {e}");
+            return (1, 0.0, 0.0);
+        }
+    };
+    let mut memory = vec![0.0; plan.memory_len()];
+    let mut slab = Slab::new(&plan, &mut links, &mut memory);
+    let floor = whole.seg.config().flush_below;
+    let (cfg, totals) = (*whole.config(), whole.totals());
+    let mut cpl = match Coupled::on_slab(&mut flow, &mut seg, cfg, totals, floor, &mut slab) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("mpi_check --coupled: {what}: rank {rank}: {e}");
+            return (1, 0.0, 0.0);
+        }
+    };
+    let (own, global) = (plan.owned_cells(), plan.global_cells());
+    let (mut on_slabs, mut serial) = (0.0, 0.0);
+    for step in 1..=steps {
+        if !compare {
+            // timing alone (`--coupled-time`): the slabs' steps, nothing serial
+            let t = std::time::Instant::now();
+            let dt = cpl.stable_dt_reaching(&mut slab);
+            let ok = cpl.step_with_reaching(dt, &Serial, &mut slab).is_ok();
+            on_slabs += t.elapsed().as_secs_f64();
+            if !ok {
+                return (1, on_slabs, serial);
+            }
+            continue;
+        }
+        let t = std::time::Instant::now();
+        let dt = whole.stable_dt();
+        let ok_whole = whole.step_with(dt).is_ok();
+        serial += t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let dt_slab = cpl.stable_dt_reaching(&mut slab);
+        let ok_slab = cpl.step_with_reaching(dt_slab, &Serial, &mut slab).is_ok();
+        on_slabs += t.elapsed().as_secs_f64();
+        let mut first = None;
+        if !(ok_whole && ok_slab) {
+            first = Some(format!(
+                "a refused step (serial {ok_whole}, slab {ok_slab})"
+            ));
+        } else if dt_slab.to_bits() != dt.to_bits() {
+            first = Some("the step".to_string());
+        }
+        let mut compare = |name: &str, mine: &[f64], all: &[f64]| {
+            let (m, a) = (&mine[own.clone()], &all[global.clone()]);
+            if let (None, Some(j)) = (
+                &first,
+                (0..m.len()).find(|&j| m[j].to_bits() != a[j].to_bits()),
+            ) {
+                first = Some(format!("{name} at cell {}", global.start + j));
+            }
+        };
+        whole.flow.for_each_state_array(|name, all| {
+            cpl.flow.for_each_state_array(|n, mine| {
+                if n == name {
+                    compare(name, mine, all);
+                }
+            });
+        });
+        whole.seg.for_each_state_array(|name, all| {
+            cpl.seg.for_each_state_array(|n, mine| {
+                if n == name {
+                    compare(name, mine, all);
+                }
+            });
+        });
+        let counters = |c: &Coupled<'_, f64, D, N_FLOW>| {
+            [c.seg.flushed_tracked(), c.guarded_mass()].map(f64::to_bits)
+        };
+        if first.is_none() && counters(&cpl) != counters(&whole) {
+            first = Some("the flush counter or the guard's total".into());
+        }
+        if let Some(f) = first {
+            eprintln!("mpi_check --coupled: {what} on {size} ranks: rank {rank} left the serial run at step {step}: {f}");
+            return (1, on_slabs, serial);
+        }
+    }
+    (0, on_slabs, serial)
+}
+
+/// `--coupled`: returns the exit code.
+fn coupled_slabs() -> i32 {
+    slab_cases(
+        "--coupled",
+        "every state array of both solvers, step and counter",
+        |world, seed, make: &dyn Fn() -> FlowBox<2>, steps, what| {
+            coupled_case(world, seed, make, steps, what, true)
+        },
+        |world, make: &dyn Fn() -> FlowBox<3>, steps, what| {
+            coupled_case(world, 0, make, steps, what, true)
+        },
+    )
+}
+
+/// `--coupled-time SIZE`: 50 coupled steps of a SIZE x SIZE mixed collapse (16 to 64) on the
+/// slabs alone, for profiles (`perf record` per rank); prints the slowest rank's time per
+/// step.
+fn coupled_time(size: usize) -> i32 {
+    use mpi::traits::*;
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("mpi_check --coupled-time: MPI is already initialised");
+        return 1;
+    };
+    let world = universe.world();
+    let size = size.clamp(16, 64);
+    let h = 0.16 / size as f64;
+    let timed = || flow_scene([size, size], h, [0.08, 0.12], 0, false);
+    let (b, slabs, _) = coupled_case(&world, 0, &timed, 50, "timed collapse", false);
+    let (all_bad, slowest) = across(&world, b, slabs);
+    if world.rank() == 0 {
+        println!(
+            "mpi_check --coupled-time: {size} x {size} mixed collapse on {} ranks: {:.3} ms per step",
+            world.size(),
+            1e3 * slowest / 50.0
         );
     }
     drop(universe);
@@ -788,6 +1017,13 @@ fn main() {
     }
     if name == "--flow" {
         std::process::exit(flow_slabs());
+    }
+    if name == "--coupled" {
+        std::process::exit(coupled_slabs());
+    }
+    if name == "--coupled-time" {
+        let size = args.next().and_then(|a| a.parse().ok()).unwrap_or(64);
+        std::process::exit(coupled_time(size));
     }
     if name == "--cg-time" {
         let size = args.next().and_then(|a| a.parse().ok()).unwrap_or(256);
