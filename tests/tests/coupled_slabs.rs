@@ -14,7 +14,7 @@
 use crate::common::thread_links::{assert_serial_rows, on_threads};
 use sieve_core::boundary::{Boundary, Opening, Openings};
 use sieve_core::closure::{Material, Packing};
-use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
+use sieve_core::flow::coupled::{Coupled, CouplingConfig, CouplingError, Mode};
 use sieve_core::flow::coupled_slab::load_coupled_slab;
 use sieve_core::flow::slab::{Slab, SlabError};
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, PressureMode, Slip};
@@ -443,6 +443,39 @@ fn a_mixed_3d_collapse_on_slabs_has_the_serial_bits() {
         )
     };
     check(make, &[&[0, 8], &[0, 4, 8, 12]], 30, "3D mixed collapse");
+}
+
+#[test]
+fn a_slab_that_fails_stops_every_slab_without_a_hang() {
+    // a non-finite fraction in the first slab's floor row: after the step that slab's
+    // segregation refuses its fields (its neighbour's too, through the halo), and the slabs
+    // beyond say that another slab stopped, at the same point of the step
+    let start = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
+    let mut start = start;
+    let start = Coupled::new(&mut start.flow, &mut start.seg, start.coupling).unwrap();
+    let outcomes = on_threads(4, |k, mut links| {
+        let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+        let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
+        let plan = load_coupled_slab(&start, &[0, 6, 12, 18], k, &mut flow, &mut seg).unwrap();
+        let mut memory = vec![0.0; plan.memory_len()];
+        let mut slab = Slab::new(&plan, &mut links, &mut memory);
+        let (cfg, totals) = (*start.config(), start.totals());
+        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, cfg, totals, 0.0, &mut slab).unwrap();
+        if k == 0 {
+            cpl.seg.set_phi(2, f64::NAN);
+        }
+        let dt = cpl.stable_dt_reaching(&mut slab);
+        cpl.step_with_reaching(dt, &Serial, &mut slab).err()
+    });
+    assert!(
+        matches!(outcomes[0], Some(CouplingError::Segregation(_))),
+        "{outcomes:?}"
+    );
+    assert_eq!(outcomes[3], Some(CouplingError::OtherSlab), "{outcomes:?}");
+    assert_eq!(
+        CouplingError::OtherSlab.to_string(),
+        "another slab of the run stopped"
+    );
 }
 
 #[test]

@@ -34,7 +34,7 @@ use crate::closure::Packing;
 use crate::fork::{Fork, Serial};
 use crate::geometry::CutCells;
 use crate::real::Real;
-use crate::segregation::{add_nonzero, Discharge, Segregation, SetupError};
+use crate::segregation::{add_nonzero, serial_guard_sum, Discharge, Segregation, SetupError};
 
 /// Most sub-steps of the percolation stage within one coupled step ([`Coupled::step_with`]).
 /// The percolation stage costs a few per cent of a flow step (no linear solve), and its limit
@@ -466,11 +466,7 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
                 self.flow.mass_fluxes(),
                 |moved, any| {
                     if whole {
-                        let mut sum = R::ZERO;
-                        if any {
-                            add_nonzero(&mut sum, moved);
-                        }
-                        sum
+                        serial_guard_sum(moved, any)
                     } else {
                         reach.sum_in_order(R::ZERO, |mut sum| {
                             add_nonzero(&mut sum, moved);

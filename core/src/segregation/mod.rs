@@ -16,7 +16,7 @@ mod limited;
 mod step;
 
 pub use crate::hot::{Baseline, HotLoop, Isa};
-pub(crate) use carried::add_nonzero;
+pub(crate) use carried::{add_nonzero, serial_guard_sum};
 pub use carried::{Discharge, MassFluxes};
 pub use flux::Scheme;
 pub use limited::Transport;
