@@ -38,8 +38,9 @@
 //! (`sieve_core::flow::coupled_slab`: percolation, flow, carried transport and back-coupled
 //! packing of a mixed collapse and random coupled states in 2D, explicit and implicit
 //! pressure, and a 3D collapse): every state array of the flow and the segregation, the
-//! step, the flush counter and the guard's total after every step. `--coupled-time SIZE`
-//! steps a SIZE x SIZE collapse (16 to 64) on the slabs alone, for timings and profiles.
+//! step, the flush counter and the guard's total after every step. `--coupled-time SIZE
+//! [alone]` times a SIZE x SIZE collapse (16 to 128) on the slabs against the serial steps
+//! (or alone, for profiles).
 //!
 //! Needs the `mpi` feature (OpenMPI: `apt-get install libopenmpi-dev openmpi-bin libclang-dev`).
 
@@ -607,7 +608,10 @@ fn conjugate_gradients() -> i32 {
 /// Capacity of the flows `--flow` steps.
 const N_FLOW: usize = 4096;
 
-type FlowBox<const D: usize> = Box<sieve_core::flow::Flow<f64, D, N_FLOW>>;
+/// Capacity of the timed coupled runs (`--coupled-time`, up to 128 x 128).
+const N_TIME: usize = 16384;
+
+type FlowBox<const D: usize, const M: usize = N_FLOW> = Box<sieve_core::flow::Flow<f64, D, M>>;
 
 /// A prepared flow in a box of friction walls with gravity: a column of `c = 0.6` in the
 /// corner below `block`, at rest, or (`seed > 0`) a random state (content from empty to
@@ -619,11 +623,22 @@ fn flow_scene<const D: usize>(
     seed: u64,
     implicit: bool,
 ) -> FlowBox<D> {
+    flow_scene_in(cells, h, block, seed, implicit)
+}
+
+/// [`flow_scene`] in a flow of capacity `M`.
+fn flow_scene_in<const D: usize, const M: usize>(
+    cells: [usize; D],
+    h: f64,
+    block: [f64; D],
+    seed: u64,
+    implicit: bool,
+) -> FlowBox<D, M> {
     use sieve_core::closure::Material;
     use sieve_core::flow::{Flow, FlowConfig, FlowSide, Slip};
-    let mut flow: FlowBox<D> = Box::new(Flow::zeroed());
+    let mut flow: FlowBox<D, M> = Box::new(Flow::zeroed());
     let grid =
-        sieve_core::Grid::new(cells, [0.0; D], cells.map(|c| c as f64 * h), N_FLOW).expect("grid");
+        sieve_core::Grid::new(cells, [0.0; D], cells.map(|c| c as f64 * h), M).expect("grid");
     let mut cfg = FlowConfig::new(Material::glass_beads());
     cfg.free_surface_push = true;
     cfg.gravity[D - 1] = -9.81;
@@ -797,15 +812,15 @@ where
     i32::from(all_bad != 0)
 }
 
-type SegBox<const D: usize> = Box<sieve_core::Segregation<f64, D, N_FLOW>>;
+type SegBox<const D: usize, const M: usize = N_FLOW> = Box<sieve_core::Segregation<f64, D, M>>;
 
 /// The segregation of a coupled run on `flow`'s grid (the direction from the flow, fines in
 /// the upper half or, with `seed > 0`, at random fractions), coupled with back-coupled
 /// packing limits and a flush floor of 1e-9 (so that the flush runs at the cuts).
-fn coupled_scene<const D: usize>(
-    flow: &sieve_core::flow::Flow<f64, D, N_FLOW>,
+fn coupled_scene<const D: usize, const M: usize>(
+    flow: &sieve_core::flow::Flow<f64, D, M>,
     seed: u64,
-) -> (SegBox<D>, sieve_core::flow::coupled::CouplingConfig<f64>) {
+) -> (SegBox<D, M>, sieve_core::flow::coupled::CouplingConfig<f64>) {
     use sieve_core::flow::coupled::{CouplingConfig, Mode};
     use sieve_core::segregation::{DirectionMode, SegregationConfig};
     let grid = *flow.grid();
@@ -814,7 +829,7 @@ fn coupled_scene<const D: usize>(
     cfg.gravity[D - 1] = -9.81;
     cfg.direction = DirectionMode::Flow;
     cfg.flush_below = 1e-9;
-    let mut seg: SegBox<D> = Box::new(sieve_core::Segregation::zeroed());
+    let mut seg: SegBox<D, M> = Box::new(sieve_core::Segregation::zeroed());
     seg.setup(grid, [[sieve_core::Boundary::Wall; 2]; D], cfg)
         .expect("segregation setup");
     let rows = grid.cells()[D - 1];
@@ -838,10 +853,10 @@ fn coupled_scene<const D: usize>(
 /// compared after every step (the slabs alone, for timing and profiles, without `compare`);
 /// returns (1 if this rank saw a difference, seconds of the slab
 /// steps, seconds of the serial ones).
-fn coupled_case<const D: usize, C: mpi::traits::Communicator>(
+fn coupled_case<const D: usize, const M: usize, C: mpi::traits::Communicator>(
     world: &C,
     seed: u64,
-    make: &dyn Fn() -> FlowBox<D>,
+    make: &dyn Fn() -> FlowBox<D, M>,
     steps: usize,
     what: &str,
     compare: bool,
@@ -862,8 +877,8 @@ fn coupled_case<const D: usize, C: mpi::traits::Communicator>(
         .map(|k| starts[k] * plane..starts.get(k + 1).map_or(rows, |&e| e) * plane)
         .collect();
     let mut links = sieve::rank_links::RankLinks::new(world, parts);
-    let mut flow: FlowBox<D> = Box::new(sieve_core::flow::Flow::zeroed());
-    let mut seg: SegBox<D> = Box::new(sieve_core::Segregation::zeroed());
+    let mut flow: FlowBox<D, M> = Box::new(sieve_core::flow::Flow::zeroed());
+    let mut seg: SegBox<D, M> = Box::new(sieve_core::Segregation::zeroed());
     let plan = match load_coupled_slab(&whole, &starts, rank, &mut flow, &mut seg) {
         Ok(p) => p,
         Err(e) => {
@@ -935,7 +950,7 @@ fn coupled_case<const D: usize, C: mpi::traits::Communicator>(
                 }
             });
         });
-        let counters = |c: &Coupled<'_, f64, D, N_FLOW>| {
+        let counters = |c: &Coupled<'_, f64, D, M>| {
             [c.seg.flushed_tracked(), c.guarded_mass()].map(f64::to_bits)
         };
         if first.is_none() && counters(&cpl) != counters(&whole) {
@@ -963,30 +978,50 @@ fn coupled_slabs() -> i32 {
     )
 }
 
-/// `--coupled-time SIZE`: 50 coupled steps of a SIZE x SIZE mixed collapse (16 to 64) on the
-/// slabs alone, for profiles (`perf record` per rank); prints the slowest rank's time per
-/// step.
-fn coupled_time(size: usize) -> i32 {
+/// `--coupled-time SIZE [alone]`: 50 coupled steps of a SIZE x SIZE mixed collapse (16 to
+/// 128) on the ranks' slabs, against the serial steps (the bits compared after every step),
+/// or on the slabs `alone` (for profiles: `perf record` per rank); prints the slowest rank's
+/// time per step and the serial one. Runs on a thread with room for the solvers.
+fn coupled_time(size: usize, alone: bool) -> i32 {
     use mpi::traits::*;
     let Some(universe) = mpi::initialize() else {
         eprintln!("mpi_check --coupled-time: MPI is already initialised");
         return 1;
     };
-    let world = universe.world();
-    let size = size.clamp(16, 64);
-    let h = 0.16 / size as f64;
-    let timed = || flow_scene([size, size], h, [0.08, 0.12], 0, false);
-    let (b, slabs, _) = coupled_case(&world, 0, &timed, 50, "timed collapse", false);
-    let (all_bad, slowest) = across(&world, b, slabs);
-    if world.rank() == 0 {
-        println!(
-            "mpi_check --coupled-time: {size} x {size} mixed collapse on {} ranks: {:.3} ms per step",
-            world.size(),
-            1e3 * slowest / 50.0
-        );
-    }
+    let size = size.clamp(16, 128);
+    let stack = 8 * std::mem::size_of::<sieve_core::flow::Flow<f64, 2, N_TIME>>() + (64 << 20);
+    let code = std::thread::scope(|scope| {
+        std::thread::Builder::new()
+            .stack_size(stack)
+            .spawn_scoped(scope, || {
+                let world = mpi::topology::SimpleCommunicator::world();
+                let h = 0.16 / size as f64;
+                let timed = || flow_scene_in::<2, N_TIME>([size, size], h, [0.08, 0.12], 0, false);
+                let (b, slabs, serial) =
+                    coupled_case(&world, 0, &timed, 50, "timed collapse", !alone);
+                let (all_bad, slowest) = across(&world, b, slabs);
+                if world.rank() == 0 {
+                    println!(
+                        "mpi_check --coupled-time: {size} x {size} mixed collapse on {} ranks: {:.3} ms per step across the ranks{}",
+                        world.size(),
+                        1e3 * slowest / 50.0,
+                        if alone {
+                            String::new()
+                        } else if all_bad == 0 {
+                            format!(", {:.3} ms serially on one, the same bits", 1e3 * serial / 50.0)
+                        } else {
+                            ", SOME DIFFERENT from the serial steps".into()
+                        }
+                    );
+                }
+                i32::from(all_bad != 0)
+            })
+            .expect("a solver thread")
+            .join()
+            .unwrap_or(1)
+    });
     drop(universe);
-    i32::from(all_bad != 0)
+    code
 }
 
 fn main() {
@@ -1023,7 +1058,8 @@ fn main() {
     }
     if name == "--coupled-time" {
         let size = args.next().and_then(|a| a.parse().ok()).unwrap_or(64);
-        std::process::exit(coupled_time(size));
+        let alone = args.next().as_deref() == Some("alone");
+        std::process::exit(coupled_time(size, alone));
     }
     if name == "--cg-time" {
         let size = args.next().and_then(|a| a.parse().ok()).unwrap_or(256);
