@@ -888,9 +888,7 @@ fn coupled_case<const D: usize, const M: usize, C: mpi::traits::Communicator>(
     };
     let mut memory = vec![0.0; plan.memory_len()];
     let mut slab = Slab::new(&plan, &mut links, &mut memory);
-    let floor = whole.seg.config().flush_below;
-    let (cfg, totals) = (*whole.config(), whole.totals());
-    let mut cpl = match Coupled::on_slab(&mut flow, &mut seg, cfg, totals, floor, &mut slab) {
+    let mut cpl = match Coupled::on_slab(&mut flow, &mut seg, whole.slab_start(), &mut slab) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("mpi_check --coupled: {what}: rank {rank}: {e}");

@@ -93,9 +93,7 @@ fn on_slabs<const D: usize>(
         let plan = load_coupled_slab(start, starts, k, &mut flow, &mut seg).unwrap();
         let mut memory = vec![0.0; plan.memory_len()];
         let mut slab = Slab::new(&plan, &mut links, &mut memory);
-        let floor = start.seg.config().flush_below;
-        let (cfg, totals) = (*start.config(), start.totals());
-        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, cfg, totals, floor, &mut slab).unwrap();
+        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), &mut slab).unwrap();
         let own = plan.owned_cells();
         let history = (0..steps)
             .map(|_| {
@@ -459,8 +457,7 @@ fn a_slab_that_fails_stops_every_slab_without_a_hang() {
         let plan = load_coupled_slab(&start, &[0, 6, 12, 18], k, &mut flow, &mut seg).unwrap();
         let mut memory = vec![0.0; plan.memory_len()];
         let mut slab = Slab::new(&plan, &mut links, &mut memory);
-        let (cfg, totals) = (*start.config(), start.totals());
-        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, cfg, totals, 0.0, &mut slab).unwrap();
+        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), &mut slab).unwrap();
         if k == 0 {
             cpl.seg.set_phi(2, f64::NAN);
         }

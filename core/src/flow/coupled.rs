@@ -119,6 +119,18 @@ pub struct CoupledTotals<R, const D: usize> {
     pub guarded: R,
 }
 
+/// What the driver of a slab takes from the whole run's ([`Coupled::slab_start`],
+/// [`Coupled::on_slab`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlabStart<R, const D: usize> {
+    /// The coupling.
+    pub coupling: CouplingConfig<R>,
+    /// The whole run's totals so far.
+    pub totals: CoupledTotals<R, D>,
+    /// The segregation's flush floor (the slab's own solver steps with the flush off).
+    pub floor: R,
+}
+
 /// The driver; borrows both (large) solvers.
 pub struct Coupled<'a, R: Real, const D: usize, const N: usize> {
     /// The flow.
@@ -618,20 +630,32 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
             .map_err(CouplingError::Segregation)
     }
 
+    /// What a slab's driver takes from this run ([`Self::on_slab`]).
+    pub fn slab_start(&self) -> SlabStart<R, D> {
+        SlabStart {
+            coupling: self.cfg,
+            totals: self.totals(),
+            floor: self.seg.config().flush_below,
+        }
+    }
+
     /// The driver of one slab of a coupled run cut into slabs of rows (coupled mode; docs/
     /// parallel.md, "The coupled step on slabs"): `flow` and `seg` as
-    /// [`super::coupled_slab::load_coupled_slab`] set them up, `totals` the whole run's so
-    /// far, `floor` its segregation's flush floor. Prepares the segregation over the owned
-    /// cells with the percolation limit across the slabs (collective: every slab calls it).
-    /// Step it with [`Self::stable_dt_reaching`] and [`Self::step_with_reaching`].
+    /// [`super::coupled_slab::load_coupled_slab`] set them up, `start` from the whole run
+    /// ([`Self::slab_start`]). Prepares the segregation over the owned cells with the
+    /// percolation limit across the slabs (collective: every slab calls it). Step it with
+    /// [`Self::stable_dt_reaching`] and [`Self::step_with_reaching`].
     pub fn on_slab<Re: Reach<R, D, N>>(
         flow: &'a mut Flow<R, D, N>,
         seg: &'a mut Segregation<R, D, N>,
-        cfg: CouplingConfig<R>,
-        totals: CoupledTotals<R, D>,
-        floor: R,
+        start: SlabStart<R, D>,
         reach: &mut Re,
     ) -> Result<Self, CouplingError> {
+        let SlabStart {
+            coupling: cfg,
+            totals,
+            floor,
+        } = start;
         if cfg.mode != Mode::Coupled {
             return Err(CouplingError::SlabsNeedCoupled);
         }

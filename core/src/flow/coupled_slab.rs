@@ -26,7 +26,7 @@ use crate::segregation::Segregation;
 /// begin at the rows `starts` ([`load_slab`]): the flow slab, and the segregation solver on
 /// the same rows with every state array, its clock, bound maxima and flush counter copied (the
 /// books of its open sides go to the first slab). Build the slab's driver with
-/// [`Coupled::on_slab`] (`global.totals()` and the global flush floor).
+/// [`Coupled::on_slab`] (with `global.slab_start()`).
 pub fn load_coupled_slab<R: Real, const D: usize, const M: usize, const N: usize>(
     global: &Coupled<'_, R, D, M>,
     starts: &[usize],
