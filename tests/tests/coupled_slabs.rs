@@ -446,10 +446,9 @@ fn a_mixed_3d_collapse_on_slabs_has_the_serial_bits() {
 #[test]
 fn a_slab_that_fails_stops_every_slab_without_a_hang() {
     // a non-finite fraction in the first slab's floor row: after the step that slab's
-    // segregation refuses its fields (its neighbour's too, through the halo), and the slabs
-    // beyond say that another slab stopped, at the same point of the step
-    let start = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
-    let mut start = start;
+    // segregation refuses its fields (its neighbour's too if the NaN reached its halo), and
+    // the last slab says that another slab stopped, at the same point of the step
+    let mut start = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
     let start = Coupled::new(&mut start.flow, &mut start.seg, start.coupling).unwrap();
     let outcomes = on_threads(4, |k, mut links| {
         let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
@@ -479,10 +478,11 @@ fn a_slab_that_fails_stops_every_slab_without_a_hang() {
 fn what_does_not_run_on_slabs_is_refused_before_it_starts() {
     let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
     let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
-    // the frozen mode hands the flow over once: not a step on slabs
-    let mut frozen = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
-    frozen.coupling.mode = Mode::Prescribed;
-    let cpl = Coupled::new(&mut frozen.flow, &mut frozen.seg, frozen.coupling).unwrap();
+    // the prescribed and frozen modes step the segregation alone (the subdomains of
+    // `decomp` run them): not a coupled step on slabs
+    let mut alone = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
+    alone.coupling.mode = Mode::Prescribed;
+    let cpl = Coupled::new(&mut alone.flow, &mut alone.seg, alone.coupling).unwrap();
     let refused = load_coupled_slab(&cpl, &[0, 12], 0, &mut flow, &mut seg).err();
     assert_eq!(
         refused,
@@ -493,8 +493,7 @@ fn what_does_not_run_on_slabs_is_refused_before_it_starts() {
         "the prescribed and frozen modes do not run on slabs of rows yet"
     );
     // the flow slab's own refusals come through
-    let plain = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
-    let mut plain = plain;
+    let mut plain = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
     let cpl = Coupled::new(&mut plain.flow, &mut plain.seg, plain.coupling).unwrap();
     assert_eq!(
         load_coupled_slab(&cpl, &[0, 2, 12], 0, &mut flow, &mut seg).err(),
