@@ -21,21 +21,22 @@ use sieve_core::flow::{Flow, FlowConfig, FlowSide, PressureMode, Slip};
 use sieve_core::fork::Serial;
 use sieve_core::frame::{Frame, Rotation};
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig, Transport};
-use sieve_core::Grid;
+use sieve_core::{Grid, Real};
 use std::ops::Range;
 
 const N: usize = 1024;
 
 /// A coupled run's two solvers and its coupling, before the driver is built.
-struct Scene<const D: usize> {
-    flow: Box<Flow<f64, D, N>>,
-    seg: Box<Segregation<f64, D, N>>,
-    coupling: CouplingConfig<f64>,
+struct Scene<R: Real, const D: usize> {
+    flow: Box<Flow<R, D, N>>,
+    seg: Box<Segregation<R, D, N>>,
+    coupling: CouplingConfig<R>,
 }
 
 /// What one step left: the step, the running counters and books, and every state array of
 /// both solvers over some cells (`flow.` and `seg.` before the names of
-/// [`Flow::for_each_state_array`] and [`Segregation::for_each_state_array`]).
+/// [`Flow::for_each_state_array`] and [`Segregation::for_each_state_array`]), as f64 (an
+/// f32 value widens exactly, so equal bits stay equal bits).
 struct After {
     dt: f64,
     cg: [u32; 4],
@@ -47,28 +48,28 @@ struct After {
     arrays: Vec<(String, Vec<f64>)>,
 }
 
-fn after<const D: usize>(cpl: &Coupled<'_, f64, D, N>, dt: f64, cells: Range<usize>) -> After {
+fn after<R: Real, const D: usize>(cpl: &Coupled<'_, R, D, N>, dt: R, cells: Range<usize>) -> After {
+    let wide = |a: &[R]| a[cells.clone()].iter().map(|v| v.to_f64()).collect();
     let mut arrays = vec![];
-    cpl.flow.for_each_state_array(|name, a| {
-        arrays.push((format!("flow.{name}"), a[cells.clone()].to_vec()))
-    });
-    cpl.seg.for_each_state_array(|name, a| {
-        arrays.push((format!("seg.{name}"), a[cells.clone()].to_vec()))
-    });
+    cpl.flow
+        .for_each_state_array(|name, a| arrays.push((format!("flow.{name}"), wide(a))));
+    cpl.seg
+        .for_each_state_array(|name, a| arrays.push((format!("seg.{name}"), wide(a))));
     let (small, total) = (cpl.discharged_small(), cpl.discharged_total());
+    let sides = |s: [R; 2]| s.map(|v| v.to_f64());
     After {
-        dt,
+        dt: dt.to_f64(),
         cg: cpl.flow.last_cg_iterations(),
-        flushed: cpl.seg.flushed_tracked(),
-        guarded: cpl.guarded_mass(),
-        excess: cpl.seg.tracked_excess(),
-        out: (0..D).map(|a| [small[a], total[a]]).collect(),
+        flushed: cpl.seg.flushed_tracked().to_f64(),
+        guarded: cpl.guarded_mass().to_f64(),
+        excess: sides(cpl.seg.tracked_excess()),
+        out: (0..D).map(|a| [sides(small[a]), sides(total[a])]).collect(),
         arrays,
     }
 }
 
 /// `steps` serial coupled steps of `scene`, each at its stable step.
-fn serial<const D: usize>(mut scene: Scene<D>, steps: usize) -> Vec<After> {
+fn serial<R: Real, const D: usize>(mut scene: Scene<R, D>, steps: usize) -> Vec<After> {
     let mut cpl = Coupled::new(&mut scene.flow, &mut scene.seg, scene.coupling).unwrap();
     let n = cpl.flow.len();
     (0..steps)
@@ -82,16 +83,16 @@ fn serial<const D: usize>(mut scene: Scene<D>, steps: usize) -> Vec<After> {
 
 /// The same steps on slabs cut at the rows `starts`, each slab on a thread: per slab, the
 /// global cells it owns and what each step left in them.
-fn on_slabs<const D: usize>(
-    start: &Coupled<'_, f64, D, N>,
+fn on_slabs<R: Real, const D: usize>(
+    start: &Coupled<'_, R, D, N>,
     starts: &[usize],
     steps: usize,
 ) -> Vec<(Range<usize>, Vec<After>)> {
     on_threads(starts.len(), |k, mut links| {
-        let mut flow: Box<Flow<f64, D, N>> = Box::new(Flow::zeroed());
-        let mut seg: Box<Segregation<f64, D, N>> = Box::new(Segregation::zeroed());
+        let mut flow: Box<Flow<R, D, N>> = Box::new(Flow::zeroed());
+        let mut seg: Box<Segregation<R, D, N>> = Box::new(Segregation::zeroed());
         let plan = load_coupled_slab(start, starts, k, &mut flow, &mut seg).unwrap();
-        let mut memory = vec![0.0; plan.memory_len()];
+        let mut memory = vec![R::ZERO; plan.memory_len()];
         let mut slab = Slab::new(&plan, &mut links, &mut memory);
         let mut cpl = Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), &mut slab).unwrap();
         let own = plan.owned_cells();
@@ -109,8 +110,8 @@ fn on_slabs<const D: usize>(
 /// Steps the scene `make` builds serially and on slabs cut at each of `cuts`, and asserts
 /// the serial bits after every step, naming the first step, array and cell that differ.
 /// Returns the serial run's steps.
-fn check<const D: usize>(
-    make: impl Fn() -> Scene<D>,
+fn check<R: Real, const D: usize>(
+    make: impl Fn() -> Scene<R, D>,
     cuts: &[&[usize]],
     steps: usize,
     what: &str,
@@ -174,9 +175,9 @@ fn check<const D: usize>(
 }
 
 /// The glass beads under gravity along the last axis.
-fn beads<const D: usize>() -> FlowConfig<f64, D> {
+fn beads<R: Real, const D: usize>() -> FlowConfig<R, D> {
     let mut cfg = FlowConfig::new(Material::glass_beads());
-    cfg.gravity[D - 1] = -9.81;
+    cfg.gravity[D - 1] = R::from_f64(-9.81);
     cfg.free_surface_push = true;
     cfg
 }
@@ -184,15 +185,15 @@ fn beads<const D: usize>() -> FlowConfig<f64, D> {
 /// A segregation solver for the flow's grid: the direction from the flow, walls where the
 /// flow has walls (open where it has outlets), fines at `phi = fines(x) c`, and the coupled
 /// mode with back-coupled packing limits.
-fn scene<const D: usize>(
-    flow: Box<Flow<f64, D, N>>,
-    fines: impl Fn(usize, [f64; D]) -> f64,
-    tune: impl Fn(&mut SegregationConfig<f64, D>),
-) -> Scene<D> {
+fn scene<R: Real, const D: usize>(
+    flow: Box<Flow<R, D, N>>,
+    fines: impl Fn(usize, [R; D]) -> R,
+    tune: impl Fn(&mut SegregationConfig<R, D>),
+) -> Scene<R, D> {
     let grid = *flow.grid();
     let mut cfg = SegregationConfig::new();
-    cfg.s0 = 0.2;
-    cfg.gravity[D - 1] = -9.81;
+    cfg.s0 = R::from_f64(0.2);
+    cfg.gravity[D - 1] = R::from_f64(-9.81);
     cfg.direction = DirectionMode::Flow;
     tune(&mut cfg);
     let mut bc = [[Boundary::Wall; 2]; D];
@@ -203,7 +204,7 @@ fn scene<const D: usize>(
             }
         }
     }
-    let mut seg: Box<Segregation<f64, D, N>> = Box::new(Segregation::zeroed());
+    let mut seg: Box<Segregation<R, D, N>> = Box::new(Segregation::zeroed());
     seg.setup(grid, bc, cfg).unwrap();
     for i in 0..grid.len() {
         let c = flow.c(i);
@@ -225,52 +226,46 @@ fn scene<const D: usize>(
 }
 
 /// A flow in a box of friction walls, `c(x)` at rest, prepared.
-fn boxed_flow<const D: usize>(
+fn boxed_flow<R: Real, const D: usize>(
     cells: [usize; D],
-    size: [f64; D],
-    cfg: FlowConfig<f64, D>,
-    floor: FlowSide<f64, D>,
-    c: impl Fn([f64; D]) -> f64,
-) -> Box<Flow<f64, D, N>> {
-    let mut flow: Box<Flow<f64, D, N>> = Box::new(Flow::zeroed());
-    let grid = Grid::new(cells, [0.0; D], size, N).unwrap();
-    let wall = FlowSide::wall(Slip::Friction(30f64.to_radians().tan()));
-    let mut bc = [[wall, wall]; D];
+    size: [R; D],
+    cfg: FlowConfig<R, D>,
+    floor: FlowSide<R, D>,
+    c: impl Fn([R; D]) -> R,
+) -> Box<Flow<R, D, N>> {
+    let mut flow: Box<Flow<R, D, N>> = Box::new(Flow::zeroed());
+    let grid = Grid::new(cells, [R::ZERO; D], size, N).unwrap();
+    let mut bc = [[friction_wall(); 2]; D];
     bc[D - 1][0] = floor;
     flow.setup(grid, bc, cfg).unwrap();
     for i in 0..grid.len() {
         let ci = c(grid.center(i));
-        flow.set_cell(i, ci, [0.0; D], if ci > 0.0 { 1e-4 } else { 0.0 });
+        let t = if ci > R::ZERO { 1e-4 } else { 0.0 };
+        flow.set_cell(i, ci, [R::ZERO; D], R::from_f64(t));
     }
     flow.prepare().unwrap();
     flow
 }
 
+/// A wall with 30 degrees of friction.
+fn friction_wall<R: Real, const D: usize>() -> FlowSide<R, D> {
+    FlowSide::wall(Slip::Friction(R::from_f64(30f64.to_radians().tan())))
+}
+
 /// A mixed block in the corner below `block` (fines in its upper half) that collapses.
-fn collapse<const D: usize>(
+fn collapse<R: Real, const D: usize>(
     cells: [usize; D],
-    size: [f64; D],
-    block: [f64; D],
+    size: [R; D],
+    block: [R; D],
     pressure: PressureMode,
-) -> Scene<D> {
-    let mut cfg = beads::<D>();
+) -> Scene<R, D> {
+    let mut cfg = beads::<R, D>();
     cfg.pressure = pressure;
-    let wall = FlowSide::wall(Slip::Friction(30f64.to_radians().tan()));
-    let inside = move |x: [f64; D]| (0..D).all(|a| x[a] < block[a]);
-    let flow = boxed_flow(
-        cells,
-        size,
-        cfg,
-        wall,
-        |x| if inside(x) { 0.6 } else { 0.0 },
-    );
-    let fines = move |_, x: [f64; D]| {
-        if x[D - 1] > 0.5 * block[D - 1] {
-            0.7
-        } else {
-            0.2
-        }
-    };
+    let inside = move |x: [R; D]| (0..D).all(|a| x[a] < block[a]);
+    let c = move |x| R::from_f64(if inside(x) { 0.6 } else { 0.0 });
+    let flow = boxed_flow(cells, size, cfg, friction_wall(), c);
+    let upper = move |x: [R; D]| x[D - 1] > R::from_f64(0.5) * block[D - 1];
+    let fines = move |_, x| R::from_f64(if upper(x) { 0.7 } else { 0.2 });
     scene(flow, fines, |_| {})
 }
 
@@ -287,11 +282,11 @@ fn a_mixed_column_collapsing_on_slabs_has_the_serial_bits() {
 
 /// A silo of 16 x 32 cells draining through a central orifice in its floor, fines in a band
 /// at mid-height, with the segregation tuned by `tune`.
-fn silo(pressure: PressureMode, tune: impl Fn(&mut SegregationConfig<f64, 2>)) -> Scene<2> {
-    let mut cfg = beads::<2>();
+fn silo(pressure: PressureMode, tune: impl Fn(&mut SegregationConfig<f64, 2>)) -> Scene<f64, 2> {
+    let mut cfg = beads::<f64, 2>();
     cfg.pressure = pressure;
     cfg.viscous_share = pressure == PressureMode::Implicit;
-    let mut floor = FlowSide::wall(Slip::Friction(30f64.to_radians().tan()));
+    let mut floor = friction_wall::<f64, 2>();
     floor.openings = Openings::one(Opening {
         lower: [0.03, 0.0],
         upper: [0.05, 0.0],
@@ -384,7 +379,7 @@ fn random_coupled_states_on_slabs_have_the_serial_bits() {
                     .wrapping_add(1_442_695_040_888_963_407);
                 (state >> 11) as f64 / (1u64 << 53) as f64
             };
-            let mut cfg = beads::<2>();
+            let mut cfg = beads::<f64, 2>();
             if seed % 3 == 0 {
                 cfg.pressure = PressureMode::Implicit;
             }
@@ -420,7 +415,7 @@ fn a_mixed_box_in_its_rotating_frame_on_slabs_has_the_serial_bits() {
     // a half-filled box turning at 3 rad/s about a point off its centre, in its own frame:
     // the segregation's gravity turns with the frame on every slab alike
     let make = || {
-        let mut cfg = beads::<2>();
+        let mut cfg = beads::<f64, 2>();
         cfg.frame = Frame::Rotating(Rotation::new(3.0, [0.04, 0.02], 0).unwrap());
         let wall = FlowSide::wall(Slip::Friction(0.5));
         let bed = |x: [f64; 2]| if x[1] < 0.08 { 0.6 } else { 0.0 };
@@ -441,6 +436,19 @@ fn a_mixed_3d_collapse_on_slabs_has_the_serial_bits() {
         )
     };
     check(make, &[&[0, 8], &[0, 4, 8, 12]], 30, "3D mixed collapse");
+}
+
+#[test]
+fn an_f32_mixed_collapse_on_slabs_has_the_serial_bits() {
+    // the core is generic over the precision: the same construction in f32 (the slabs'
+    // messages carry f32 here; over MPI they widen to f64 and narrow back exactly)
+    let make = || collapse::<f32, 2>([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
+    check(
+        make,
+        &[&[0, 12], &[0, 6, 12, 18]],
+        60,
+        "2D mixed collapse in f32",
+    );
 }
 
 #[test]

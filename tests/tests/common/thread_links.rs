@@ -138,7 +138,10 @@ pub fn assert_serial_rows(
 
 /// Runs `slab(k, links)` for each of `slabs` slabs on its own thread, as MPI ranks would run
 /// them, and returns the results in slab order (64 MiB stacks: a step's frames are deep).
-pub fn on_threads<T: Send>(slabs: usize, slab: impl Fn(usize, ThreadLinks) -> T + Sync) -> Vec<T> {
+pub fn on_threads<R: Real, T: Send>(
+    slabs: usize,
+    slab: impl Fn(usize, ThreadLinks<R>) -> T + Sync,
+) -> Vec<T> {
     let slab = &slab;
     std::thread::scope(|scope| {
         let handles: Vec<_> = ThreadLinks::chain(slabs)
