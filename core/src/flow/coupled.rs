@@ -27,6 +27,10 @@
 //! transported by the segregation solver's own upwind rule and clipped into `[0, c]` where
 //! the flow's limiter had cut a face flux: column-collapse lost 0.265 % of its small grains.)
 //! Lie splitting (segregation, then transport) is first order in time like each stage.
+//!
+//! **On slabs of rows** the same step runs with the serial bits ([`Coupled::step_with_reaching`]
+//! with a [`super::slab::Slab`]; a slab is set up by [`super::coupled_slab::load_coupled_slab`]
+//! and [`Coupled::on_slab`]; docs/parallel.md, "The coupled step on slabs").
 
 use super::reach::{Reach, Whole};
 use super::{Flow, FlowError};

@@ -1,12 +1,13 @@
-//! What one flow step needs from beyond its own cells: the halo rows of a neighbour, the
-//! other subdomains' share of a sum or a maximum, and the implicit solves over the whole grid
-//! (docs/parallel.md, "The flow on slabs").
+//! What one flow step, or one coupled step, needs from beyond its own cells: the halo rows of
+//! a neighbour, the other subdomains' share of a sum or a maximum, and the implicit solves over
+//! the whole grid (docs/parallel.md, "The flow on slabs", "The coupled step on slabs").
 //!
-//! The step ([`super::Flow::step_reaching`]) is written once. It asks a [`Reach`] at the few
-//! places where a value depends on cells it does not own; [`Whole`], the grid alone, answers
-//! from the grid itself and compiles to the serial step with its bits (every call is an
-//! identity or the serial solve). A slab of rows answers through its neighbours
-//! ([`super::slab::Slab`]), so the same step on slabs has the serial bits.
+//! The steps ([`super::Flow::step_reaching`], [`super::coupled::Coupled::step_with_reaching`])
+//! are written once. They ask a [`Reach`] at the few places where a value depends on cells
+//! they do not own; [`Whole`], the grid alone, answers from the grid itself and compiles to
+//! the serial step with its bits (every call is an identity or the serial solve). A slab of
+//! rows answers through its neighbours ([`super::slab::Slab`]), so the same steps on slabs
+//! have the serial bits.
 
 use super::cg::{self, Scratch, Solve, Stencil, Stop};
 use crate::fork::Fork;
