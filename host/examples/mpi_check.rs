@@ -362,6 +362,24 @@ fn slab_starts(rows: usize, ranks: usize, align: usize) -> Vec<usize> {
     starts
 }
 
+/// The rows of a grid of `cells` cells cut evenly among the ranks at even rows (the slabs'
+/// first rows) and this rank's links to its neighbours.
+fn cut_rows<'c, C: mpi::traits::Communicator>(
+    world: &'c C,
+    rows: usize,
+    cells: usize,
+    what: &str,
+) -> (Vec<usize>, sieve::rank_links::RankLinks<'c, C>) {
+    let size = world.size() as usize;
+    let plane = cells / rows;
+    let starts = slab_starts(rows, size, 2);
+    assert_eq!(starts.len(), size, "{what}: every rank needs rows");
+    let parts: Vec<_> = (0..size)
+        .map(|k| starts[k] * plane..starts.get(k + 1).map_or(rows, |&e| e) * plane)
+        .collect();
+    (starts, sieve::rank_links::RankLinks::new(world, parts))
+}
+
 /// One system solved by CG on the ranks' slabs (`sieve_core::flow::cg_slab` with
 /// `sieve::rank_links`) against the serial solve on every rank; returns (cases that differ
 /// on this rank, seconds on the slabs, seconds serially, iterations).
@@ -677,14 +695,7 @@ fn flow_case<const D: usize, C: mpi::traits::Communicator>(
     use sieve_core::fork::Serial;
     let (rank, size) = (world.rank() as usize, world.size() as usize);
     let mut whole = make();
-    let rows = whole.grid().cells()[D - 1];
-    let plane = whole.len() / rows;
-    let starts = slab_starts(rows, size, 2);
-    assert_eq!(starts.len(), size, "{what}: every rank needs rows");
-    let parts: Vec<_> = (0..size)
-        .map(|k| starts[k] * plane..starts.get(k + 1).map_or(rows, |&e| e) * plane)
-        .collect();
-    let mut links = sieve::rank_links::RankLinks::new(world, parts);
+    let (starts, mut links) = cut_rows(world, whole.grid().cells()[D - 1], whole.len(), what);
     let mut flow: FlowBox<D> = Box::new(sieve_core::flow::Flow::zeroed());
     let plan = match load_slab(&*whole, &starts, rank, &mut *flow) {
         Ok(p) => p,
@@ -870,13 +881,7 @@ fn coupled_case<const D: usize, const M: usize, C: mpi::traits::Communicator>(
     let (mut seg_all, coupling) = coupled_scene(&flow_all, seed);
     let mut whole = Coupled::new(&mut flow_all, &mut seg_all, coupling).expect("coupled");
     let rows = whole.flow.grid().cells()[D - 1];
-    let plane = whole.flow.len() / rows;
-    let starts = slab_starts(rows, size, 2);
-    assert_eq!(starts.len(), size, "{what}: every rank needs rows");
-    let parts: Vec<_> = (0..size)
-        .map(|k| starts[k] * plane..starts.get(k + 1).map_or(rows, |&e| e) * plane)
-        .collect();
-    let mut links = sieve::rank_links::RankLinks::new(world, parts);
+    let (starts, mut links) = cut_rows(world, rows, whole.flow.len(), what);
     let mut flow: FlowBox<D, M> = Box::new(sieve_core::flow::Flow::zeroed());
     let mut seg: SegBox<D, M> = Box::new(sieve_core::Segregation::zeroed());
     let plan = match load_coupled_slab(&whole, &starts, rank, &mut flow, &mut seg) {
