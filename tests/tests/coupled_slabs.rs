@@ -15,7 +15,7 @@ use crate::common::thread_links::{assert_serial_rows, on_threads};
 use sieve_core::boundary::{Boundary, Opening, Openings};
 use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, CouplingError, Mode};
-use sieve_core::flow::coupled_slab::load_coupled_slab;
+use sieve_core::flow::coupled_slab::{load_coupled_slab, store_slab_records, SlabRecord};
 use sieve_core::flow::slab::{Slab, SlabError};
 use sieve_core::flow::{Flow, FlowConfig, FlowSide, PressureMode, Slip};
 use sieve_core::fork::Serial;
@@ -449,6 +449,128 @@ fn an_f32_mixed_collapse_on_slabs_has_the_serial_bits() {
         60,
         "2D mixed collapse in f32",
     );
+}
+
+/// A slab's owned cells (global numbering), its owned rows of every array (named as in
+/// [`After`]) and its record.
+type SlabReport = (Range<usize>, Vec<(String, Vec<f64>)>, SlabRecord<f64, 2>);
+
+/// Every state array of both solvers, named as in [`After`], as f64.
+fn arrays_of<R: Real, const D: usize>(cpl: &Coupled<'_, R, D, N>) -> Vec<(String, Vec<f64>)> {
+    after(cpl, R::ZERO, 0..cpl.flow.len()).arrays
+}
+
+/// Copies `values` (named as in [`After`]) into `global`'s cells `cells`.
+fn put_rows<R: Real, const D: usize>(
+    global: &mut Coupled<'_, R, D, N>,
+    cells: Range<usize>,
+    values: &[(String, Vec<f64>)],
+) {
+    let find = |name: String| &values.iter().find(|(n, _)| *n == name).unwrap().1;
+    global.flow.for_each_state_array_mut(|name, a| {
+        for (x, &v) in a[cells.clone()]
+            .iter_mut()
+            .zip(find(format!("flow.{name}")))
+        {
+            *x = R::from_f64(v);
+        }
+    });
+    global.seg.for_each_state_array_mut(|name, a| {
+        for (x, &v) in a[cells.clone()].iter_mut().zip(find(format!("seg.{name}"))) {
+            *x = R::from_f64(v);
+        }
+    });
+}
+
+#[test]
+fn the_slabs_records_make_the_whole_run_whole_again_and_it_steps_on_with_the_serial_bits() {
+    // What an MPI run's rank 0 does before an output or a checkpoint: every slab's owned rows
+    // and record into a whole run built as at the start. The silo drains through the first
+    // slab's floor and flushes; the stored run must equal the serial one after 150 steps
+    // (arrays, clocks, counters, totals, state hash) and then step on with its bits.
+    let make = || silo(PressureMode::Explicit, |s| s.flush_below = 1e-9);
+    let starts = [0, 4, 12, 20, 26];
+    let (steps, more) = (150, 30);
+    let mut start = make();
+    let start = Coupled::new(&mut start.flow, &mut start.seg, start.coupling).unwrap();
+    let slabs: Vec<SlabReport> = on_threads(starts.len(), |k, mut links| {
+        let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+        let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
+        let plan = load_coupled_slab(&start, &starts, k, &mut flow, &mut seg).unwrap();
+        let mut memory = vec![0.0; plan.memory_len()];
+        let mut slab = Slab::new(&plan, &mut links, &mut memory);
+        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), &mut slab).unwrap();
+        for _ in 0..steps {
+            let dt = cpl.stable_dt_reaching(&mut slab);
+            cpl.step_with_reaching(dt, &Serial, &mut slab).unwrap();
+        }
+        let own = plan.owned_cells();
+        let rows = after(&cpl, 0.0, own).arrays;
+        (plan.global_cells(), rows, cpl.slab_record())
+    });
+    let mut s = make();
+    let mut stored = Coupled::new(&mut s.flow, &mut s.seg, s.coupling).unwrap();
+    for (cells, rows, _) in &slabs {
+        put_rows(&mut stored, cells.clone(), rows);
+    }
+    let records: Vec<_> = slabs.iter().map(|s| s.2).collect();
+    store_slab_records(&mut stored, &records).unwrap();
+    let mut w = make();
+    let mut whole = Coupled::new(&mut w.flow, &mut w.seg, w.coupling).unwrap();
+    for _ in 0..steps {
+        let dt = whole.stable_dt();
+        whole.step_with(dt).unwrap();
+    }
+    let plane = 16;
+    for step in 0..=more {
+        let at = format!("stored at step {steps}, then {step} more");
+        for ((name, got), (_, expected)) in arrays_of(&stored).iter().zip(&arrays_of(&whole)) {
+            assert_serial_rows(&at, name, got, expected, 0, plane);
+        }
+        assert_eq!(
+            stored.flow.counters(),
+            whole.flow.counters(),
+            "{at}: flow counters"
+        );
+        assert_eq!(stored.totals(), whole.totals(), "{at}: totals");
+        assert_eq!(
+            (stored.seg.time(), stored.seg.steps()),
+            (whole.seg.time(), whole.seg.steps()),
+            "{at}: clock"
+        );
+        assert_eq!(
+            stored.seg.flushed_tracked().to_bits(),
+            whole.seg.flushed_tracked().to_bits(),
+            "{at}: flushed"
+        );
+        assert_eq!(
+            stored.seg.tracked_excess(),
+            whole.seg.tracked_excess(),
+            "{at}: bounds"
+        );
+        assert_eq!(
+            stored.seg.side_books(),
+            whole.seg.side_books(),
+            "{at}: books"
+        );
+        assert_eq!(
+            sieve_core::state_hash(stored.seg),
+            sieve_core::state_hash(whole.seg),
+            "{at}: state hash"
+        );
+        let dt = whole.stable_dt();
+        assert_eq!(
+            stored.stable_dt().to_bits(),
+            dt.to_bits(),
+            "{at}: stable step"
+        );
+        whole.step_with(dt).unwrap();
+        stored.step_with(dt).unwrap();
+    }
+    // the run drained and flushed across the cuts: the books and the counter are not zeros
+    let out = whole.discharged_total()[1][0];
+    assert!(out > 1e-5, "discharged {out}");
+    assert!(whole.seg.flushed_tracked() != 0.0, "nothing flushed");
 }
 
 #[test]

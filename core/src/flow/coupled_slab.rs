@@ -15,12 +15,13 @@
 //! crosses a slab's own sides), and the books of the segregation's open sides merged
 //! exactly ([`Segregation::merge_side_books`]).
 
-use super::coupled::{Coupled, Mode};
+use super::coupled::{Coupled, CoupledTotals, CouplingError, Mode};
 use super::slab::{load_slab, SlabError, SlabPlan};
-use super::Flow;
+use super::{Flow, FlowCounters};
 use crate::boundary::Boundary;
 use crate::real::Real;
 use crate::segregation::Segregation;
+use crate::sum::FixedSum;
 
 /// Sets `flow` and `seg` up as slab `index` of the coupled run `global` cut into slabs that
 /// begin at the rows `starts` ([`load_slab`]): the flow slab, and the segregation solver on
@@ -66,4 +67,81 @@ pub fn load_coupled_slab<R: Real, const D: usize, const M: usize, const N: usize
         seg.set_side_books(whole.side_books());
     }
     Ok(plan)
+}
+
+/// What a slab's driver holds besides the owned rows of its state arrays: the clocks, the
+/// counters and the running totals ([`Coupled::slab_record`]). With every slab's record
+/// and owned rows, the whole run's record is whole again ([`store_slab_records`]): what an
+/// MPI run's rank 0 writes its outputs and checkpoints from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlabRecord<R, const D: usize> {
+    /// The flow's clock and counters (the discharge of the sides along the cut is the
+    /// first and the last slab's).
+    pub flow: FlowCounters<R, D>,
+    /// The segregation's clock.
+    pub time: R,
+    /// The segregation's steps.
+    pub steps: u64,
+    /// The bound maxima over the owned cells.
+    pub excess: [R; 2],
+    /// The flush counter (every slab holds the whole run's).
+    pub flushed: R,
+    /// The segregation's books of its open sides (the first slab's began with the whole
+    /// run's, the others' at zero: they add up exactly).
+    pub books: [[FixedSum; 2]; D],
+    /// The driver's totals (the discharge through the floor is the first slab's, through
+    /// the lid the last slab's; the guard's total every slab's).
+    pub totals: CoupledTotals<R, D>,
+}
+
+impl<R: Real, const D: usize, const N: usize> Coupled<'_, R, D, N> {
+    /// This slab's record ([`SlabRecord`]).
+    pub fn slab_record(&self) -> SlabRecord<R, D> {
+        SlabRecord {
+            flow: self.flow.counters(),
+            time: self.seg.time(),
+            steps: self.seg.steps(),
+            excess: self.seg.tracked_excess(),
+            flushed: self.seg.flushed_tracked(),
+            books: self.seg.side_books(),
+            totals: self.totals(),
+        }
+    }
+}
+
+/// Makes `global` (the whole run, [`Coupled::new`]) the record of its slabs, whose owned
+/// rows of every state array the caller has already copied into `global`'s solvers:
+/// `records` are the slabs' ([`Coupled::slab_record`]) from the floor up. Sets the clocks,
+/// the counters, the bound maxima (the largest, by value), the flush counter, the merged
+/// books and the totals, then prepares the segregation as a resumed run does
+/// ([`Coupled::resume`]): the coefficients are functions of the state, so `global` then
+/// holds the serial run's bits and steps on with them.
+pub fn store_slab_records<R: Real, const D: usize, const N: usize>(
+    global: &mut Coupled<'_, R, D, N>,
+    records: &[SlabRecord<R, D>],
+) -> Result<(), CouplingError> {
+    let (Some(first), Some(last)) = (records.first(), records.last()) else {
+        return Ok(());
+    };
+    // Nothing crosses a cut (a wall on each slab), nor a side along the cut ([`load_slab`]
+    // refuses one that moves mass): the floor's books are the first slab's, the lid's the
+    // last one's, every other the same on every slab.
+    let mut flow = first.flow;
+    flow.discharged[D - 1][1] = last.flow.discharged[D - 1][1];
+    flow.discharge_step[D - 1][1] = last.flow.discharge_step[D - 1][1];
+    let mut totals = first.totals;
+    totals.out_small[D - 1][1] = last.totals.out_small[D - 1][1];
+    totals.out_total[D - 1][1] = last.totals.out_total[D - 1][1];
+    let excess = records.iter().fold(first.excess, |m, r| {
+        [m[0].max(r.excess[0]), m[1].max(r.excess[1])]
+    });
+    global.flow.restore_counters(flow);
+    global.seg.set_clock(first.time, first.steps);
+    global.seg.set_tracked_excess(excess);
+    global.seg.set_flushed_tracked(first.flushed);
+    global.seg.set_side_books([[FixedSum::ZERO; 2]; D]);
+    for r in records {
+        global.seg.merge_side_books(&r.books);
+    }
+    global.resume(totals)
 }
