@@ -12,6 +12,7 @@
 //! bed's unfinished compaction when the residual test stops the spin-up) is set to 0: the
 //! segregation transport then keeps `phi <= c` on the frozen `c`.
 
+use crate::coupled_steps::{CoupledSteps, WholeSteps};
 use crate::data::{
     output_times, FlowSummary, LoopStats, Profiles, SegregationTimer, SeriesRow, Snapshot,
 };
@@ -434,39 +435,18 @@ pub fn coupled_loop_until_stop<R: Real, const D: usize, const N: usize>(
     coupled_loop_with(flow, seg, scene, fields, geo, progress, None, on_output)
 }
 
-/// A coupled run whose stable step has fallen below [`COLLAPSE`] of its first one cannot
-/// reach `t_end` (at 1e-9 of a millisecond step, a second takes 1e15 steps): a flow that ran
-/// away (the dilute cells of issue 8's loose pressure solve reached 1e51 m/s and steps of
-/// 5e-58 s, and the run never ended). Never hang: it stops as failed and keeps what it wrote.
-/// A real flow's step moves by a few orders of magnitude at most (a silo's jet, a collapse).
-/// `first` is the first stable step, at most `t_end` (a bed at rest may allow any step).
-fn collapsed_step(stable: f64, first: f64) -> Option<crate::interrupt::Reason> {
-    (stable < first * COLLAPSE).then(|| {
-        crate::interrupt::Reason::Core(format!(
-            "the stable time step fell to {} s, below {COLLAPSE:e} of the run's first step ({} s): the flow ran away and t_end cannot be reached",
-            crate::text::approx(stable),
-            crate::text::approx(first)
-        ))
-    })
-}
-
-/// See [`collapsed_step`].
-const COLLAPSE: f64 = 1e-9;
-
-/// [`coupled_loop_until_stop`] with checkpoints (`sieve run`; [`crate::checkpoint`]): resumes
-/// from the session's checkpoint if it has one, and writes one whenever the session says it
-/// is due (between steps; the step sequence does not depend on where a run was interrupted).
-#[allow(clippy::too_many_arguments)]
-pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
-    flow: &mut Flow<R, D, N>,
-    seg: &mut Segregation<R, D, N>,
+/// The two solvers of a coupled scene as the driver of a coupled run: the flow set up for
+/// the scene, the coupling of its model, the cut-cell walls if it has them, and the state of
+/// the checkpoint `resumed` restored (`resumed` names the one `ck` holds, or a follower's of
+/// an MPI run). Every rank of an MPI run builds the same run, bit for bit.
+pub fn coupled_start<'a, R: Real, const D: usize, const N: usize>(
+    flow: &'a mut Flow<R, D, N>,
+    seg: &'a mut Segregation<R, D, N>,
     scene: &Scene,
     fields: &Fields,
-    geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
-    progress: &crate::progress::Progress,
-    mut ckpt: Option<&mut crate::checkpoint::Session>,
-    mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
-) -> Result<CoupledStats> {
+    geo: Option<&'a sieve_core::geometry::CutCells<R, D, N>>,
+    resumed: Option<&crate::checkpoint::Entries>,
+) -> Result<Coupled<'a, R, D, N>> {
     let fm = scene
         .flow
         .as_ref()
@@ -507,148 +487,225 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
         }
         None => Coupled::new(flow, seg, cc).map_err(fail)?,
     };
-    let times = output_times(scene.t_end, scene.output_interval);
-    // `--threads`: the flow's linear solves on a pool (the same bits, docs/parallel.md)
-    let pool = crate::parallel::flow_pool(scene);
-    let mut stats = LoopStats {
-        dt: cpl.stable_dt().to_f64(),
-        ..Default::default()
-    };
-    let mut flow_seconds = 0.0;
-    let mut discharge = scene
-        .has_outlets()
-        .then(crate::silo::DischargeSeries::default);
-    let (mut first, mut resumed) = (0, false);
+    if let Some(e) = resumed {
+        use crate::checkpoint as cp;
+        cp::restore_flow(e, cpl.flow)?;
+        cp::restore_segregation(e, cpl.seg)?;
+        cpl.resume(cp::totals(e)?).map_err(fail)?;
+    }
+    Ok(cpl)
+}
+
+/// [`coupled_loop_until_stop`] with checkpoints (`sieve run`; [`crate::checkpoint`]): resumes
+/// from the session's checkpoint if it has one, and writes one whenever the session says it
+/// is due (between steps; the step sequence does not depend on where a run was interrupted).
+/// Rank 0 of an MPI run steps on the ranks' slabs (`crate::rank_coupled`), every other
+/// process on its whole grid ([`WholeSteps`]).
+#[allow(clippy::too_many_arguments)]
+pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
+    flow: &mut Flow<R, D, N>,
+    seg: &mut Segregation<R, D, N>,
+    scene: &Scene,
+    fields: &Fields,
+    geo: Option<&sieve_core::geometry::CutCells<R, D, N>>,
+    progress: &crate::progress::Progress,
+    ckpt: Option<&mut crate::checkpoint::Session>,
+    on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
+) -> Result<CoupledStats> {
+    let mut start = Start::default();
+    let mut resumed = None;
     if let Some(ck) = ckpt.as_deref() {
         if let (Some(e), Some(p)) = (ck.resumed(), ck.progress(scene)?) {
-            resumed = true;
-            use crate::checkpoint as cp;
-            let restore = |cpl: &mut Coupled<'_, R, D, N>| -> Result<()> {
-                cp::restore_flow(e, cpl.flow)?;
-                cp::restore_segregation(e, cpl.seg)?;
-                cpl.resume(cp::totals(e)?).map_err(fail)
+            resumed = Some(e);
+            start = Start {
+                stats: Some(p.stats),
+                first: p.next,
+                flow_seconds: p.flow_seconds,
+                discharge: p.discharge,
             };
-            restore(&mut cpl).map_err(|w| ck.incompatible(w))?;
-            (stats, first, flow_seconds) = (p.stats, p.next, p.flow_seconds);
-            if let (Some(d), Some(rows)) = (discharge.as_mut(), p.discharge) {
-                *d = crate::silo::DischargeSeries::from_rows(rows);
-            }
         }
     }
-    let mut timer = StepTimer::start(scene.psi_threshold, &stats, cpl.seg, geo, resumed);
-    let mut checked = false;
-    let level = crate::isa::level();
-    'outputs: for (k, &t) in times.iter().enumerate().skip(first) {
-        let target = R::from_f64(t);
-        let start = Instant::now();
-        while cpl.seg.time() < target {
-            let stable = cpl.stable_dt();
-            let dt = stable.min(target - cpl.seg.time());
-            let t0 = Instant::now();
-            let stepped = match crate::interrupt::bad_dt(dt.to_f64())
-                .or_else(|| collapsed_step(stable.to_f64(), stats.dt.min(scene.t_end)))
-            {
-                Some(r) => Err(r),
-                None => match &pool {
-                    // the step on a worker: its loops fork from inside the pool
-                    // its solves' hot loops at the widest vector unit (docs/simd.md)
-                    Some(p) => {
-                        p.install(|| crate::on_level!(level, p, |f| cpl.step_with_on(dt, f)))
-                    }
-                    None => crate::on_level!(level, &Serial, |f| cpl.step_with_on(dt, f)),
+    let mut cpl = coupled_start(flow, seg, scene, fields, geo, resumed).map_err(|w| {
+        match (resumed, ckpt.as_deref()) {
+            (Some(_), Some(ck)) => ck.incompatible(w),
+            _ => w,
+        }
+    })?;
+    let looped = Loop {
+        scene,
+        geo,
+        progress,
+        ckpt,
+        start,
+    };
+    #[cfg(feature = "mpi")]
+    if crate::parallel_mpi::world().is_some_and(|(rank, _)| rank == 0) {
+        return crate::rank_coupled::lead(&mut cpl, |cpl, steps| looped.run(cpl, steps, on_output));
+    }
+    let mut steps = WholeSteps {
+        // `--threads`: the flow's linear solves on a pool (the same bits, docs/parallel.md)
+        pool: crate::parallel::flow_pool(scene),
+        level: crate::isa::level(),
+    };
+    looped.run(&mut cpl, &mut steps, on_output)
+}
+
+/// Where a coupled run's loop starts: a resumed run's statistics, next output, flow time
+/// and discharge rows (a fresh run's defaults).
+#[derive(Default)]
+struct Start {
+    stats: Option<LoopStats>,
+    first: usize,
+    flow_seconds: f64,
+    discharge: Option<Vec<crate::silo::DischargeRow>>,
+}
+
+/// The coupled run loop's fixed arguments ([`coupled_loop_with`]).
+struct Loop<'s, 'c, R: Real, const D: usize, const N: usize> {
+    scene: &'s Scene,
+    geo: Option<&'s sieve_core::geometry::CutCells<R, D, N>>,
+    progress: &'s crate::progress::Progress,
+    ckpt: Option<&'c mut crate::checkpoint::Session>,
+    start: Start,
+}
+
+impl<R: Real, const D: usize, const N: usize> Loop<'_, '_, R, D, N> {
+    /// Steps `cpl` with `steps` to every output time (or a stop), writes the outputs and
+    /// checkpoints, and sums up.
+    fn run<S: CoupledSteps<R, D, N>>(
+        self,
+        cpl: &mut Coupled<'_, R, D, N>,
+        steps: &mut S,
+        mut on_output: impl FnMut(usize, f64, &Segregation<R, D, N>, &Flow<R, D, N>) -> Result<()>,
+    ) -> Result<CoupledStats> {
+        let Self {
+            scene,
+            geo,
+            progress,
+            mut ckpt,
+            start,
+        } = self;
+        let fm = scene
+            .flow
+            .as_ref()
+            .ok_or_else(|| Error::failure("no flow in scene"))?;
+        let times = output_times(scene.t_end, scene.output_interval);
+        let resumed = start.stats.is_some();
+        let mut stats = start.stats.unwrap_or_else(|| LoopStats {
+            dt: cpl.stable_dt().to_f64(),
+            ..Default::default()
+        });
+        let (first, mut flow_seconds) = (start.first, start.flow_seconds);
+        let mut discharge = scene.has_outlets().then(|| match start.discharge {
+            Some(rows) => crate::silo::DischargeSeries::from_rows(rows),
+            None => crate::silo::DischargeSeries::default(),
+        });
+        let mut timer = StepTimer::start(scene.psi_threshold, &stats, cpl.seg, geo, resumed);
+        let mut checked = false;
+        'outputs: for (k, &t) in times.iter().enumerate().skip(first) {
+            let target = R::from_f64(t);
+            let start = Instant::now();
+            while steps.time(cpl) < target {
+                let t0 = Instant::now();
+                let sample = timer.time().is_none();
+                let (stable, stepped) =
+                    steps.step_toward(cpl, target, stats.dt.min(scene.t_end), sample);
+                if stepped.is_ok() {
+                    stats.steps += 1;
+                    stats.took_dt(stable.to_f64());
                 }
-                .map_err(|e| {
-                    // The core names what it refused; a non-finite cell says more.
-                    crate::interrupt::scan_segregation(cpl.seg)
-                        .or_else(|| crate::interrupt::scan_flow(cpl.flow))
-                        .unwrap_or(crate::interrupt::Reason::Core(e.to_string()))
-                }),
-            };
-            if stepped.is_ok() {
-                stats.steps += 1;
-                stats.took_dt(stable.to_f64());
-            }
-            let reason = stepped.err().or_else(|| {
-                crate::interrupt::pending()
-                    .map(crate::interrupt::Reason::Signal)
-                    .or_else(|| crate::interrupt::scan_segregation(cpl.seg))
-                    .or_else(|| crate::interrupt::scan_flow(cpl.flow))
-            });
-            if let Some(reason) = reason {
-                stats.stop = Some(crate::interrupt::Stop {
-                    reason,
-                    t: cpl.seg.time().to_f64(),
-                    step: stats.steps,
-                });
-                let el = start.elapsed();
-                stats.stepping += el;
-                flow_seconds += el.as_secs_f64();
-                break 'outputs;
-            }
-            if !checked {
-                // Run guard (issue 10): refuse an absurd t_end / dt before it runs for days; the
-                // first coupled step of a bed at rest is among the largest, so this errs low.
-                checked = true;
-                crate::estimate::check_steps(scene, stable.to_f64(), t0.elapsed().as_secs_f64())?;
-            }
-            if timer.time().is_none() {
-                // Psi after every step until it crosses: the segregation time resolved to
-                // the step, not to the output samples (evaluated only where it can cross).
-                timer.sample_step(cpl.seg.time().to_f64(), cpl.seg);
-            }
-            if let Some(ck) = ckpt.as_deref_mut().filter(|c| c.due()) {
-                let mut at = crate::checkpoint::Progress {
-                    next: k,
-                    stats: stats.clone(),
-                    flow_seconds: flow_seconds + start.elapsed().as_secs_f64(),
-                    discharge: discharge.as_ref().map(|d| d.rows.clone()),
+                let reason = match stepped {
+                    Err(r) => Some(r),
+                    Ok(()) => match crate::interrupt::pending() {
+                        Some(sig) => Some(crate::interrupt::Reason::Signal(sig)),
+                        None => steps.scan(cpl)?,
+                    },
                 };
-                at.stats.segregation_time = timer.time();
-                at.stats.stepping += start.elapsed();
-                ck.save(&at, |e| {
-                    crate::checkpoint::put_segregation(e, cpl.seg);
-                    crate::checkpoint::put_flow(e, cpl.flow);
-                    crate::checkpoint::put_totals(e, &cpl.totals());
-                })?;
+                if let Some(reason) = reason {
+                    steps.sync(cpl)?;
+                    stats.stop = Some(crate::interrupt::Stop {
+                        reason,
+                        t: cpl.seg.time().to_f64(),
+                        step: stats.steps,
+                    });
+                    let el = start.elapsed();
+                    stats.stepping += el;
+                    flow_seconds += el.as_secs_f64();
+                    break 'outputs;
+                }
+                if !checked {
+                    // Run guard (issue 10): refuse an absurd t_end / dt before it runs for
+                    // days; the first coupled step of a bed at rest is among the largest, so
+                    // this errs low.
+                    checked = true;
+                    crate::estimate::check_steps(
+                        scene,
+                        stable.to_f64(),
+                        t0.elapsed().as_secs_f64(),
+                    )?;
+                }
+                if sample {
+                    // Psi after every step until it crosses: the segregation time resolved to
+                    // the step, not to the output samples (evaluated only where it can cross).
+                    steps.fields(cpl, &mut timer.fields);
+                    timer.sample_step(steps.time(cpl).to_f64());
+                }
+                if let Some(ck) = ckpt.as_deref_mut().filter(|c| c.due()) {
+                    steps.sync(cpl)?;
+                    let mut at = crate::checkpoint::Progress {
+                        next: k,
+                        stats: stats.clone(),
+                        flow_seconds: flow_seconds + start.elapsed().as_secs_f64(),
+                        discharge: discharge.as_ref().map(|d| d.rows.clone()),
+                    };
+                    at.stats.segregation_time = timer.time();
+                    at.stats.stepping += start.elapsed();
+                    ck.save(&at, |e| {
+                        crate::checkpoint::put_segregation(e, cpl.seg);
+                        crate::checkpoint::put_flow(e, cpl.flow);
+                        crate::checkpoint::put_totals(e, &cpl.totals());
+                    })?;
+                }
+                if stats.steps.is_multiple_of(256) {
+                    progress.update(steps.time(cpl).to_f64(), stats.steps);
+                }
             }
-            if stats.steps.is_multiple_of(256) {
-                progress.update(cpl.seg.time().to_f64(), stats.steps);
+            steps.sync(cpl)?;
+            let el = start.elapsed();
+            stats.stepping += el;
+            flow_seconds += el.as_secs_f64();
+            let d = match geo {
+                Some(g) => sieve_core::diagnose_embedded(cpl.seg, g),
+                None => sieve_core::diagnose(cpl.seg),
+            };
+            let row = SeriesRow {
+                t,
+                psi: d.psi.to_f64(),
+                mass: d.mass_small.to_f64(),
+                overshoot_max: d.overshoot.to_f64(),
+                undershoot_max: d.undershoot.to_f64(),
+            };
+            timer.sample(t, row.psi);
+            stats.series.push(row);
+            on_output(k, t, cpl.seg, cpl.flow)?;
+            if let Some(d) = discharge.as_mut() {
+                d.sample_in(t, cpl, geo);
+                if d.emptied {
+                    break; // until empty (or t_end)
+                }
             }
         }
-        let el = start.elapsed();
-        stats.stepping += el;
-        flow_seconds += el.as_secs_f64();
-        let d = match geo {
-            Some(g) => sieve_core::diagnose_embedded(cpl.seg, g),
-            None => sieve_core::diagnose(cpl.seg),
-        };
-        let row = SeriesRow {
-            t,
-            psi: d.psi.to_f64(),
-            mass: d.mass_small.to_f64(),
-            overshoot_max: d.overshoot.to_f64(),
-            undershoot_max: d.undershoot.to_f64(),
-        };
-        timer.sample(t, row.psi);
-        stats.series.push(row);
-        on_output(k, t, cpl.seg, cpl.flow)?;
-        if let Some(d) = discharge.as_mut() {
-            d.sample_in(t, &cpl, geo);
-            if d.emptied {
-                break; // until empty (or t_end)
-            }
-        }
+        stats.segregation_time = timer.time();
+        stats.record_bounds(cpl.seg);
+        let clipped = cpl.guarded_mass().to_f64();
+        let mut summary = summary_of(cpl.flow, fm, scene.fill, flow_seconds, None, clipped);
+        summary.outlet = discharge.as_ref().map(|d| d.summary_with(scene.fines_band));
+        Ok(CoupledStats {
+            stats,
+            summary,
+            discharge,
+        })
     }
-    stats.segregation_time = timer.time();
-    stats.record_bounds(cpl.seg);
-    let clipped = cpl.guarded_mass().to_f64();
-    let mut summary = summary_of(cpl.flow, fm, scene.fill, flow_seconds, None, clipped);
-    summary.outlet = discharge.as_ref().map(|d| d.summary_with(scene.fines_band));
-    Ok(CoupledStats {
-        stats,
-        summary,
-        discharge,
-    })
 }
 
 /// The segregation timer of a coupled run, sampled after every step (the segregation time
@@ -707,7 +764,7 @@ impl<R: Real> StepTimer<R> {
             cell_volume: seg.grid().cell_volume(),
         };
         if resumed && timer.time().is_none() {
-            timer.sample_step(seg.time().to_f64(), seg);
+            timer.sample_of(seg.time().to_f64(), seg);
         }
         timer
     }
@@ -736,14 +793,20 @@ impl<R: Real> StepTimer<R> {
         self.timer.sample(t, psi);
     }
 
-    /// The sample after a step at time `t`.
-    fn sample_step<const D: usize, const N: usize>(&mut self, t: f64, seg: &Segregation<R, D, N>) {
+    /// The sample of `seg`'s state at time `t`.
+    fn sample_of<const D: usize, const N: usize>(&mut self, t: f64, seg: &Segregation<R, D, N>) {
         let n = seg.len();
         let [phi, c] = &mut self.fields;
         phi.clear();
         phi.extend((0..n).map(|i| seg.phi(i)));
         c.clear();
         c.extend((0..n).map(|i| seg.c(i)));
+        self.sample_step(t);
+    }
+
+    /// The sample after a step at time `t`, whose `[phi, c]` are in `fields`.
+    fn sample_step(&mut self, t: f64) {
+        let [phi, c] = &self.fields;
         let vol = self.volume.as_deref();
         let floor = sieve_core::psi_floor(phi, c, vol, self.vacuum, self.cell_volume).to_f64();
         if floor >= self.threshold {
@@ -820,7 +883,8 @@ pub fn profiles(scene: &Scene, snap: &Snapshot) -> Profiles {
 
 #[cfg(test)]
 mod tests {
-    use super::{collapsed_step, StepTimer};
+    use super::StepTimer;
+    use crate::coupled_steps::collapsed_step;
     use crate::data::{LoopStats, SeriesRow};
     use sieve_core::{Boundary, Grid, Segregation, SegregationConfig};
 
@@ -855,17 +919,17 @@ mod tests {
             undershoot_max: 0.0,
         });
         let mut run = StepTimer::start(threshold, &stats, &*mixed, None, false);
-        run.sample_step(0.3, &*step);
-        run.sample_step(0.4, &*crossed);
+        run.sample_of(0.3, &*step);
+        run.sample_of(0.4, &*crossed);
         let t = run.time().expect("crossed");
         assert!(t > 0.3 && t < 0.4, "{t}");
         // killed after the step at t = 0.3 (its checkpoint), resumed: the same time, bit for bit
         let mut resumed = StepTimer::start(threshold, &stats, &*step, None, true);
-        resumed.sample_step(0.4, &*crossed);
+        resumed.sample_of(0.4, &*crossed);
         assert_eq!(resumed.time().map(f64::to_bits), Some(t.to_bits()));
         // from the output row alone (the timer before the fix) the crossing moves
         let mut rows_only = StepTimer::start(threshold, &stats, &*step, None, false);
-        rows_only.sample_step(0.4, &*crossed);
+        rows_only.sample_of(0.4, &*crossed);
         assert!(rows_only.time().unwrap() < 0.3, "{:?}", rows_only.time());
     }
 

@@ -13,6 +13,7 @@
 pub mod checkpoint;
 pub mod cli;
 pub mod converge;
+pub mod coupled_steps;
 pub mod data;
 pub mod drum;
 pub mod embedded;
@@ -32,6 +33,8 @@ pub mod parallel_mpi;
 pub mod pool;
 pub mod power_law;
 pub mod progress;
+#[cfg(feature = "mpi")]
+pub mod rank_coupled;
 #[cfg(feature = "mpi")]
 pub mod rank_lines;
 #[cfg(feature = "mpi")]

@@ -8,7 +8,7 @@ use crate::checkpoint::{self as cp, Stored};
 use crate::error::{Error, Result};
 use crate::parallel_mpi::{driver_for, serve, world};
 use crate::run::{FlowJob, SolverJob};
-use crate::scene::{Fields, Scene};
+use crate::scene::{Equations, Fields, Scene};
 use sieve_core::flow::Flow;
 use sieve_core::{state_hash, Real, Segregation};
 
@@ -73,9 +73,19 @@ impl FlowJob for Follower<'_> {
         s: &mut Segregation<R, D, N>,
         f: &mut Flow<R, D, N>,
     ) -> Result<()> {
+        crate::run::load(s, self.scene, self.fields)?;
+        if self.scene.flow.as_ref().map(|m| m.equations) == Some(Equations::Coupled) {
+            // as rank 0's coupled run (flow.rs): the same whole run, then this rank's slab
+            let resumed = self.resume.map(|st| &st.entries);
+            let mut cpl = crate::flow::coupled_start(f, s, self.scene, self.fields, None, resumed)
+                .map_err(|w| match self.resume {
+                    Some(st) => st.incompatible(w),
+                    None => w,
+                })?;
+            return crate::rank_coupled::serve(&mut cpl, self.scene);
+        }
         // as rank 0's frozen-flow run (run.rs): the same spin-up (or the checkpoint's frozen
         // flow, no spin-up), the same bits
-        crate::run::load(s, self.scene, self.fields)?;
         let frozen = match self.resume {
             Some(st) => cp::frozen(&st.entries, self.scene.len(), self.scene.dim)
                 .map_err(|w| st.incompatible(w))?,
@@ -106,7 +116,7 @@ struct Job<'a> {
 }
 
 /// Runs the scene's segregation from 0 to `t_end` on the MPI ranks (one subdomain each, split
-/// along the last axis; the run's [`Driver`] and followers in one call) and, on rank 0,
+/// along the last axis; the run's [`crate::parallel_mpi::Driver`] and followers in one call) and, on rank 0,
 /// serially; returns both state hashes on rank 0. Needs `parallel_mpi::launch` first (and
 /// `parallel_mpi::finish`).
 pub fn check_scene(scene: &Scene, fields: &Fields) -> Result<Check> {

@@ -129,7 +129,7 @@ pub fn silent() -> bool {
     SILENT.load(Ordering::Relaxed)
 }
 
-fn comm() -> SimpleCommunicator {
+pub(crate) fn comm() -> SimpleCommunicator {
     SimpleCommunicator::world()
 }
 
@@ -212,16 +212,16 @@ const TAG_HEAD: i32 = 41;
 const TAG_VALUES: i32 = 42;
 const TAG_FLUSH_STEPS: i32 = 43;
 const TAG_FLUSH_VALUES: i32 = 44;
-const TAG_STATUS: i32 = 45;
+pub(crate) const TAG_STATUS: i32 = 45;
 
 /// An error as bytes: the exit code, then the message.
-fn encode(e: &Error) -> Vec<u8> {
+pub(crate) fn encode(e: &Error) -> Vec<u8> {
     let mut b = vec![e.exit_code().clamp(1, 255) as u8];
     b.extend_from_slice(e.to_string().as_bytes());
     b
 }
 
-fn decode(b: &[u8]) -> Error {
+pub(crate) fn decode(b: &[u8]) -> Error {
     let m = String::from_utf8_lossy(&b[1..]).into_owned();
     match b[0] {
         2 => Error::Input(m),
@@ -278,7 +278,7 @@ pub fn agree(mine: Option<&Error>) -> Result<()> {
 
 /// A command from rank 0 to every rank.
 #[derive(Debug, Clone, PartialEq)]
-enum Command {
+pub(crate) enum Command {
     /// End with this exit code.
     Stop(i32),
     /// Step to `target` (f64 bits of the precision's value) with at most `n` steps.
@@ -287,9 +287,18 @@ enum Command {
     Load,
     /// Write the piece of output `k` into the directory.
     Output { k: u64, dir: String },
+    /// One coupled step toward `target` (`first`: the run's first stable step; `sample`:
+    /// send `phi` and `c` after it): `crate::rank_coupled`.
+    CoupledStep {
+        target: f64,
+        first: f64,
+        sample: bool,
+    },
+    /// Send your slab's rows and record to rank 0 (`crate::rank_coupled`).
+    Gather,
 }
 
-fn broadcast(cmd: &Command) {
+pub(crate) fn broadcast(cmd: &Command) {
     let world = comm();
     let root = world.process_at_rank(0);
     let mut w: [u64; 4] = match cmd {
@@ -297,6 +306,12 @@ fn broadcast(cmd: &Command) {
         Command::Advance { target, n } => [1, target.to_bits(), *n, 0],
         Command::Load => [2, 0, 0, 0],
         Command::Output { k, dir } => [3, *k, 0, dir.len() as u64],
+        Command::CoupledStep {
+            target,
+            first,
+            sample,
+        } => [4, target.to_bits(), first.to_bits(), u64::from(*sample)],
+        Command::Gather => [5, 0, 0, 0],
     };
     // non-blocking on every rank (a non-blocking collective matches no blocking one): the
     // followers wait for it asleep ([`receive`])
@@ -309,22 +324,26 @@ fn broadcast(cmd: &Command) {
     }
 }
 
-fn receive() -> Command {
+pub(crate) fn receive() -> Command {
     let world = comm();
     let root = world.process_at_rank(0);
     let mut w = [0u64; 4];
-    // Polled with short sleeps rather than MPI's busy wait: a follower waits for the next
-    // command while rank 0 computes diagnostics, writes files and draws the plots, and on a
-    // machine with more ranks than free cores a spinning follower takes CPU from rank 0.
-    // The sleep delays a chunk of steps by about 0.1 ms.
+    // Polled at full speed for 100 us (a coupled run's next step command follows the last
+    // step that closely), then with short sleeps rather than MPI's busy wait: a follower
+    // waits for the next command while rank 0 computes diagnostics, writes files and draws
+    // the plots, and on a machine with more ranks than free cores a spinning follower takes
+    // CPU from rank 0. The sleep delays a chunk of steps by about 0.1 ms.
     mpi::request::scope(|sc| {
         let mut req = root.immediate_broadcast_into(sc, &mut w[..]);
+        let start = std::time::Instant::now();
         loop {
             match req.test() {
                 Ok(_) => break,
                 Err(r) => {
                     req = r;
-                    std::thread::sleep(std::time::Duration::from_micros(50));
+                    if start.elapsed() > std::time::Duration::from_micros(100) {
+                        std::thread::sleep(std::time::Duration::from_micros(50));
+                    }
                 }
             }
         }
@@ -335,6 +354,12 @@ fn receive() -> Command {
             n: w[2],
         },
         2 => Command::Load,
+        4 => Command::CoupledStep {
+            target: f64::from_bits(w[1]),
+            first: f64::from_bits(w[2]),
+            sample: w[3] != 0,
+        },
+        5 => Command::Gather,
         3 => {
             let mut b = vec![0u8; w[3] as usize];
             root.broadcast_into(&mut b[..]);
@@ -356,11 +381,13 @@ fn send_stop(code: i32) {
 // Scope
 
 /// Why a scene cannot run under mpirun, before anything is built (every rank finds the
-/// same): coupled-flow scenes and cut-cell scenes periodic along their last axis (decision:
-/// refused, exit 2, rather than run on rank 0 while the other ranks wait) and more ranks
-/// than the rows allow (cut cells: halos [`decomp::GROUP_REACH`] rows wider). Checkpoints and
-/// `--resume` run (rank 0 writes the checkpoints from its global solver; every rank reads
-/// the checkpoint it resumes: `crate::mpi_jobs::follow`).
+/// same): cut-cell scenes periodic along their last axis, and coupled scenes with cut cells
+/// or periodic along their last axis or with an inflow, outflow or opening on a side along
+/// the cut (decision: refused, exit 2, rather than run on rank 0 while the other ranks
+/// wait), and more ranks than the rows allow (cut cells: halos [`decomp::GROUP_REACH`] rows
+/// wider; coupled scenes: slabs of [`sieve_core::flow::slab::HALO`] rows at least, starting
+/// on even rows). Checkpoints and `--resume` run (rank 0 writes the checkpoints from its
+/// global solver; every rank reads the checkpoint it resumes: `crate::mpi_jobs::follow`).
 pub fn check_scope(scene: &Scene) -> Result<()> {
     let Some((_, ranks)) = world() else {
         return Ok(());
@@ -369,14 +396,26 @@ pub fn check_scope(scene: &Scene) -> Result<()> {
         .boundaries
         .last()
         .is_some_and(|b| b[0] == sieve_core::Boundary::Periodic);
+    let coupled = is_coupled(scene);
+    let side_moves_mass = scene.flow.as_ref().is_some_and(|f| {
+        f.walls[..scene.dim - 1]
+            .iter()
+            .flatten()
+            .any(|w| w.outlet.is_some())
+    }) || scene.boundaries[..scene.dim - 1].iter().flatten().any(|b| {
+        matches!(
+            b,
+            sieve_core::Boundary::Inflow | sieve_core::Boundary::Outflow
+        )
+    });
     let why = if scene.geometry.is_some() && wraps {
         Some("cut-cell (geometry) scenes periodic along their last axis")
-    } else if scene
-        .flow
-        .as_ref()
-        .is_some_and(|f| f.equations == Equations::Coupled)
-    {
-        Some("coupled-flow scenes")
+    } else if coupled && scene.geometry.is_some() {
+        Some("coupled-flow scenes with cut cells (geometry)")
+    } else if coupled && wraps {
+        Some("coupled-flow scenes periodic along their last axis")
+    } else if coupled && side_moves_mass {
+        Some("coupled-flow scenes with an outlet, inflow or outflow on a side wall")
     } else {
         None
     };
@@ -388,6 +427,22 @@ pub fn check_scope(scene: &Scene) -> Result<()> {
         ));
     }
     let rows = scene.cells[scene.dim - 1];
+    if coupled {
+        if crate::coupled_steps::slab_starts(rows, ranks).is_none() {
+            let axis = crate::scene::validate::axis_names(scene.dim)[scene.dim - 1];
+            let halo = sieve_core::flow::slab::HALO;
+            return Err(Error::range(
+                &scene.label,
+                "mpirun -np",
+                ranks,
+                &format!(
+                    "1 to {} ranks for {rows} cells along {axis} (a coupled scene's slabs own at least {halo} rows each, docs/parallel.md)",
+                    crate::coupled_steps::max_ranks(rows)
+                ),
+            ));
+        }
+        return Ok(());
+    }
     let gradient = matches!(scene.direction, Direction::Flow)
         || matches!(scene.temperature, Temperature::Shear { .. });
     let halo = if gradient { 2 } else { 1 }
@@ -870,13 +925,33 @@ fn rows_of(snap: &Snapshot, plane: usize, rows: &Range<usize>) -> Snapshot {
     }
 }
 
+/// The rows rank `rank` owns and writes the piece of: its subdomain's, or its slab's in a
+/// coupled run ([`crate::coupled_steps::slab_starts`]).
+fn piece_rows(scene: &Scene, ranks: usize, rank: usize) -> Range<usize> {
+    let rows = scene.cells[scene.dim - 1];
+    if is_coupled(scene) {
+        if let Some(starts) = crate::coupled_steps::slab_starts(rows, ranks) {
+            return starts[rank]..starts.get(rank + 1).copied().unwrap_or(rows);
+        }
+    }
+    decomp::owned_rows(rows, ranks, rank)
+}
+
+/// The scene steps the coupled flow and segregation.
+fn is_coupled(scene: &Scene) -> bool {
+    scene
+        .flow
+        .as_ref()
+        .is_some_and(|f| f.equations == Equations::Coupled)
+}
+
 /// The file of rank `rank`'s piece of output `k` (beside the `.pvti`).
 fn piece_name(k: u64, rank: usize) -> String {
     crate::checkpoint::piece_name(k as usize, rank)
 }
 
 /// Writes this rank's piece of output `k` from a snapshot of the whole grid.
-fn write_piece(
+pub(crate) fn write_piece(
     dir: &Path,
     k: u64,
     scene: &Scene,
@@ -884,7 +959,7 @@ fn write_piece(
     rank: usize,
     ranks: usize,
 ) -> Result<Range<usize>> {
-    let rows = decomp::owned_rows(scene.cells[scene.dim - 1], ranks, rank);
+    let rows = piece_rows(scene, ranks, rank);
     let plane = scene.len() / scene.cells[scene.dim - 1];
     let piece = rows_of(snap, plane, &rows);
     crate::output::write_file(
@@ -928,9 +1003,8 @@ pub fn write_snapshot(
     if let Some(e) = failed {
         return Err(e);
     }
-    let rows = scene.cells[scene.dim - 1];
     let pieces: Vec<(Range<usize>, String)> = (0..ranks)
-        .map(|r| (decomp::owned_rows(rows, ranks, r), piece_name(k, r)))
+        .map(|r| (piece_rows(scene, ranks, r), piece_name(k, r)))
         .collect();
     let name = crate::checkpoint::pvti_name(k as usize);
     crate::output::vtk::write_pvti(&dir.join(&name), scene, snap, &pieces)?;
@@ -939,6 +1013,23 @@ pub fn write_snapshot(
 
 // ---------------------------------------------------------------------------------------
 // Followers
+
+/// A follower's end on rank 0's stop command with exit code `code`: its result, silent
+/// (rank 0 reported the error).
+pub(crate) fn stopped(code: i32) -> Result<()> {
+    PHASE.store(DONE, Ordering::Relaxed);
+    if code == 0 {
+        return Ok(());
+    }
+    SILENT.store(true, Ordering::Relaxed);
+    Err(decode(&[code.clamp(1, 255) as u8]))
+}
+
+/// Marks rank 0 inside (or out of) a command's message exchange: an error there cannot
+/// be answered with a stop command ([`finish`]).
+pub(crate) fn busy(on: bool) {
+    BUSY.store(on, Ordering::Relaxed);
+}
 
 /// A follower's part of `sieve run` after its global solver is prepared as rank 0's
 /// (`crate::mpi_jobs::follow`): builds its subdomain, agrees, then serves rank 0's commands
@@ -959,18 +1050,14 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
     let root = world.process_at_rank(0);
     loop {
         match receive() {
-            Command::Stop(code) => {
-                PHASE.store(DONE, Ordering::Relaxed);
-                if code == 0 {
-                    return Ok(());
-                }
-                SILENT.store(true, Ordering::Relaxed);
-                return Err(decode(&[code.clamp(1, 255) as u8]));
-            }
+            Command::Stop(code) => return stopped(code),
             Command::Load => local.receive_load(),
             Command::Advance { target, n } => {
                 let c = local.chunk(R::from_f64(target), n);
                 local.send_chunk(&c);
+            }
+            Command::CoupledStep { .. } | Command::Gather => {
+                return Err(Error::failure("a coupled command in a segregation run"))
             }
             Command::Output { k, dir } => {
                 let sub = local.sub;
