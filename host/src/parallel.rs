@@ -115,8 +115,8 @@ pub fn coupled_threads(scene: &Scene) -> (usize, Option<String>) {
 pub const SOLVE_MIN_PER_PART: usize = 1 << 17;
 
 /// The pool whose workers run a coupled run's linear solves ([`sieve_core::fork`]; the same
-/// bits for any number), if [`coupled_threads`] gives it more than one thread. (mpirun
-/// refuses coupled scenes before they are built.)
+/// bits for any number), if [`coupled_threads`] gives it more than one thread. (Under
+/// mpirun each rank steps its slab on one thread: `crate::rank_coupled`.)
 pub fn flow_pool(scene: &Scene) -> Option<crate::pool::Pool> {
     if !is_coupled(scene) {
         return None;
