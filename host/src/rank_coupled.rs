@@ -281,9 +281,9 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for RankStep
                 // The whole run's state names a non-finite cell as the serial run does;
                 // else the words of the first rank whose step failed.
                 let gathered = self.sync(cpl).err().map(|e| Reason::Core(e.to_string()));
-                Err(gathered
-                    .or_else(|| crate::interrupt::scan_segregation(cpl.seg))
+                Err(crate::interrupt::scan_segregation(cpl.seg)
                     .or_else(|| crate::interrupt::scan_flow(cpl.flow))
+                    .or(gathered)
                     .unwrap_or_else(|| {
                         let words = self.failure.take();
                         Reason::Core(words.unwrap_or_else(|| CouplingError::OtherSlab.to_string()))
@@ -301,9 +301,12 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for RankStep
         if !self.me.not_finite {
             return Ok(None);
         }
-        self.sync(cpl)?;
+        // A gather whose rows hold a non-finite value may fail to prepare the whole run
+        // (its rows and counters are stored first): the scan names the value, as serially.
+        let gathered = self.sync(cpl).err().map(|e| Reason::Core(e.to_string()));
         Ok(crate::interrupt::scan_segregation(cpl.seg)
-            .or_else(|| crate::interrupt::scan_flow(cpl.flow)))
+            .or_else(|| crate::interrupt::scan_flow(cpl.flow))
+            .or(gathered))
     }
 
     fn fields(&mut self, _cpl: &Coupled<'_, R, D, N>, out: &mut [Vec<R>; 2]) {
@@ -359,10 +362,10 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for RankStep
         if let Some(b) = bad {
             return Err(Error::failure(format!("the coupled run's gather: {b}")));
         }
-        store_slab_records(cpl, &records)
-            .map_err(|e| Error::failure(format!("the coupled run's gather: {e}")))?;
+        // the rows, clocks and counters are stored even when the prepare fails
         self.synced = true;
-        Ok(())
+        store_slab_records(cpl, &records)
+            .map_err(|e| Error::failure(format!("the coupled run's gather: {e}")))
     }
 }
 

@@ -115,7 +115,8 @@ impl<R: Real, const D: usize, const N: usize> Coupled<'_, R, D, N> {
 /// the counters, the bound maxima (the largest, by value), the flush counter, the merged
 /// books and the totals, then prepares the segregation as a resumed run does
 /// ([`Coupled::resume`]): the coefficients are functions of the state, so `global` then
-/// holds the serial run's bits and steps on with them.
+/// holds the serial run's bits and steps on with them. An error is the prepare's (a state
+/// the segregation refuses); everything else is stored by then.
 pub fn store_slab_records<R: Real, const D: usize, const N: usize>(
     global: &mut Coupled<'_, R, D, N>,
     records: &[SlabRecord<R, D>],
