@@ -8,7 +8,7 @@ use crate::checkpoint::{self as cp, Stored};
 use crate::error::{Error, Result};
 use crate::parallel_mpi::{driver_for, serve, world};
 use crate::run::{FlowJob, SolverJob};
-use crate::scene::{Equations, Fields, Scene};
+use crate::scene::{Fields, Scene};
 use sieve_core::flow::Flow;
 use sieve_core::{state_hash, Real, Segregation};
 
@@ -74,7 +74,7 @@ impl FlowJob for Follower<'_> {
         f: &mut Flow<R, D, N>,
     ) -> Result<()> {
         crate::run::load(s, self.scene, self.fields)?;
-        if self.scene.flow.as_ref().map(|m| m.equations) == Some(Equations::Coupled) {
+        if crate::parallel::is_coupled(self.scene) {
             // as rank 0's coupled run (flow.rs): the same whole run, then this rank's slab
             let resumed = self.resume.map(|st| &st.entries);
             let mut cpl = crate::flow::coupled_start(f, s, self.scene, self.fields, None, resumed)

@@ -78,7 +78,7 @@ pub fn plan(scene: &Scene, requested: Option<usize>) -> (usize, Option<String>) 
 }
 
 /// Whether the scene runs the coupled flow.
-fn is_coupled(scene: &Scene) -> bool {
+pub(crate) fn is_coupled(scene: &Scene) -> bool {
     scene
         .flow
         .as_ref()

@@ -42,9 +42,9 @@
 
 use crate::data::Snapshot;
 use crate::error::{Error, Result};
-use crate::parallel::{halo_of, step_owned, Chunk, Pace};
+use crate::parallel::{halo_of, is_coupled, step_owned, Chunk, Pace};
 use crate::scene::validate::{Direction, Temperature};
-use crate::scene::{Equations, Scene};
+use crate::scene::Scene;
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use sieve_core::decomp::{self, Side, Subdomain};
@@ -935,14 +935,6 @@ fn piece_rows(scene: &Scene, ranks: usize, rank: usize) -> Range<usize> {
         }
     }
     decomp::owned_rows(rows, ranks, rank)
-}
-
-/// The scene steps the coupled flow and segregation.
-fn is_coupled(scene: &Scene) -> bool {
-    scene
-        .flow
-        .as_ref()
-        .is_some_and(|f| f.equations == Equations::Coupled)
 }
 
 /// The file of rank `rank`'s piece of output `k` (beside the `.pvti`).
