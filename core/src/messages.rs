@@ -9,7 +9,7 @@
 
 use crate::flow::coupled::CouplingError;
 use crate::flow::cycle_slab::PlanError;
-use crate::flow::slab::{SlabError, HALO};
+use crate::flow::slab::SlabError;
 use crate::flow::FlowError;
 use crate::grid::GridError;
 use crate::segregation::SetupError;
@@ -194,9 +194,9 @@ impl fmt::Display for SlabError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
             SlabError::Plan(e) => e.fmt(f),
-            SlabError::Rows { index, rows } => write!(
+            SlabError::Rows { index, rows, depth } => write!(
                 f,
-                "slab {index} owns {rows} rows; every slab needs at least {HALO} (its halo's depth)"
+                "slab {index} owns {rows} rows; every slab needs at least {depth} (its halo's depth)"
             ),
             SlabError::Capacity { cells, capacity } => write!(
                 f,

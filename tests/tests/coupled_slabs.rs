@@ -627,6 +627,10 @@ fn what_does_not_run_on_slabs_is_refused_before_it_starts() {
     let cpl = Coupled::new(&mut plain.flow, &mut plain.seg, plain.coupling).unwrap();
     assert_eq!(
         load_coupled_slab(&cpl, &[0, 2, 12], 0, &mut flow, &mut seg).err(),
-        Some(SlabError::Rows { index: 0, rows: 2 })
+        Some(SlabError::Rows {
+            index: 0,
+            rows: 2,
+            depth: 4
+        })
     );
 }

@@ -972,9 +972,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// the solve).
     fn rigid_rhs(&mut self, comp: usize) {
         let n = self.grid.len();
-        let grid = self.grid;
         for i in 0..n {
-            self.solve.p[i] = self.walls.rigid_velocity(&grid, i)[comp];
+            self.solve.p[i] = self.walls.rigid_velocity(i)[comp];
         }
         let st = Stencil {
             grid: &self.grid,
@@ -994,10 +993,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         let n = self.grid.len();
         let vac = self.cfg.vacuum;
-        let grid = self.grid;
         for i in 0..n {
             if self.c[i] > vac {
-                let ur = self.walls.rigid_velocity(&grid, i)[comp];
+                let ur = self.walls.rigid_velocity(i)[comp];
                 let u = &mut self.u[comp][i];
                 *u = if add { *u + ur } else { *u - ur };
             }

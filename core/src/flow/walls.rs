@@ -55,6 +55,7 @@ use super::{Flow, Slip};
 use crate::geometry::CutCells;
 use crate::grid::Grid;
 use crate::real::Real;
+use core::ops::Range;
 
 /// Which cell of a merge group takes the wall term of a merged cut cell (model.md 5.4, "The
 /// wall term of a merged cell"). Why a choice: a member a sliver of a cell thick, pinned to
@@ -166,6 +167,16 @@ pub(super) struct Walls<R: Real, const D: usize, const N: usize> {
     /// [`MergedWalls::Master`]; 0 where the cell is no member with a fragment, or its master
     /// lies no farther from the plane than the member's `d` (then the member keeps its term).
     pub master_d: [R; N],
+    /// The grid the geometry was built on, and the number of its cells before this grid's
+    /// first: cell centres (the wall's rigid motion) are taken there, so that a slab's
+    /// ([`Self::load_rows`]) are the whole grid's to the bit (`origin + (k0 + k + 1/2) h`,
+    /// never `(origin + k0 h) + (k + 1/2) h`).
+    home: Grid<R, D>,
+    home_offset: usize,
+    /// Rows a merge group spans along the last axis beyond its first (0, 1 or 2: a master
+    /// with members below and above), of the whole grid: what deepens a slab's halo
+    /// ([`super::slab::halo_rows`]).
+    pub rows_spanned: usize,
 }
 
 impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
@@ -189,6 +200,9 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
             wall_d: z,
             master_d: z,
             normal: [z; D],
+            home: Grid::unit(),
+            home_offset: 0,
+            rows_spanned: 0,
         }
     }
 
@@ -283,6 +297,42 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
         true
     }
 
+    /// The rows of `global`'s walls whose cells are `span` (a slab and its halo rows,
+    /// [`super::slab::load_slab`]): every value the global one, so the owned cells step with
+    /// the serial bits. A member whose master lies outside `span` becomes a cell of its own,
+    /// and a master keeps its global group volume with members outside: both only in the
+    /// outermost halo row and its group, whose values a slab's step gets wrong anyway
+    /// ([`super::slab::halo_rows`]).
+    pub fn load_rows<const M: usize>(&mut self, global: &Walls<R, D, M>, span: Range<usize>) {
+        self.on = global.on;
+        self.merged = global.merged;
+        self.wall = global.wall;
+        self.home = global.home;
+        self.home_offset = global.home_offset + span.start;
+        self.rows_spanned = global.rows_spanned;
+        let off = span.start;
+        for (i, g) in span.clone().enumerate() {
+            self.vol[i] = global.vol[g];
+            self.wall_k[i] = global.wall_k[g];
+            self.wall_d[i] = global.wall_d[g];
+            for a in 0..D {
+                self.ap_hi[a][i] = global.ap_hi[a][g];
+                self.ap_lo[a][i] = global.ap_lo[a][g];
+                self.normal[a][i] = global.normal[a][g];
+            }
+            let m = global.master[g] as usize;
+            if span.contains(&m) {
+                self.master[i] = (m - off) as u32;
+                self.gvol[i] = global.gvol[g];
+                self.master_d[i] = global.master_d[g];
+            } else {
+                self.master[i] = i as u32;
+                self.gvol[i] = global.vol[g];
+                self.master_d[i] = R::ZERO;
+            }
+        }
+    }
+
     /// `V` for the mass terms of the implicit systems: a solid cell counts as a full empty
     /// cell (a decoupled row with zero right-hand side), so the operator stays definite.
     #[inline(always)]
@@ -295,12 +345,34 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
         }
     }
 
+    /// Rows spanned by the largest merge group along the last axis of `grid` beyond its
+    /// first: a member is a face neighbour of its master, so a group reaches one row below
+    /// its master, one above, or both.
+    fn spanned_rows(&self, grid: &Grid<R, D>) -> usize {
+        let (n, s) = (grid.len(), grid.stride(D - 1));
+        let mut most = 0;
+        for m in 0..n {
+            if self.master[m] as usize == m {
+                let below = m >= s && self.master[m - s] as usize == m;
+                let above = m + s < n && self.master[m + s] as usize == m;
+                most = most.max(usize::from(below) + usize::from(above));
+            }
+        }
+        most
+    }
+
+    /// The centre of cell `i` as the whole grid places it.
+    #[inline(always)]
+    fn center(&self, i: usize) -> [R; D] {
+        self.home.center(self.home_offset + i)
+    }
+
     /// Wall velocity at the Dirichlet point `x_c + d n` of cell `i`.
-    pub fn wall_velocity(&self, grid: &Grid<R, D>, i: usize) -> [R; D] {
+    pub fn wall_velocity(&self, i: usize) -> [R; D] {
         if !self.turns() {
             return [R::ZERO; D];
         }
-        let mut x = grid.center(i);
+        let mut x = self.center(i);
         let d = self.wall_d[i];
         for (a, xa) in x.iter_mut().enumerate() {
             *xa += d * self.normal[a][i];
@@ -335,18 +407,18 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
 
     /// The wall's rigid motion `u_R = omega x (x - center)` at the centre of cell `i` (0 for a
     /// resting wall).
-    pub fn rigid_velocity(&self, grid: &Grid<R, D>, i: usize) -> [R; D] {
+    pub fn rigid_velocity(&self, i: usize) -> [R; D] {
         if !self.turns() {
             return [R::ZERO; D];
         }
-        let x = grid.center(i);
+        let x = self.center(i);
         self.turn(core::array::from_fn(|k| x[k] - self.wall.center[k]))
     }
 
     /// `u_R(x_j) - u_R(x_i)` of the wall's rigid motion `u_R = omega x (x - center)` between
     /// the centres of cells `j` and `i` (0 off the rotation plane).
-    pub fn rigid_offset(&self, grid: &Grid<R, D>, j: usize, i: usize) -> [R; D] {
-        let (xj, xi) = (grid.center(j), grid.center(i));
+    pub fn rigid_offset(&self, j: usize, i: usize) -> [R; D] {
+        let (xj, xi) = (self.center(j), self.center(i));
         self.turn(core::array::from_fn(|k| xj[k] - xi[k]))
     }
 }
@@ -406,6 +478,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let w = &mut self.walls;
         w.wall = wall;
         w.merged = false;
+        w.home = grid;
+        w.home_offset = 0;
         let open = |v: R| v >= R::HALF;
         for i in 0..n {
             let v = cut.volume(i);
@@ -511,6 +585,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
         }
+        w.rows_spanned = w.spanned_rows(&grid);
         w.on = true;
         self.prepared = false;
         Ok(())
@@ -559,7 +634,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
     /// The velocity of the cut wall at the Dirichlet point of cell `i`.
     pub fn wall_velocity(&self, i: usize) -> [R; D] {
-        self.walls.wall_velocity(&self.grid, i)
+        self.walls.wall_velocity(i)
     }
 
     /// The wall law of the cut wall fragment of cell `i` (model.md 2) as the Dirichlet-type term
@@ -616,7 +691,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// [`Self::wall_law`] of cell `i`'s fragment acting on cell `row` at distance `d`.
     fn wall_law_on(&self, i: usize, row: usize, d: R) -> ([R; D], R) {
         let w = &self.walls;
-        let uw = w.wall_velocity(&self.grid, i);
+        let uw = w.wall_velocity(i);
         let eta = self.eta[row];
         if w.wall.slip == Slip::NoSlip {
             return (uw, eta);
@@ -672,11 +747,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if rigid {
             // momentum relative to the wall's rigid motion taken at each member's master,
             // so that the group mean below is the master's own rigid value
-            let grid = self.grid;
             for i in 0..n {
                 let m = self.walls.master[i] as usize;
                 if m != i {
-                    let off = self.walls.rigid_offset(&grid, i, m);
+                    let off = self.walls.rigid_offset(i, m);
                     for a in 0..D {
                         self.m[a][i] -= self.c[i] * off[a];
                     }
@@ -706,11 +780,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// hoppers) never calls this: the plain copy, same bits.
     pub(super) fn carry_rigid_offsets(&mut self) {
         let n = self.grid.len();
-        let grid = self.grid;
         for i in 0..n {
             let m = self.walls.master[i] as usize;
             if m != i {
-                let off = self.walls.rigid_offset(&grid, i, m);
+                let off = self.walls.rigid_offset(i, m);
                 let c = self.c[i];
                 for a in 0..D {
                     self.m[a][i] = self.m[a][m] + c * off[a];
@@ -834,7 +907,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             if !(k > R::ZERO && c > self.cfg.vacuum) {
                 continue;
             }
-            let uw = self.walls.wall_velocity(&grid, i);
+            let uw = self.walls.wall_velocity(i);
             let mut rel = [R::ZERO; D];
             let mut into = R::ZERO;
             // inner neighbour: one cell against the dominant component of the normal
