@@ -208,6 +208,10 @@ impl fmt::Display for SlabError {
             SlabError::Segregation(e) => {
                 write!(f, "the segregation solver of a slab refused its set-up: {e}")
             }
+            SlabError::GeometryMissing => {
+                f.write_str("the run has cut-cell walls and its slabs were given no geometry")
+            }
+            SlabError::Geometry(e) => write!(f, "a slab's cut cells: {e}"),
         }
     }
 }
@@ -229,6 +233,9 @@ impl fmt::Display for CouplingError {
                 "a run on slabs of rows needs the coupled mode (the flow's face mass fluxes carry the small grains)",
             ),
             CouplingError::OtherSlab => f.write_str("another slab of the run stopped"),
+            CouplingError::GeometryMismatch => f.write_str(
+                "the flow's cut-cell walls and the segregation's geometry differ (one has them, the other not)",
+            ),
             CouplingError::NotSteady(r) => write!(
                 f,
                 "the flow did not become steady within the step limit (last residual {r:e} 1/s)"

@@ -884,7 +884,7 @@ fn coupled_case<const D: usize, const M: usize, C: mpi::traits::Communicator>(
     let (starts, mut links) = cut_rows(world, rows, whole.flow.len(), what);
     let mut flow: FlowBox<D, M> = Box::new(sieve_core::flow::Flow::zeroed());
     let mut seg: SegBox<D, M> = Box::new(sieve_core::Segregation::zeroed());
-    let plan = match load_coupled_slab(&whole, &starts, rank, &mut flow, &mut seg) {
+    let plan = match load_coupled_slab(&whole, &starts, rank, &mut flow, &mut seg, None) {
         Ok(p) => p,
         Err(e) => {
             eprintln!("mpi_check --coupled: {what}: rank {rank}: {e}");
@@ -893,7 +893,7 @@ fn coupled_case<const D: usize, const M: usize, C: mpi::traits::Communicator>(
     };
     let mut memory = vec![0.0; plan.memory_len()];
     let mut slab = Slab::new(&plan, &mut links, &mut memory);
-    let mut cpl = match Coupled::on_slab(&mut flow, &mut seg, whole.slab_start(), &mut slab) {
+    let mut cpl = match Coupled::on_slab(&mut flow, &mut seg, whole.slab_start(), None, &mut slab) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("mpi_check --coupled: {what}: rank {rank}: {e}");

@@ -9,7 +9,6 @@ use crate::error::Result;
 use crate::interrupt::Reason;
 use sieve_core::flow::coupled::{Coupled, CoupledTotals};
 use sieve_core::flow::coupled_slab::SlabRecord;
-use sieve_core::flow::slab::HALO;
 use sieve_core::flow::FlowCounters;
 use sieve_core::fork::Serial;
 use sieve_core::sum::FixedSum;
@@ -142,22 +141,25 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for WholeSte
 /// The first row of every rank's slab when a coupled scene of `rows` rows along its last
 /// axis runs on `ranks` MPI ranks: the rows shared evenly, each start rounded down to an
 /// even row (the V-cycle coarsens pairs of rows across a cut). `None` if the ranks cannot
-/// all get a slab of at least [`HALO`] rows (its halo rows must come from one neighbour).
-pub fn slab_starts(rows: usize, ranks: usize) -> Option<Vec<usize>> {
+/// all get a slab of at least `depth` rows, the halo's depth (its halo rows must come from
+/// one neighbour; `sieve_core::flow::slab::halo_rows`). The starts themselves do not
+/// depend on `depth`.
+pub fn slab_starts(rows: usize, ranks: usize, depth: usize) -> Option<Vec<usize>> {
     if ranks == 0 {
         return None;
     }
     let starts: Vec<usize> = (0..ranks).map(|k| k * rows / ranks / 2 * 2).collect();
     let ends = starts.iter().skip(1).copied().chain([rows]);
-    let fits = starts.len() == 1 || starts.iter().zip(ends).all(|(&s, e)| e >= s + HALO);
+    let fits = starts.len() == 1 || starts.iter().zip(ends).all(|(&s, e)| e >= s + depth);
     fits.then_some(starts)
 }
 
-/// The most ranks a coupled scene of `rows` rows runs on ([`slab_starts`]).
-pub fn max_ranks(rows: usize) -> usize {
-    (1..=rows / HALO)
+/// The most ranks a coupled scene of `rows` rows runs on with halos `depth` rows deep
+/// ([`slab_starts`]).
+pub fn max_ranks(rows: usize, depth: usize) -> usize {
+    (1..=rows / depth.max(1))
         .rev()
-        .find(|&k| slab_starts(rows, k).is_some())
+        .find(|&k| slab_starts(rows, k, depth).is_some())
         .unwrap_or(1)
 }
 
@@ -232,6 +234,7 @@ pub fn record_from_words<R: Real, const D: usize>(w: &[u64]) -> Option<SlabRecor
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sieve_core::flow::slab::HALO;
 
     #[test]
     fn a_slab_record_survives_its_words_bit_for_bit() {
@@ -270,19 +273,24 @@ mod tests {
 
     #[test]
     fn slabs_of_a_coupled_run_start_on_even_rows_and_hold_a_halo_each() {
-        assert_eq!(slab_starts(64, 2), Some(vec![0, 32]));
-        assert_eq!(slab_starts(61, 4), Some(vec![0, 14, 30, 44]));
-        assert_eq!(slab_starts(200, 3), Some(vec![0, 66, 132]));
-        assert_eq!(slab_starts(10, 1), Some(vec![0]));
+        assert_eq!(slab_starts(64, 2, HALO), Some(vec![0, 32]));
+        assert_eq!(slab_starts(61, 4, HALO), Some(vec![0, 14, 30, 44]));
+        assert_eq!(slab_starts(200, 3, HALO), Some(vec![0, 66, 132]));
+        assert_eq!(slab_starts(10, 1, HALO), Some(vec![0]));
         // 3 ranks on 10 rows: 0, 2, 6 (the first slab would own 2 rows)
-        assert_eq!(slab_starts(10, 3), None);
-        assert_eq!(max_ranks(10), 2);
-        assert_eq!(max_ranks(64), 16);
-        assert_eq!(max_ranks(3), 1);
-        for rows in 1..100 {
-            let k = max_ranks(rows);
-            let starts = slab_starts(rows, k).unwrap();
-            assert!(starts.iter().all(|s| s % 2 == 0), "{rows}: {starts:?}");
+        assert_eq!(slab_starts(10, 3, HALO), None);
+        assert_eq!(max_ranks(10, HALO), 2);
+        assert_eq!(max_ranks(64, HALO), 16);
+        assert_eq!(max_ranks(3, HALO), 1);
+        // a drum's halo of 7 rows (merge groups spanning a row): 9 ranks on 64 rows
+        assert_eq!(max_ranks(64, 7), 8);
+        assert_eq!(slab_starts(64, 9, 7), None);
+        for depth in [HALO, 7, 10] {
+            for rows in 1..100 {
+                let k = max_ranks(rows, depth);
+                let starts = slab_starts(rows, k, depth).unwrap();
+                assert!(starts.iter().all(|s| s % 2 == 0), "{rows}: {starts:?}");
+            }
         }
     }
 }

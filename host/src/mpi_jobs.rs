@@ -75,13 +75,16 @@ impl FlowJob for Follower<'_> {
     ) -> Result<()> {
         crate::run::load(s, self.scene, self.fields)?;
         if crate::parallel::is_coupled(self.scene) {
-            // as rank 0's coupled run (flow.rs): the same whole run, then this rank's slab
+            // as rank 0's coupled run (run.rs, flow.rs): the same container and whole run,
+            // then this rank's slab
             let resumed = self.resume.map(|st| &st.entries);
-            let mut cpl = crate::flow::coupled_start(f, s, self.scene, self.fields, None, resumed)
+            let geo = crate::embedded::build(s, self.scene)?;
+            let geo = geo.as_deref();
+            let mut cpl = crate::flow::coupled_start(f, s, self.scene, self.fields, geo, resumed)
                 .map_err(|w| match self.resume {
-                    Some(st) => st.incompatible(w),
-                    None => w,
-                })?;
+                Some(st) => st.incompatible(w),
+                None => w,
+            })?;
             return crate::rank_coupled::serve(&mut cpl, self.scene);
         }
         // as rank 0's frozen-flow run (run.rs): the same spin-up (or the checkpoint's frozen

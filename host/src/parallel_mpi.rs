@@ -381,12 +381,13 @@ fn send_stop(code: i32) {
 // Scope
 
 /// Why a scene cannot run under mpirun, before anything is built (every rank finds the
-/// same): cut-cell scenes periodic along their last axis, and coupled scenes with cut cells
-/// or periodic along their last axis or with an inflow, outflow or opening on a side along
-/// the cut (decision: refused, exit 2, rather than run on rank 0 while the other ranks
-/// wait), and more ranks than the rows allow (cut cells: halos [`decomp::GROUP_REACH`] rows
-/// wider; coupled scenes: slabs of [`sieve_core::flow::slab::HALO`] rows at least, starting
-/// on even rows). Checkpoints and `--resume` run (rank 0 writes the checkpoints from its
+/// same): cut-cell scenes periodic along their last axis, and coupled scenes periodic along
+/// their last axis or with an inflow, outflow or opening on a side along the cut (decision:
+/// refused, exit 2, rather than run on rank 0 while the other ranks wait), and more ranks
+/// than the rows allow (cut cells: halos [`decomp::GROUP_REACH`] rows wider; coupled
+/// scenes: slabs of [`sieve_core::flow::slab::HALO`] rows at least, starting on even rows,
+/// and of [`sieve_core::flow::slab::HALO_DEEPEST`] with cut cells, whose merge groups are
+/// not known before the geometry is built). Checkpoints and `--resume` run (rank 0 writes the checkpoints from its
 /// global solver; every rank reads the checkpoint it resumes: `crate::mpi_jobs::follow`).
 pub fn check_scope(scene: &Scene) -> Result<()> {
     let Some((_, ranks)) = world() else {
@@ -410,8 +411,6 @@ pub fn check_scope(scene: &Scene) -> Result<()> {
     });
     let why = if scene.geometry.is_some() && wraps {
         Some("cut-cell (geometry) scenes periodic along their last axis")
-    } else if coupled && scene.geometry.is_some() {
-        Some("coupled-flow scenes with cut cells (geometry)")
     } else if coupled && wraps {
         Some("coupled-flow scenes periodic along their last axis")
     } else if coupled && side_moves_mass {
@@ -428,16 +427,22 @@ pub fn check_scope(scene: &Scene) -> Result<()> {
     }
     let rows = scene.cells[scene.dim - 1];
     if coupled {
-        if crate::coupled_steps::slab_starts(rows, ranks).is_none() {
+        let (halo, whose) = match scene.geometry {
+            Some(_) => (
+                sieve_core::flow::slab::HALO_DEEPEST,
+                "a coupled scene's slabs with cut cells",
+            ),
+            None => (sieve_core::flow::slab::HALO, "a coupled scene's slabs"),
+        };
+        if crate::coupled_steps::slab_starts(rows, ranks, halo).is_none() {
             let axis = crate::scene::validate::axis_names(scene.dim)[scene.dim - 1];
-            let halo = sieve_core::flow::slab::HALO;
             return Err(Error::range(
                 &scene.label,
                 "mpirun -np",
                 ranks,
                 &format!(
-                    "1 to {} ranks for {rows} cells along {axis} (a coupled scene's slabs own at least {halo} rows each, docs/parallel.md)",
-                    crate::coupled_steps::max_ranks(rows)
+                    "1 to {} ranks for {rows} cells along {axis} ({whose} own at least {halo} rows each, docs/parallel.md)",
+                    crate::coupled_steps::max_ranks(rows, halo)
                 ),
             ));
         }
@@ -930,7 +935,8 @@ fn rows_of(snap: &Snapshot, plane: usize, rows: &Range<usize>) -> Snapshot {
 fn piece_rows(scene: &Scene, ranks: usize, rank: usize) -> Range<usize> {
     let rows = scene.cells[scene.dim - 1];
     if is_coupled(scene) {
-        if let Some(starts) = crate::coupled_steps::slab_starts(rows, ranks) {
+        // the starts do not depend on the halo's depth, only whether they fit it
+        if let Some(starts) = crate::coupled_steps::slab_starts(rows, ranks, 1) {
             return starts[rank]..starts.get(rank + 1).copied().unwrap_or(rows);
         }
     }

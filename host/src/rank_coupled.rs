@@ -37,9 +37,10 @@ use mpi::traits::*;
 use sieve_core::flow::coupled::{Coupled, CouplingError};
 use sieve_core::flow::coupled_slab::{load_coupled_slab, store_slab_records};
 use sieve_core::flow::reach::Reach;
-use sieve_core::flow::slab::{Slab, SlabPlan};
+use sieve_core::flow::slab::{halo_rows, Slab, SlabPlan};
 use sieve_core::flow::Flow;
 use sieve_core::fork::Serial;
+use sieve_core::geometry::CutCells;
 use sieve_core::{Real, Segregation};
 use std::ops::Range;
 use std::path::Path;
@@ -51,12 +52,14 @@ const TAG_RECORD: i32 = 53;
 const TAG_ROWS: i32 = 54;
 const TAG_ERROR: i32 = 55;
 
-/// This rank's slab before its driver is built: the solvers and the solves' memory.
+/// This rank's slab before its driver is built: the solvers, the solves' memory, and the
+/// slab's cut cells where the scene has a container.
 struct Parts<R: Real, const D: usize, const N: usize> {
     flow: Box<Flow<R, D, N>>,
     seg: Box<Segregation<R, D, N>>,
     plan: SlabPlan<D>,
     memory: Vec<R>,
+    cut: Option<Box<CutCells<R, D, N>>>,
 }
 
 /// The slabs' first rows and the fine cells each rank owns (the parts of the ordered sums).
@@ -66,8 +69,11 @@ fn cut<R: Real, const D: usize, const N: usize>(
 ) -> Result<(Vec<usize>, Vec<Range<usize>>)> {
     let rows = global.flow.grid().cells()[D - 1];
     let plane = global.flow.len() / rows;
-    let starts = slab_starts(rows, ranks).ok_or_else(|| {
-        Error::failure(format!("{ranks} ranks cannot cut {rows} rows into slabs"))
+    let depth = halo_rows(global.flow);
+    let starts = slab_starts(rows, ranks, depth).ok_or_else(|| {
+        Error::failure(format!(
+            "{ranks} ranks cannot cut {rows} rows into slabs of {depth} rows at least"
+        ))
     })?;
     let parts = (0..ranks)
         .map(|k| starts[k] * plane..starts.get(k + 1).map_or(rows, |&e| e) * plane)
@@ -83,14 +89,25 @@ fn load<R: Real, const D: usize, const N: usize>(
 ) -> Result<Parts<R, D, N>> {
     let mut flow: Box<Flow<R, D, N>> = Box::new(Flow::zeroed());
     let mut seg: Box<Segregation<R, D, N>> = Box::new(Segregation::zeroed());
-    let plan = load_coupled_slab(global, starts, rank, &mut flow, &mut seg)
-        .map_err(|e| Error::failure(format!("rank {rank}: the coupled run's slab: {e}")))?;
+    let mut cut = global
+        .geometry()
+        .map(|_| Box::new(CutCells::<R, D, N>::zeroed()));
+    let plan = load_coupled_slab(
+        global,
+        starts,
+        rank,
+        &mut flow,
+        &mut seg,
+        cut.as_deref_mut(),
+    )
+    .map_err(|e| Error::failure(format!("rank {rank}: the coupled run's slab: {e}")))?;
     let memory = vec![R::ZERO; plan.memory_len()];
     Ok(Parts {
         flow,
         seg,
         plan,
         memory,
+        cut,
     })
 }
 
@@ -384,10 +401,11 @@ pub fn lead<R: Real, const D: usize, const N: usize, T>(
         seg,
         plan,
         memory,
+        cut,
     } = &mut mine;
     let mut slab = Slab::new(plan, &mut links, memory);
     // collective: a failure is every slab's (the others say another slab stopped)
-    let cpl = Coupled::on_slab(flow, seg, global.slab_start(), &mut slab)
+    let cpl = Coupled::on_slab(flow, seg, global.slab_start(), cut.as_deref(), &mut slab)
         .map_err(|e| Error::failure(format!("the coupled run's slabs: {e}")))?;
     let me = Stepper {
         cpl,
@@ -425,10 +443,12 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
         seg,
         plan,
         memory,
+        cut,
     } = &mut mine;
     let (own, cells) = (plan.owned_cells(), plan.global_cells());
     let mut slab = Slab::new(plan, &mut links, memory);
-    let Ok(cpl) = Coupled::on_slab(flow, seg, global.slab_start(), &mut slab) else {
+    let start = global.slab_start();
+    let Ok(cpl) = Coupled::on_slab(flow, seg, start, cut.as_deref(), &mut slab) else {
         // every slab failed alike: rank 0 reports and stops the run
         loop {
             if let Command::Stop(code) = receive() {
@@ -475,6 +495,7 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
                             .map(|i| global.flow.pressure(i).to_f64())
                             .collect(),
                     );
+                    snap.volume = global.geometry().map(crate::embedded::volumes);
                     match write_piece(Path::new(&dir), k, scene, &snap, rank, ranks) {
                         Ok(_) => Vec::new(),
                         Err(e) => crate::parallel_mpi::encode(&e),

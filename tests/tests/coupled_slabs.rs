@@ -17,9 +17,10 @@ use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, CouplingError, Mode};
 use sieve_core::flow::coupled_slab::{load_coupled_slab, store_slab_records, SlabRecord};
 use sieve_core::flow::slab::{Slab, SlabError};
-use sieve_core::flow::{Flow, FlowConfig, FlowSide, PressureMode, Slip};
+use sieve_core::flow::{CutWall, Flow, FlowConfig, FlowSide, PressureMode, Slip};
 use sieve_core::fork::Serial;
 use sieve_core::frame::{Frame, Rotation};
+use sieve_core::geometry::CutCells;
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig, Transport};
 use sieve_core::{Grid, Real};
 use std::ops::Range;
@@ -31,6 +32,19 @@ struct Scene<R: Real, const D: usize> {
     flow: Box<Flow<R, D, N>>,
     seg: Box<Segregation<R, D, N>>,
     coupling: CouplingConfig<R>,
+    /// The container's cut cells (the flow has them already), if any.
+    cut: Option<Box<CutCells<R, D, N>>>,
+}
+
+impl<R: Real, const D: usize> Scene<R, D> {
+    /// The driver of the whole run.
+    fn driver(&mut self) -> Coupled<'_, R, D, N> {
+        match &self.cut {
+            Some(cut) => Coupled::new_embedded(&mut self.flow, &mut self.seg, self.coupling, cut),
+            None => Coupled::new(&mut self.flow, &mut self.seg, self.coupling),
+        }
+        .unwrap()
+    }
 }
 
 /// What one step left: the step, the running counters and books, and every state array of
@@ -70,7 +84,7 @@ fn after<R: Real, const D: usize>(cpl: &Coupled<'_, R, D, N>, dt: R, cells: Rang
 
 /// `steps` serial coupled steps of `scene`, each at its stable step.
 fn serial<R: Real, const D: usize>(mut scene: Scene<R, D>, steps: usize) -> Vec<After> {
-    let mut cpl = Coupled::new(&mut scene.flow, &mut scene.seg, scene.coupling).unwrap();
+    let mut cpl = scene.driver();
     let n = cpl.flow.len();
     (0..steps)
         .map(|_| {
@@ -91,10 +105,14 @@ fn on_slabs<R: Real, const D: usize>(
     on_threads(starts.len(), |k, mut links| {
         let mut flow: Box<Flow<R, D, N>> = Box::new(Flow::zeroed());
         let mut seg: Box<Segregation<R, D, N>> = Box::new(Segregation::zeroed());
-        let plan = load_coupled_slab(start, starts, k, &mut flow, &mut seg).unwrap();
+        let mut cut: Box<CutCells<R, D, N>> = Box::new(CutCells::zeroed());
+        let geo = start.geometry().map(|_| &mut *cut);
+        let plan = load_coupled_slab(start, starts, k, &mut flow, &mut seg, geo).unwrap();
+        let geo = start.geometry().map(|_| &*cut);
         let mut memory = vec![R::ZERO; plan.memory_len()];
         let mut slab = Slab::new(&plan, &mut links, &mut memory);
-        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), &mut slab).unwrap();
+        let mut cpl =
+            Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), geo, &mut slab).unwrap();
         let own = plan.owned_cells();
         let history = (0..steps)
             .map(|_| {
@@ -117,7 +135,7 @@ fn check<R: Real, const D: usize>(
     what: &str,
 ) -> Vec<After> {
     let mut start = make();
-    let start = Coupled::new(&mut start.flow, &mut start.seg, start.coupling).unwrap();
+    let start = start.driver();
     let whole = serial(make(), steps);
     let plane = start.flow.len() / start.flow.grid().cells()[D - 1];
     for starts in cuts {
@@ -222,6 +240,7 @@ fn scene<R: Real, const D: usize>(
         flow,
         seg,
         coupling,
+        cut: None,
     }
 }
 
@@ -372,13 +391,7 @@ fn random_coupled_states_on_slabs_have_the_serial_bits() {
     // the limited transport
     for seed in 1..=12u64 {
         let make = || {
-            let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15);
-            let mut next = move || {
-                state = state
-                    .wrapping_mul(6_364_136_223_846_793_005)
-                    .wrapping_add(1_442_695_040_888_963_407);
-                (state >> 11) as f64 / (1u64 << 53) as f64
-            };
+            let mut next = crate::common::uniform(seed);
             let mut cfg = beads::<f64, 2>();
             if seed % 3 == 0 {
                 cfg.pressure = PressureMode::Implicit;
@@ -423,6 +436,62 @@ fn a_mixed_box_in_its_rotating_frame_on_slabs_has_the_serial_bits() {
         scene(flow, |_, x| if x[0] < 0.04 { 0.8 } else { 0.1 }, |_| {})
     };
     check(make, &[&[0, 8, 16, 24]], 120, "rotating mixed box");
+}
+
+/// A mixed drum of diameter 0.15 m on 32 x 32 cells (a cut-cell wall with 11 deg of
+/// friction), half filled with a tilted surface, fines on the left; turning at 1 rev/s in its
+/// own frame, or in the lab frame with its wall turning (`lab`).
+fn mixed_drum(lab: bool, tune: impl Fn(&mut SegregationConfig<f64, 2>)) -> Scene<f64, 2> {
+    let (grid, cut) = crate::drum_common::drum_cells::<N>(32, 0.15);
+    let mut cfg = beads::<f64, 2>();
+    let omega = 2.0 * std::f64::consts::PI;
+    let tan = 11f64.to_radians().tan();
+    let mut wall = CutWall::resting(Slip::Friction(tan));
+    if lab {
+        wall = CutWall::rotating(Slip::Friction(tan), omega, [0.075, 0.075]);
+    } else {
+        cfg.frame = Frame::Rotating(Rotation::new(omega, [0.075, 0.075], 0).unwrap());
+    }
+    let side = FlowSide::wall(Slip::Friction(tan));
+    let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+    flow.setup(grid, [[side, side], [side, side]], cfg).unwrap();
+    flow.set_geometry(&cut, wall).unwrap();
+    for i in 0..grid.len() {
+        let [x, z] = grid.center(i);
+        let bed = z < 0.075 + 0.4 * (x - 0.075) && !cut.is_solid(i);
+        flow.set_cell(i, if bed { 0.6 } else { 0.0 }, [0.0; 2], 0.0);
+    }
+    let mut s = scene(flow, |_, x| if x[0] < 0.075 { 0.8 } else { 0.2 }, tune);
+    s.cut = Some(cut);
+    s
+}
+
+#[test]
+fn a_mixed_drum_with_its_cut_cell_wall_on_slabs_has_the_serial_bits() {
+    // both solvers on cut cells: the flow's groups and deeper halo (slab.rs `halo_rows`),
+    // the segregation's percolation, flush and carried transport group by group, the
+    // guard's sum continued across the slabs; the cuts cross the groups where the wall
+    // runs along the rows
+    let cuts: [&[usize]; 2] = [&[0, 16], &[0, 8, 24]];
+    let floor = |c: &mut SegregationConfig<f64, 2>| c.flush_below = 1e-9;
+    check(
+        || mixed_drum(false, floor),
+        &cuts,
+        80,
+        "mixed drum in its frame",
+    );
+    check(
+        || mixed_drum(true, |_| {}),
+        &cuts,
+        80,
+        "mixed drum in the lab frame",
+    );
+    let limited = || {
+        let mut s = mixed_drum(false, |_| {});
+        s.seg.set_transport(Transport::Limited);
+        s
+    };
+    check(limited, &cuts[1..], 40, "mixed drum, limited transport");
 }
 
 #[test]
@@ -492,14 +561,15 @@ fn the_slabs_records_make_the_whole_run_whole_again_and_it_steps_on_with_the_ser
     let starts = [0, 4, 12, 20, 26];
     let (steps, more) = (150, 30);
     let mut start = make();
-    let start = Coupled::new(&mut start.flow, &mut start.seg, start.coupling).unwrap();
+    let start = start.driver();
     let slabs: Vec<SlabReport> = on_threads(starts.len(), |k, mut links| {
         let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
         let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
-        let plan = load_coupled_slab(&start, &starts, k, &mut flow, &mut seg).unwrap();
+        let plan = load_coupled_slab(&start, &starts, k, &mut flow, &mut seg, None).unwrap();
         let mut memory = vec![0.0; plan.memory_len()];
         let mut slab = Slab::new(&plan, &mut links, &mut memory);
-        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), &mut slab).unwrap();
+        let mut cpl =
+            Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), None, &mut slab).unwrap();
         for _ in 0..steps {
             let dt = cpl.stable_dt_reaching(&mut slab);
             cpl.step_with_reaching(dt, &Serial, &mut slab).unwrap();
@@ -509,14 +579,14 @@ fn the_slabs_records_make_the_whole_run_whole_again_and_it_steps_on_with_the_ser
         (plan.global_cells(), rows, cpl.slab_record())
     });
     let mut s = make();
-    let mut stored = Coupled::new(&mut s.flow, &mut s.seg, s.coupling).unwrap();
+    let mut stored = s.driver();
     for (cells, rows, _) in &slabs {
         put_rows(&mut stored, cells.clone(), rows);
     }
     let records: Vec<_> = slabs.iter().map(|s| s.2).collect();
     store_slab_records(&mut stored, &records).unwrap();
     let mut w = make();
-    let mut whole = Coupled::new(&mut w.flow, &mut w.seg, w.coupling).unwrap();
+    let mut whole = w.driver();
     for _ in 0..steps {
         let dt = whole.stable_dt();
         whole.step_with(dt).unwrap();
@@ -579,14 +649,16 @@ fn a_slab_that_fails_stops_every_slab_without_a_hang() {
     // segregation refuses its fields (its neighbour's too if the NaN reached its halo), and
     // the last slab says that another slab stopped, at the same point of the step
     let mut start = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
-    let start = Coupled::new(&mut start.flow, &mut start.seg, start.coupling).unwrap();
+    let start = start.driver();
     let outcomes = on_threads(4, |k, mut links| {
         let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
         let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
-        let plan = load_coupled_slab(&start, &[0, 6, 12, 18], k, &mut flow, &mut seg).unwrap();
+        let plan =
+            load_coupled_slab(&start, &[0, 6, 12, 18], k, &mut flow, &mut seg, None).unwrap();
         let mut memory = vec![0.0; plan.memory_len()];
         let mut slab = Slab::new(&plan, &mut links, &mut memory);
-        let mut cpl = Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), &mut slab).unwrap();
+        let mut cpl =
+            Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), None, &mut slab).unwrap();
         if k == 0 {
             cpl.seg.set_phi(2, f64::NAN);
         }
@@ -612,8 +684,8 @@ fn what_does_not_run_on_slabs_is_refused_before_it_starts() {
     // `decomp` run them): not a coupled step on slabs
     let mut alone = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
     alone.coupling.mode = Mode::Prescribed;
-    let cpl = Coupled::new(&mut alone.flow, &mut alone.seg, alone.coupling).unwrap();
-    let refused = load_coupled_slab(&cpl, &[0, 12], 0, &mut flow, &mut seg).err();
+    let cpl = alone.driver();
+    let refused = load_coupled_slab(&cpl, &[0, 12], 0, &mut flow, &mut seg, None).err();
     assert_eq!(
         refused,
         Some(SlabError::NotYet("the prescribed and frozen modes"))
@@ -624,9 +696,9 @@ fn what_does_not_run_on_slabs_is_refused_before_it_starts() {
     );
     // the flow slab's own refusals come through
     let mut plain = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
-    let cpl = Coupled::new(&mut plain.flow, &mut plain.seg, plain.coupling).unwrap();
+    let cpl = plain.driver();
     assert_eq!(
-        load_coupled_slab(&cpl, &[0, 2, 12], 0, &mut flow, &mut seg).err(),
+        load_coupled_slab(&cpl, &[0, 2, 12], 0, &mut flow, &mut seg, None).err(),
         Some(SlabError::Rows {
             index: 0,
             rows: 2,

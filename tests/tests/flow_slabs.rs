@@ -288,13 +288,7 @@ fn random_states_on_slabs_have_the_serial_bits() {
     // rarely puts them.
     for seed in 1..=24u64 {
         let make = || {
-            let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15);
-            let mut next = move || {
-                state = state
-                    .wrapping_mul(6_364_136_223_846_793_005)
-                    .wrapping_add(1_442_695_040_888_963_407);
-                (state >> 11) as f64 / (1u64 << 53) as f64
-            };
+            let mut next = crate::common::uniform(seed);
             let mut flow = boxed::<2>();
             let grid = Grid::new([12, 16], [0.0; 2], [0.06, 0.08], N).unwrap();
             let mut cfg = beads::<2>();
@@ -431,19 +425,7 @@ fn drum_filled(
     mut fill: impl FnMut([f64; 2]) -> (f64, [f64; 2], f64),
 ) -> Box<Flow<f64, 2, N>> {
     use sieve_core::flow::CutWall;
-    use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
-    let n = 32;
-    let (r, h) = (0.075, 0.15 / (n as f64 - 2.0));
-    let lo = 0.075 - r - h;
-    let grid = Grid::new([n, n], [lo; 2], [0.15 + 2.0 * h; 2], N).unwrap();
-    let mut cut: Box<CutCells<f64, 2, N>> = Box::new(CutCells::zeroed());
-    cut.build(
-        &grid,
-        &Region::drum([0.075, 0.075], r),
-        [false; 2],
-        DEFAULT_SMALL,
-    )
-    .unwrap();
+    let (grid, cut) = crate::drum_common::drum_cells::<N>(32, 0.15);
     let mut cfg = beads::<2>();
     cfg.free_surface_push = true;
     let omega = 2.0 * std::f64::consts::PI;
@@ -473,13 +455,7 @@ fn drum_filled(
 /// A random state in the open cells of the drum: empty to packed, velocities up to 1 m/s,
 /// temperatures up to 1e-3 (the `random_states` test's, on cut cells).
 fn random_drum(seed: u64) -> Box<Flow<f64, 2, N>> {
-    let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15);
-    let mut next = move || {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut next = crate::common::uniform(seed);
     let cfg = beads::<2>();
     let c_max = (1.0 - cfg.margin) * cfg.material.phi_rcp;
     drum_filled(seed % 2 == 0, |_| {

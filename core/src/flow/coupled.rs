@@ -107,6 +107,9 @@ pub enum CouplingError {
     SlabsNeedCoupled,
     /// Another slab of a run on slabs stopped (its own error says why).
     OtherSlab,
+    /// The flow has cut-cell walls and no geometry was given to the segregation, or the
+    /// other way round.
+    GeometryMismatch,
 }
 
 /// A residual as f64 (keeps [`CouplingError`] non-generic).
@@ -460,37 +463,36 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
         reach: &mut Re,
     ) -> Result<(), CouplingError> {
         let limit = self.percolation_dt();
-        let (whole, floor) = (reach.whole(), self.slab_floor);
+        let (whole, floor, geo) = (reach.whole(), self.slab_floor, self.geo);
         // Every stage's hot loops at the fork's instruction set (docs/simd.md).
         self.seg.step_percolation_substeps_then::<F::Isa>(
             dt,
             limit,
             PERCOLATION_SUBSTEPS,
-            self.geo,
+            geo,
             |seg, before| {
                 if !whole {
-                    end_slab_substep(seg, floor, before, reach);
+                    end_slab_substep(seg, geo, floor, before, reach);
                 }
             },
         );
         self.flow.step_reaching(dt, fork, reach);
-        let d = match self.geo {
+        let guard_sum = |moved: &[R], any| {
+            if whole {
+                serial_guard_sum(moved, any)
+            } else {
+                reach.sum_in_order(R::ZERO, |mut sum| {
+                    add_nonzero(&mut sum, moved);
+                    sum
+                })
+            }
+        };
+        let fx = self.flow.mass_fluxes();
+        let d = match geo {
             Some(g) => self
                 .seg
-                .carry_mass_fluxes_embedded(self.flow.mass_fluxes(), g),
-            None => self.seg.carry_mass_fluxes_summing::<F::Isa>(
-                self.flow.mass_fluxes(),
-                |moved, any| {
-                    if whole {
-                        serial_guard_sum(moved, any)
-                    } else {
-                        reach.sum_in_order(R::ZERO, |mut sum| {
-                            add_nonzero(&mut sum, moved);
-                            sum
-                        })
-                    }
-                },
-            ),
+                .carry_mass_fluxes_embedded_summing(fx, g, guard_sum),
+            None => self.seg.carry_mass_fluxes_summing::<F::Isa>(fx, guard_sum),
         };
         for a in 0..D {
             for side in 0..2 {
@@ -540,11 +542,15 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
                 .map_err(CouplingError::Segregation);
         }
         let own = reach.owned(self.seg.grid().len());
-        let mine = self.seg.prepare_owned_with(fork, own);
+        let mine = match self.geo {
+            Some(g) => self.seg.prepare_embedded_owned_with(g, fork, own),
+            None => self.seg.prepare_owned_with(fork, own),
+        };
         // a slab that failed sends a positive value: every slab learns of it
-        let sent = match mine {
-            Ok(()) => -self.seg.stable_dt_percolation(),
-            Err(_) => R::ONE,
+        let sent = match (mine, self.geo) {
+            (Ok(()), Some(g)) => -self.seg.stable_dt_percolation_embedded(g),
+            (Ok(()), None) => -self.seg.stable_dt_percolation(),
+            (Err(_), _) => R::ONE,
         };
         let most = reach.max(sent);
         match mine {
@@ -605,6 +611,11 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
         m
     }
 
+    /// The cut cells of the container's walls, if any ([`Self::new_embedded`]).
+    pub fn geometry(&self) -> Option<&'a CutCells<R, D, N>> {
+        self.geo
+    }
+
     /// The configuration.
     pub fn config(&self) -> &CouplingConfig<R> {
         &self.cfg
@@ -646,13 +657,15 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
     /// The driver of one slab of a coupled run cut into slabs of rows (coupled mode; docs/
     /// parallel.md, "The coupled step on slabs"): `flow` and `seg` as
     /// [`super::coupled_slab::load_coupled_slab`] set them up, `start` from the whole run
-    /// ([`Self::slab_start`]). Prepares the segregation over the owned cells with the
-    /// percolation limit across the slabs (collective: every slab calls it). Step it with
-    /// [`Self::stable_dt_reaching`] and [`Self::step_with_reaching`].
+    /// ([`Self::slab_start`]), and `geo` the slab's cut cells where the whole run has them
+    /// (`load_coupled_slab` loads them). Prepares the segregation over the owned cells with
+    /// the percolation limit across the slabs (collective: every slab calls it). Step it
+    /// with [`Self::stable_dt_reaching`] and [`Self::step_with_reaching`].
     pub fn on_slab<Re: Reach<R, D, N>>(
         flow: &'a mut Flow<R, D, N>,
         seg: &'a mut Segregation<R, D, N>,
         start: SlabStart<R, D>,
+        geo: Option<&'a CutCells<R, D, N>>,
         reach: &mut Re,
     ) -> Result<Self, CouplingError> {
         let SlabStart {
@@ -663,10 +676,14 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
         if cfg.mode != Mode::Coupled {
             return Err(CouplingError::SlabsNeedCoupled);
         }
-        if flow.grid() != seg.grid() {
+        if flow.grid() != seg.grid() || geo.is_some_and(|g| g.grid() != flow.grid()) {
             return Err(CouplingError::GridMismatch);
         }
+        if flow.has_geometry() != geo.is_some() {
+            return Err(CouplingError::GeometryMismatch);
+        }
         let mut s = Self::unprepared(flow, seg, cfg);
+        s.geo = geo;
         s.out_small = totals.out_small;
         s.out_total = totals.out_total;
         s.guarded = totals.guarded;
@@ -678,10 +695,12 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
 }
 
 /// The end of a percolation sub-step on a slab ([`Coupled::step_with_reaching`]): the flush
-/// of the owned cells, when due, into the running counter in cell order across the slabs,
-/// then the halo rows of `q` (and of its carry when compensated) from their owners.
+/// of the owned cells (on cut cells: of the groups with an owned member), when due, into the
+/// running counter in cell order across the slabs, then the halo rows of `q` (and of its
+/// carry when compensated) from their owners.
 fn end_slab_substep<R: Real, const D: usize, const N: usize, Re: Reach<R, D, N>>(
     seg: &mut Segregation<R, D, N>,
+    geo: Option<&CutCells<R, D, N>>,
     floor: R,
     before: u64,
     reach: &mut Re,
@@ -690,7 +709,11 @@ fn end_slab_substep<R: Real, const D: usize, const N: usize, Re: Reach<R, D, N>>
         let counter = seg.flushed_tracked();
         let total = reach.sum_in_order(counter, |mut sum| {
             let mut excess = seg.tracked_excess();
-            seg.end_owned_step(floor, before, &mut excess, |_, v| sum += v);
+            let add = |_, v| sum += v;
+            match geo {
+                Some(g) => seg.end_owned_step_embedded(g, floor, before, &mut excess, add),
+                None => seg.end_owned_step(floor, before, &mut excess, add),
+            }
             sum
         });
         seg.set_flushed_tracked(total);

@@ -19,6 +19,7 @@ use super::coupled::{Coupled, CoupledTotals, CouplingError, Mode};
 use super::slab::{load_slab, SlabError, SlabPlan};
 use super::{Flow, FlowCounters};
 use crate::boundary::Boundary;
+use crate::geometry::CutCells;
 use crate::real::Real;
 use crate::segregation::Segregation;
 use crate::sum::FixedSum;
@@ -26,20 +27,29 @@ use crate::sum::FixedSum;
 /// Sets `flow` and `seg` up as slab `index` of the coupled run `global` cut into slabs that
 /// begin at the rows `starts` ([`load_slab`]): the flow slab, and the segregation solver on
 /// the same rows with every state array, its clock, bound maxima and flush counter copied (the
-/// books of its open sides go to the first slab). Build the slab's driver with
-/// [`Coupled::on_slab`] (with `global.slab_start()`).
+/// books of its open sides go to the first slab); where the whole run has cut cells, their
+/// rows and halo rows into `geo` ([`CutCells::load_slab`]). Build the slab's driver with
+/// [`Coupled::on_slab`] (with `global.slab_start()` and `geo`).
 pub fn load_coupled_slab<R: Real, const D: usize, const M: usize, const N: usize>(
     global: &Coupled<'_, R, D, M>,
     starts: &[usize],
     index: usize,
     flow: &mut Flow<R, D, N>,
     seg: &mut Segregation<R, D, N>,
+    geo: Option<&mut CutCells<R, D, N>>,
 ) -> Result<SlabPlan<D>, SlabError> {
     if global.config().mode != Mode::Coupled {
         return Err(SlabError::NotYet("the prescribed and frozen modes"));
     }
     let whole = &*global.seg;
     let plan = load_slab(global.flow, starts, index, flow)?;
+    if let Some(cut) = global.geometry() {
+        let local = geo.ok_or(SlabError::GeometryMissing)?;
+        let first = plan.rows.start - plan.halo[0];
+        local
+            .load_slab(cut, first, flow.grid().cells()[D - 1])
+            .map_err(SlabError::Geometry)?;
+    }
     let mut bc = *whole.boundaries();
     for (side, &h) in plan.halo.iter().enumerate() {
         if h > 0 {

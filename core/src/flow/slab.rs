@@ -23,6 +23,7 @@ use super::reach::Reach;
 use super::{Flow, FlowError, FlowSide, Slip};
 use crate::boundary::Boundary;
 use crate::fork::Fork;
+use crate::geometry::GeometryError;
 use crate::real::Real;
 use crate::segregation::SetupError;
 use core::ops::Range;
@@ -36,6 +37,10 @@ use core::ops::Range;
 /// pointwise values there (the pressure, the coefficients, `u = m / c`), and the solves
 /// refresh what they solve for. So 4 rows, refreshed once per step.
 pub const HALO: usize = 4;
+
+/// The deepest halo [`halo_rows`] asks for (merge groups spanning 2 rows beyond their
+/// first): what a driver that has not built the geometry yet must allow for.
+pub const HALO_DEEPEST: usize = HALO + 3 * 2;
 
 /// The halo's depth of the slabs of `flow`: [`HALO`] rows, and 3 more per row a merge group
 /// of an embedded wall spans beyond its first (`Walls::rows_spanned`: 0, 1 or 2). Why deeper:
@@ -82,6 +87,10 @@ pub enum SlabError {
     Setup(FlowError),
     /// The slab's segregation solver refused its set-up (a coupled run on slabs).
     Segregation(SetupError),
+    /// The whole run has cut cells and no geometry was given to hold the slab's.
+    GeometryMissing,
+    /// The slab's cut cells could not be loaded.
+    Geometry(GeometryError),
 }
 
 /// Where one slab's rows lie, and its part of the solves' preconditioner.

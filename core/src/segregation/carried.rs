@@ -291,17 +291,6 @@ pub(super) fn guard<R: Real>(q: R, c: R) -> (R, R) {
     }
 }
 
-/// [`guard`], the amount moved added to `guarded` (`guarded - q` is `guarded + (-q)` to the
-/// bit): the donor rule on cut cells.
-#[inline(always)]
-fn guard_tracked<R: Real>(q: R, c: R, guarded: &mut R) -> R {
-    let (kept, moved) = guard(q, c);
-    if moved != R::ZERO {
-        *guarded += moved;
-    }
-    kept
-}
-
 /// The guard's sum of one carried transport on the whole grid: the nonzero amounts moved, in
 /// cell order, from 0 (none if `any` is false).
 pub(crate) fn serial_guard_sum<R: Real>(moved: &[R], any: bool) -> R {
@@ -323,10 +312,10 @@ pub(crate) fn add_nonzero<R: Real>(sum: &mut R, moved: &[R]) {
 }
 
 /// Pass B of [`Segregation::carry_mass_fluxes`] over the cells: the tracked `q + carry`
-/// guarded into `[0, c]` (`guard_tracked`), the donor fraction `qhat` into `flux`, the kept
+/// guarded into `[0, c]` ([`guard`]), the donor fraction `qhat` into `flux`, the kept
 /// shares of both phases into `q` and `untracked`, carry cleared. What the guard moved goes
 /// to `rhs` in the cell's place (the outflow `O_i` is read there first; [`guard`]), so that
-/// the caller sums it in cell order, as `guard_tracked` would. Selects only, so the
+/// the caller sums it in cell order ([`add_nonzero`]). Selects only, so the
 /// loop vectorises: its two divisions per cell were the cost of the pass. Returns whether any
 /// cell was guarded. Inlined into its hot loop (`carry_mass_fluxes_on`).
 #[inline(always)]
@@ -388,8 +377,21 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         fx: MassFluxes<'_, R, D, N>,
         geo: &CutCells<R, D, N>,
     ) -> Discharge<R, D> {
+        self.carry_mass_fluxes_embedded_summing(fx, geo, serial_guard_sum)
+    }
+
+    /// [`Self::carry_mass_fluxes_embedded`] with the guard's sum left to `guard_sum(moved,
+    /// any)`, as [`Self::carry_mass_fluxes_summing`] does it in a box: `moved` holds what
+    /// the guard moved in each counted cell, in cell order (a slab continues the sum of the
+    /// slabs below).
+    pub fn carry_mass_fluxes_embedded_summing(
+        &mut self,
+        fx: MassFluxes<'_, R, D, N>,
+        geo: &CutCells<R, D, N>,
+        guard_sum: impl FnOnce(&[R], bool) -> R,
+    ) -> Discharge<R, D> {
         if self.transport == Transport::Limited {
-            return self.carry_limited(fx, Some(geo), serial_guard_sum);
+            return self.carry_limited(fx, Some(geo), guard_sum);
         }
         let n = self.grid.len();
         let grid = self.grid;
@@ -399,11 +401,13 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         self.outflow_into_rhs(fx);
         self.gather_outflow_at_masters(geo);
         // Keep the share of each group, as content at the master; members hold nothing
-        // until the end. `flux` holds every cell's tracked fraction (uniform in a group).
-        let mut guarded = R::ZERO;
+        // until the end. `flux` holds every cell's tracked fraction (uniform in a group),
+        // `rhs` what the guard moved in the cell's place once its outflow is read.
+        let mut any = false;
         for i in 0..n {
             let c = self.c[i];
-            let q = guard_tracked(self.q[i], c, &mut guarded);
+            let (q, moved) = guard(self.q[i], c);
+            any |= moved != R::ZERO;
             self.flux[i] = if c > R::ZERO {
                 (q / c).min(R::ONE)
             } else {
@@ -412,6 +416,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             if geo.master(i) != i || geo.is_solid(i) {
                 self.q[i] = R::ZERO;
                 self.k[0][i] = R::ZERO;
+                self.rhs[i] = moved;
                 continue;
             }
             let vg = geo.group_volume(i);
@@ -423,8 +428,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             };
             self.q[i] = vg * q * keep;
             self.k[0][i] = vg * (c - q) * keep;
+            self.rhs[i] = moved;
         }
-        out.guarded = guarded * vol;
+        let counted = self.tally.0.min(n)..self.tally.1.min(n);
+        out.guarded = guard_sum(&self.rhs[counted], any) * vol;
         self.receive_faces(fx, &mut out, |i| geo.master(i));
         self.spread_group_content(geo);
         for i in 0..n {

@@ -111,6 +111,26 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// the coefficients. Solid cells keep whatever they hold and never change.
     pub fn prepare_embedded(&mut self, geo: &CutCells<R, D, N>) -> Result<(), SetupError> {
         self.check_geometry(geo)?;
+        self.merge_group_states(geo);
+        self.prepare()
+    }
+
+    /// [`Self::prepare_embedded`] for a subdomain that owns the cells `owned`
+    /// ([`Self::prepare_owned_with`]): the groups' states, then the coefficients with the
+    /// rates and maxima of the owned cells (on cut cells: of the groups whose master it owns).
+    pub fn prepare_embedded_owned_with<F: crate::fork::Fork>(
+        &mut self,
+        geo: &CutCells<R, D, N>,
+        fork: &F,
+        owned: Range<usize>,
+    ) -> Result<(), SetupError> {
+        self.check_geometry(geo)?;
+        self.merge_group_states(geo);
+        self.prepare_owned_with(fork, owned)
+    }
+
+    /// Every merge group one state (module docs), the compensated carry cleared.
+    fn merge_group_states(&mut self, geo: &CutCells<R, D, N>) {
         let n = self.grid.len();
         for m in 0..n {
             if !geo.has_merged(m) {
@@ -142,7 +162,6 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         for i in 0..n {
             self.carry[i] = R::ZERO;
         }
-        self.prepare()
     }
 
     /// The largest stable step on cut cells (`R::MAX` if nothing moves); see the module docs.

@@ -16,6 +16,18 @@ pub const N1: usize = 1024;
 /// Capacity of the 2D Gray–Thornton grids (160 x 80 = 12800 cells).
 pub const N2: usize = 16384;
 
+/// Uniform numbers in `[0, 1)` from a 64-bit linear congruential generator seeded by `seed`
+/// (the random states of the slab tests).
+pub fn uniform(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 /// A zeroed solver on the heap.
 ///
 /// `Segregation<R, D, N>` holds `(6 + 2 D) N` reals (1.3 MB for the 2D f64 tests), more than is

@@ -26,21 +26,25 @@ pub struct HalfDrum<const M: usize> {
     pub cut: Box<CutCells<f64, 2, M>>,
 }
 
+/// A drum of `diameter` on `n x n` cells, one cell of the box around it (its centre at
+/// `diameter / 2` on both axes): the grid and its cut cells.
+pub fn drum_cells<const M: usize>(
+    n: usize,
+    diameter: f64,
+) -> (Grid<f64, 2>, Box<CutCells<f64, 2, M>>) {
+    let r = 0.5 * diameter;
+    let h = diameter / (n as f64 - 2.0);
+    let grid = Grid::new([n, n], [-h; 2], [diameter + 2.0 * h; 2], M).unwrap();
+    let mut cut: Box<CutCells<f64, 2, M>> = Box::new(CutCells::zeroed());
+    cut.build(&grid, &Region::drum([r, r], r), [false; 2], DEFAULT_SMALL)
+        .unwrap();
+    (grid, cut)
+}
+
 /// Builds the drum with the flow configuration `cfg` (its frame is set here). Call on a
 /// big-stack thread (`sieve_tests::run_big`).
 pub fn half_drum<const M: usize>(mut cfg: FlowConfig<f64, 2>) -> HalfDrum<M> {
-    let n = 24;
-    let (r, h) = (0.05, 0.1 / (n as f64 - 2.0));
-    let lo = 0.05 - r - h;
-    let grid = Grid::new([n, n], [lo; 2], [0.1 + 2.0 * h; 2], M).unwrap();
-    let mut cut: Box<CutCells<f64, 2, M>> = Box::new(CutCells::zeroed());
-    cut.build(
-        &grid,
-        &Region::drum([0.05, 0.05], r),
-        [false; 2],
-        DEFAULT_SMALL,
-    )
-    .unwrap();
+    let (grid, cut) = drum_cells::<M>(24, 0.1);
     cfg.frame = Frame::Rotating(Rotation::new(2.0 * PI, [0.05, 0.05], 0).unwrap());
     let tan = 11f64.to_radians().tan();
     let wall = FlowSide::wall(Slip::Friction(tan));
