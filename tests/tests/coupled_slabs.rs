@@ -705,4 +705,31 @@ fn what_does_not_run_on_slabs_is_refused_before_it_starts() {
             depth: 4
         })
     );
+    // a run on cut cells needs the slab's cut cells, and its driver the same geometry as
+    // its flow; its slabs own the deeper halo's rows
+    let mut drum = mixed_drum(false, |_| {});
+    let cpl = drum.driver();
+    let missing = load_coupled_slab(&cpl, &[0, 16], 0, &mut flow, &mut seg, None).err();
+    assert_eq!(missing, Some(SlabError::GeometryMissing));
+    assert_eq!(
+        missing.unwrap().to_string(),
+        "the run has cut-cell walls and its slabs were given no geometry"
+    );
+    let mut cut: Box<CutCells<f64, 2, N>> = Box::new(CutCells::zeroed());
+    let thin = load_coupled_slab(&cpl, &[0, 6], 0, &mut flow, &mut seg, Some(&mut *cut)).err();
+    assert_eq!(
+        thin.unwrap().to_string(),
+        "slab 0 owns 6 rows; every slab needs at least 7 (its halo's depth)"
+    );
+    let plan = load_coupled_slab(&cpl, &[0, 16], 0, &mut flow, &mut seg, Some(&mut *cut)).unwrap();
+    let mut links = crate::common::thread_links::ThreadLinks::chain(2).swap_remove(0);
+    let mut memory = vec![0.0; plan.memory_len()];
+    let mut slab = Slab::new(&plan, &mut links, &mut memory);
+    let start = cpl.slab_start();
+    let mismatch = Coupled::on_slab(&mut flow, &mut seg, start, None, &mut slab).err();
+    assert_eq!(mismatch, Some(CouplingError::GeometryMismatch));
+    assert_eq!(
+        mismatch.unwrap().to_string(),
+        "the flow's cut-cell walls and the segregation's geometry differ (one has them, the other not)"
+    );
 }
