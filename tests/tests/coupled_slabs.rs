@@ -17,7 +17,7 @@ use sieve_core::closure::{Material, Packing};
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, CouplingError, Mode};
 use sieve_core::flow::coupled_slab::{load_coupled_slab, store_slab_records, SlabRecord};
 use sieve_core::flow::slab::{Slab, SlabError};
-use sieve_core::flow::{CutWall, Flow, FlowConfig, FlowSide, PressureMode, Slip};
+use sieve_core::flow::{Flow, FlowConfig, FlowSide, PressureMode, Slip};
 use sieve_core::fork::Serial;
 use sieve_core::frame::{Frame, Rotation};
 use sieve_core::geometry::CutCells;
@@ -442,20 +442,8 @@ fn a_mixed_box_in_its_rotating_frame_on_slabs_has_the_serial_bits() {
 /// friction), half filled with a tilted surface, fines on the left; turning at 1 rev/s in its
 /// own frame, or in the lab frame with its wall turning (`lab`).
 fn mixed_drum(lab: bool, tune: impl Fn(&mut SegregationConfig<f64, 2>)) -> Scene<f64, 2> {
-    let (grid, cut) = crate::drum_common::drum_cells::<N>(32, 0.15);
-    let mut cfg = beads::<f64, 2>();
-    let omega = 2.0 * std::f64::consts::PI;
-    let tan = 11f64.to_radians().tan();
-    let mut wall = CutWall::resting(Slip::Friction(tan));
-    if lab {
-        wall = CutWall::rotating(Slip::Friction(tan), omega, [0.075, 0.075]);
-    } else {
-        cfg.frame = Frame::Rotating(Rotation::new(omega, [0.075, 0.075], 0).unwrap());
-    }
-    let side = FlowSide::wall(Slip::Friction(tan));
-    let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
-    flow.setup(grid, [[side, side], [side, side]], cfg).unwrap();
-    flow.set_geometry(&cut, wall).unwrap();
+    let (mut flow, cut) = crate::drum_common::turning_drum::<N>(lab, beads::<f64, 2>());
+    let grid = *flow.grid();
     for i in 0..grid.len() {
         let [x, z] = grid.center(i);
         let bed = z < 0.075 + 0.4 * (x - 0.075) && !cut.is_solid(i);

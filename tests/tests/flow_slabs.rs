@@ -424,22 +424,10 @@ fn drum_filled(
     lab: bool,
     mut fill: impl FnMut([f64; 2]) -> (f64, [f64; 2], f64),
 ) -> Box<Flow<f64, 2, N>> {
-    use sieve_core::flow::CutWall;
-    let (grid, cut) = crate::drum_common::drum_cells::<N>(32, 0.15);
     let mut cfg = beads::<2>();
     cfg.free_surface_push = true;
-    let omega = 2.0 * std::f64::consts::PI;
-    let tan = 11f64.to_radians().tan();
-    let mut wall = CutWall::resting(Slip::Friction(tan));
-    if lab {
-        wall = CutWall::rotating(Slip::Friction(tan), omega, [0.075, 0.075]);
-    } else {
-        cfg.frame = Frame::Rotating(Rotation::new(omega, [0.075, 0.075], 0).unwrap());
-    }
-    let side = FlowSide::wall(Slip::Friction(tan));
-    let mut flow = boxed::<2>();
-    flow.setup(grid, [[side, side], [side, side]], cfg).unwrap();
-    flow.set_geometry(&cut, wall).unwrap();
+    let (mut flow, cut) = crate::drum_common::turning_drum::<N>(lab, cfg);
+    let grid = *flow.grid();
     for i in 0..grid.len() {
         let (c, u, t) = if cut.is_solid(i) {
             (0.0, [0.0; 2], 0.0)

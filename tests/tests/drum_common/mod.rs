@@ -41,6 +41,29 @@ pub fn drum_cells<const M: usize>(
     (grid, cut)
 }
 
+/// The drum of [`drum_cells`] at 0.15 m on 32 x 32 cells as a flow of `cfg`, walls with
+/// 11 deg of friction, turning at 1 rev/s in its own frame, or (`lab`) in the lab frame with
+/// its cut-cell wall turning; the cells not yet set. The slab tests' drum.
+pub fn turning_drum<const M: usize>(
+    lab: bool,
+    mut cfg: FlowConfig<f64, 2>,
+) -> (Box<Flow<f64, 2, M>>, Box<CutCells<f64, 2, M>>) {
+    let (grid, cut) = drum_cells::<M>(32, 0.15);
+    let omega = 2.0 * PI;
+    let tan = 11f64.to_radians().tan();
+    let mut wall = CutWall::resting(Slip::Friction(tan));
+    if lab {
+        wall = CutWall::rotating(Slip::Friction(tan), omega, [0.075, 0.075]);
+    } else {
+        cfg.frame = Frame::Rotating(Rotation::new(omega, [0.075, 0.075], 0).unwrap());
+    }
+    let side = FlowSide::wall(Slip::Friction(tan));
+    let mut flow: Box<Flow<f64, 2, M>> = Box::new(Flow::zeroed());
+    flow.setup(grid, [[side, side], [side, side]], cfg).unwrap();
+    flow.set_geometry(&cut, wall).unwrap();
+    (flow, cut)
+}
+
 /// Builds the drum with the flow configuration `cfg` (its frame is set here). Call on a
 /// big-stack thread (`sieve_tests::run_big`).
 pub fn half_drum<const M: usize>(mut cfg: FlowConfig<f64, 2>) -> HalfDrum<M> {
