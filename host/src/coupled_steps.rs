@@ -5,7 +5,7 @@
 //! answer it. The decision whether a step may be taken at all ([`plan_step`]) is a pure
 //! function of values every rank holds, so every rank takes it alike without a message.
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::interrupt::Reason;
 use sieve_core::flow::coupled::{Coupled, CoupledTotals};
 use sieve_core::flow::coupled_slab::SlabRecord;
@@ -154,6 +154,26 @@ pub fn slab_starts(rows: usize, ranks: usize, depth: usize) -> Option<Vec<usize>
     fits.then_some(starts)
 }
 
+/// Bad input: `ranks` ranks for a coupled scene (`file`, `dim` axes) of `rows` rows whose
+/// slabs need halos `depth` rows deep, in the user's words (exit 2).
+pub fn too_many_ranks(file: &str, dim: usize, rows: usize, ranks: usize, depth: usize) -> Error {
+    let axis = crate::scene::validate::axis_names(dim)[dim - 1];
+    let why = if depth > sieve_core::flow::slab::HALO {
+        "with this scene's merged cut cells "
+    } else {
+        ""
+    };
+    Error::range(
+        file,
+        "mpirun -np",
+        ranks,
+        &format!(
+            "1 to {} ranks for {rows} cells along {axis} (a coupled scene's slabs {why}own at least {depth} rows each, docs/parallel.md)",
+            max_ranks(rows, depth)
+        ),
+    )
+}
+
 /// The most ranks a coupled scene of `rows` rows runs on with halos `depth` rows deep
 /// ([`slab_starts`]).
 pub fn max_ranks(rows: usize, depth: usize) -> usize {
@@ -285,6 +305,11 @@ mod tests {
         // a drum's halo of 7 rows (merge groups spanning a row): 9 ranks on 64 rows
         assert_eq!(max_ranks(64, 7), 8);
         assert_eq!(slab_starts(64, 9, 7), None);
+        let e = too_many_ranks("tumbler.toml", 2, 34, 5, 7).to_string();
+        assert_eq!(
+            e,
+            "tumbler.toml: mpirun -np = 5 is out of range: allowed 1 to 4 ranks for 34 cells along z (a coupled scene's slabs with this scene's merged cut cells own at least 7 rows each, docs/parallel.md)"
+        );
         for depth in [HALO, 7, 10] {
             for rows in 1..100 {
                 let k = max_ranks(rows, depth);

@@ -540,7 +540,9 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
     };
     #[cfg(feature = "mpi")]
     if crate::parallel_mpi::world().is_some_and(|(rank, _)| rank == 0) {
-        return crate::rank_coupled::lead(&mut cpl, |cpl, steps| looped.run(cpl, steps, on_output));
+        return crate::rank_coupled::lead(&mut cpl, scene, |cpl, steps| {
+            looped.run(cpl, steps, on_output)
+        });
     }
     let mut steps = WholeSteps {
         // `--threads`: the flow's linear solves on a pool (the same bits, docs/parallel.md)

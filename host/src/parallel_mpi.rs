@@ -385,9 +385,9 @@ fn send_stop(code: i32) {
 /// their last axis or with an inflow, outflow or opening on a side along the cut (decision:
 /// refused, exit 2, rather than run on rank 0 while the other ranks wait), and more ranks
 /// than the rows allow (cut cells: halos [`decomp::GROUP_REACH`] rows wider; coupled
-/// scenes: slabs of [`sieve_core::flow::slab::HALO`] rows at least, starting on even rows,
-/// and of [`sieve_core::flow::slab::HALO_DEEPEST`] with cut cells, whose merge groups are
-/// not known before the geometry is built). Checkpoints and `--resume` run (rank 0 writes the checkpoints from its
+/// scenes: slabs of [`sieve_core::flow::slab::HALO`] rows at least, starting on even rows;
+/// with merged cut cells the halo is deeper, which the ranks check once the geometry is
+/// built, before the first step: `crate::rank_coupled`). Checkpoints and `--resume` run (rank 0 writes the checkpoints from its
 /// global solver; every rank reads the checkpoint it resumes: `crate::mpi_jobs::follow`).
 pub fn check_scope(scene: &Scene) -> Result<()> {
     let Some((_, ranks)) = world() else {
@@ -427,23 +427,11 @@ pub fn check_scope(scene: &Scene) -> Result<()> {
     }
     let rows = scene.cells[scene.dim - 1];
     if coupled {
-        let (halo, whose) = match scene.geometry {
-            Some(_) => (
-                sieve_core::flow::slab::HALO_DEEPEST,
-                "a coupled scene's slabs with cut cells",
-            ),
-            None => (sieve_core::flow::slab::HALO, "a coupled scene's slabs"),
-        };
+        let halo = sieve_core::flow::slab::HALO;
         if crate::coupled_steps::slab_starts(rows, ranks, halo).is_none() {
-            let axis = crate::scene::validate::axis_names(scene.dim)[scene.dim - 1];
-            return Err(Error::range(
-                &scene.label,
-                "mpirun -np",
-                ranks,
-                &format!(
-                    "1 to {} ranks for {rows} cells along {axis} ({whose} own at least {halo} rows each, docs/parallel.md)",
-                    crate::coupled_steps::max_ranks(rows, halo)
-                ),
+            let (label, dim) = (&scene.label, scene.dim);
+            return Err(crate::coupled_steps::too_many_ranks(
+                label, dim, rows, ranks, halo,
             ));
         }
         return Ok(());

@@ -23,7 +23,9 @@
 //! A rank whose slab's step fails names the cell in its slab's numbering; rank 0 scans its
 //! gathered whole run first, so a non-finite value is named as the serial run names it.
 
-use crate::coupled_steps::{plan_step, record_from_words, record_words, slab_starts, CoupledSteps};
+use crate::coupled_steps::{
+    plan_step, record_from_words, record_words, slab_starts, too_many_ranks, CoupledSteps,
+};
 use crate::data::Snapshot;
 use crate::error::{Error, Result};
 use crate::interrupt::Reason;
@@ -63,18 +65,18 @@ struct Parts<R: Real, const D: usize, const N: usize> {
 }
 
 /// The slabs' first rows and the fine cells each rank owns (the parts of the ordered sums).
+/// Too many ranks for the halo's depth (deeper with merged cut cells, known only now that
+/// the geometry is built) are bad input of the scene `file`, before any step.
 fn cut<R: Real, const D: usize, const N: usize>(
     global: &Coupled<'_, R, D, N>,
     ranks: usize,
+    file: &str,
 ) -> Result<(Vec<usize>, Vec<Range<usize>>)> {
     let rows = global.flow.grid().cells()[D - 1];
     let plane = global.flow.len() / rows;
     let depth = halo_rows(global.flow);
-    let starts = slab_starts(rows, ranks, depth).ok_or_else(|| {
-        Error::failure(format!(
-            "{ranks} ranks cannot cut {rows} rows into slabs of {depth} rows at least"
-        ))
-    })?;
+    let starts = slab_starts(rows, ranks, depth)
+        .ok_or_else(|| too_many_ranks(file, D, rows, ranks, depth))?;
     let parts = (0..ranks)
         .map(|k| starts[k] * plane..starts.get(k + 1).map_or(rows, |&e| e) * plane)
         .collect();
@@ -111,15 +113,17 @@ fn load<R: Real, const D: usize, const N: usize>(
     })
 }
 
-/// This rank's slab of `global` and every rank's owned cells, once every rank has loaded
-/// its own ([`agree`]: the first failure in rank order is every rank's).
+/// This rank's slab of `global` (of the scene `file`) and every rank's owned cells, once
+/// every rank has loaded its own ([`agree`]: the first failure in rank order is every
+/// rank's).
 fn join<R: Real, const D: usize, const N: usize>(
     global: &Coupled<'_, R, D, N>,
+    file: &str,
 ) -> Result<(Parts<R, D, N>, Vec<Range<usize>>)> {
     let (rank, ranks) =
         crate::parallel_mpi::world().ok_or_else(|| Error::failure("not an MPI run"))?;
-    let loaded =
-        cut(global, ranks).and_then(|(starts, parts)| Ok((load(global, &starts, rank)?, parts)));
+    let loaded = cut(global, ranks, file)
+        .and_then(|(starts, parts)| Ok((load(global, &starts, rank)?, parts)));
     agree(loaded.as_ref().err())?;
     loaded
 }
@@ -391,9 +395,10 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for RankStep
 /// [`RankSteps`]; `global` is then the record of the slabs (after each sync).
 pub fn lead<R: Real, const D: usize, const N: usize, T>(
     global: &mut Coupled<'_, R, D, N>,
+    scene: &Scene,
     run: impl FnOnce(&mut Coupled<'_, R, D, N>, &mut RankSteps<'_, '_, R, D, N>) -> Result<T>,
 ) -> Result<T> {
-    let (mut mine, parts) = join(global)?;
+    let (mut mine, parts) = join(global, &scene.label)?;
     let world = comm();
     let mut links = RankLinks::new(&world, parts.clone());
     let Parts {
@@ -434,7 +439,7 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
 ) -> Result<()> {
     let (rank, ranks) =
         crate::parallel_mpi::world().ok_or_else(|| Error::failure("not an MPI run"))?;
-    let (mut mine, parts) = join(global)?;
+    let (mut mine, parts) = join(global, &scene.label)?;
     let world = comm();
     let root = world.process_at_rank(0);
     let mut links = RankLinks::new(&world, parts);

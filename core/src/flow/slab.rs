@@ -38,10 +38,6 @@ use core::ops::Range;
 /// refresh what they solve for. So 4 rows, refreshed once per step.
 pub const HALO: usize = 4;
 
-/// The deepest halo [`halo_rows`] asks for (merge groups spanning 2 rows beyond their
-/// first): what a driver that has not built the geometry yet must allow for.
-pub const HALO_DEEPEST: usize = HALO + 3 * 2;
-
 /// The halo's depth of the slabs of `flow`: [`HALO`] rows, and 3 more per row a merge group
 /// of an embedded wall spans beyond its first (`Walls::rows_spanned`: 0, 1 or 2). Why deeper:
 /// a group is one cell for the explicit stages (module `walls`), so each of the
