@@ -140,15 +140,19 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for WholeSte
 
 /// The first row of every rank's slab when a coupled scene of `rows` rows along its last
 /// axis runs on `ranks` MPI ranks: the rows shared evenly, each start rounded down to an
-/// even row (the V-cycle coarsens pairs of rows across a cut). `None` if the ranks cannot
-/// all get a slab of at least `depth` rows, the halo's depth (its halo rows must come from
-/// one neighbour; `sieve_core::flow::slab::halo_rows`). The starts themselves do not
-/// depend on `depth`.
+/// even row (the V-cycle coarsens pairs of rows across a cut).
+pub fn even_starts(rows: usize, ranks: usize) -> Vec<usize> {
+    (0..ranks).map(|k| k * rows / ranks / 2 * 2).collect()
+}
+
+/// [`even_starts`] where every slab holds at least `depth` rows, the halo's depth (its
+/// halo rows must come from one neighbour; `sieve_core::flow::slab::halo_rows`); `None`
+/// otherwise, or for no ranks.
 pub fn slab_starts(rows: usize, ranks: usize, depth: usize) -> Option<Vec<usize>> {
     if ranks == 0 {
         return None;
     }
-    let starts: Vec<usize> = (0..ranks).map(|k| k * rows / ranks / 2 * 2).collect();
+    let starts = even_starts(rows, ranks);
     let ends = starts.iter().skip(1).copied().chain([rows]);
     let fits = starts.len() == 1 || starts.iter().zip(ends).all(|(&s, e)| e >= s + depth);
     fits.then_some(starts)

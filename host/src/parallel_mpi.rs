@@ -919,14 +919,12 @@ fn rows_of(snap: &Snapshot, plane: usize, rows: &Range<usize>) -> Snapshot {
 }
 
 /// The rows rank `rank` owns and writes the piece of: its subdomain's, or its slab's in a
-/// coupled run ([`crate::coupled_steps::slab_starts`]).
+/// coupled run ([`crate::coupled_steps::even_starts`]).
 fn piece_rows(scene: &Scene, ranks: usize, rank: usize) -> Range<usize> {
     let rows = scene.cells[scene.dim - 1];
-    if is_coupled(scene) {
-        // the starts do not depend on the halo's depth, only whether they fit it
-        if let Some(starts) = crate::coupled_steps::slab_starts(rows, ranks, 1) {
-            return starts[rank]..starts.get(rank + 1).copied().unwrap_or(rows);
-        }
+    if is_coupled(scene) && rank < ranks {
+        let starts = crate::coupled_steps::even_starts(rows, ranks);
+        return starts[rank]..starts.get(rank + 1).copied().unwrap_or(rows);
     }
     decomp::owned_rows(rows, ranks, rank)
 }
