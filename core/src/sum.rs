@@ -255,6 +255,39 @@ pub fn update<R: Real>(alpha: R, p: &[R], q: &[R], x: &mut [R], r: &mut [R]) -> 
     total
 }
 
+/// Sums in cell order over a grid that may be cut into subdomains: what a step asks for the
+/// few running sums whose serial bits feed its results (a guard's total, the discharge of a
+/// side along the cut). On the whole grid ([`Whole`]) `part` runs once over every cell;
+/// a subdomain continues the running sum of the subdomains before it over its own cells and
+/// hands it on (`crate::flow::slab::Slab`), so the total has the serial bits.
+pub trait InOrder<R> {
+    /// Whether the grid is whole (nothing cut): the caller may then skip a sum it knows is
+    /// empty, which a subdomain may not (every subdomain takes part in every sum).
+    fn whole(&self) -> bool;
+
+    /// A sum over all cells in cell order, starting from `start` (the same value on every
+    /// subdomain): `part(s)` continues the serial running sum `s` over the cells this
+    /// subdomain counts and returns it; the result is the serial sum's bits.
+    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R;
+}
+
+/// The whole grid, nothing cut: every sum in order is the serial loop (and the flow's
+/// [`crate::flow::reach::Reach`] of the grid alone).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Whole;
+
+impl<R> InOrder<R> for Whole {
+    #[inline(always)]
+    fn whole(&self) -> bool {
+        true
+    }
+
+    #[inline(always)]
+    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
+        part(start)
+    }
+}
+
 /// Fractional bits of [`FixedSum`]: a term is cut to a multiple of `2^-FIXED_FRAC`.
 pub const FIXED_FRAC: u32 = 80;
 

@@ -183,6 +183,7 @@ fn run<const D: usize>(
         let d = s.carry_mass_fluxes(MassFluxes {
             faces: &faces,
             low: &low,
+            open: bc.map(|b| b.map(|k| matches!(k, Boundary::Inflow | Boundary::Outflow))),
         });
         prop_assert_eq!(d.guarded, 0.0);
         for a in 0..D {
@@ -309,6 +310,7 @@ fn limited_transport_is_active_and_less_diffusive() {
             s.carry_mass_fluxes(MassFluxes {
                 faces: &faces,
                 low: &low,
+                open: [[false; 2]; 2],
             });
             for i in 0..grid.len() {
                 assert!(s.phi(i) >= 0.0 && s.phi(i) <= s.c(i));

@@ -71,6 +71,7 @@ fn uniform_1d(n: usize, nu: f64, transport: Transport) -> Run {
         s.carry_mass_fluxes(MassFluxes {
             faces: &faces,
             low: &low,
+            open: [[false; 2]],
         });
         violation = violation.max(bounds_and_mass(&*s).0);
     }
@@ -140,6 +141,7 @@ fn run_2d(
         s.carry_mass_fluxes(MassFluxes {
             faces: &faces,
             low: &low,
+            open: [[matches!(bc, Boundary::Inflow | Boundary::Outflow); 2]; 2],
         });
         violation = violation.max(bounds_and_mass(&*s).0);
     }
@@ -188,6 +190,7 @@ fn diagonal(n: usize, transport: Transport) -> Run {
         s.carry_mass_fluxes(MassFluxes {
             faces: &faces,
             low: &low,
+            open: [[false; 2]; 2],
         });
         violation = violation.max(bounds_and_mass(&*s).0);
     }

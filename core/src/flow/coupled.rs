@@ -38,7 +38,7 @@ use crate::closure::Packing;
 use crate::fork::{Fork, Serial};
 use crate::geometry::CutCells;
 use crate::real::Real;
-use crate::segregation::{add_nonzero, serial_guard_sum, Discharge, Segregation, SetupError};
+use crate::segregation::{Discharge, Segregation, SetupError};
 
 /// Most sub-steps of the percolation stage within one coupled step ([`Coupled::step_with`]).
 /// The percolation stage costs a few per cent of a flow step (no linear solve), and its limit
@@ -477,22 +477,10 @@ impl<'a, R: Real, const D: usize, const N: usize> Coupled<'a, R, D, N> {
             },
         );
         self.flow.step_reaching(dt, fork, reach);
-        let guard_sum = |moved: &[R], any| {
-            if whole {
-                serial_guard_sum(moved, any)
-            } else {
-                reach.sum_in_order(R::ZERO, |mut sum| {
-                    add_nonzero(&mut sum, moved);
-                    sum
-                })
-            }
-        };
         let fx = self.flow.mass_fluxes();
         let d = match geo {
-            Some(g) => self
-                .seg
-                .carry_mass_fluxes_embedded_summing(fx, g, guard_sum),
-            None => self.seg.carry_mass_fluxes_summing::<F::Isa>(fx, guard_sum),
+            Some(g) => self.seg.carry_mass_fluxes_embedded_summing(fx, g, reach),
+            None => self.seg.carry_mass_fluxes_summing::<F::Isa>(fx, reach),
         };
         for a in 0..D {
             for side in 0..2 {

@@ -12,7 +12,8 @@
 //! bound maxima as the largest of the slabs' (exact, but for the sign of a zero), the flush counter and the guard's total
 //! from any slab (each holds the running value of all), the discharge through the floor
 //! from the first slab and through the lid from the last (the cuts are walls: nothing else
-//! crosses a slab's own sides), and the books of the segregation's open sides merged
+//! crosses a slab's own sides), through the sides along the cut from any slab (their sums
+//! run across the slabs, each holds the whole side's), and the books of the segregation's open sides merged
 //! exactly ([`Segregation::merge_side_books`]).
 
 use super::coupled::{Coupled, CoupledTotals, CouplingError, Mode};
@@ -85,8 +86,8 @@ pub fn load_coupled_slab<R: Real, const D: usize, const M: usize, const N: usize
 /// MPI run's rank 0 writes its outputs and checkpoints from.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SlabRecord<R, const D: usize> {
-    /// The flow's clock and counters (the discharge of the sides along the cut is the
-    /// first and the last slab's).
+    /// The flow's clock and counters (the discharge through the floor is the first slab's,
+    /// through the lid the last one's, through the sides along the cut every slab's).
     pub flow: FlowCounters<R, D>,
     /// The segregation's clock.
     pub time: R,
@@ -100,7 +101,8 @@ pub struct SlabRecord<R, const D: usize> {
     /// run's, the others' at zero: they add up exactly).
     pub books: [[FixedSum; 2]; D],
     /// The driver's totals (the discharge through the floor is the first slab's, through
-    /// the lid the last slab's; the guard's total every slab's).
+    /// the lid the last slab's; through the sides along the cut and the guard's total
+    /// every slab's).
     pub totals: CoupledTotals<R, D>,
 }
 
@@ -134,9 +136,9 @@ pub fn store_slab_records<R: Real, const D: usize, const N: usize>(
     let (Some(first), Some(last)) = (records.first(), records.last()) else {
         return Ok(());
     };
-    // Nothing crosses a cut (a wall on each slab), nor a side along the cut ([`load_slab`]
-    // refuses one that moves mass): the floor's books are the first slab's, the lid's the
-    // last one's, every other the same on every slab.
+    // Nothing crosses a cut (a wall on each slab): the floor's books are the first slab's,
+    // the lid's the last one's; a side along the cut is summed across the slabs, so its
+    // books are the same on every slab.
     let mut flow = first.flow;
     flow.discharged[D - 1][1] = last.flow.discharged[D - 1][1];
     flow.discharge_step[D - 1][1] = last.flow.discharge_step[D - 1][1];

@@ -97,6 +97,7 @@ use crate::frame::Frame;
 use crate::grid::Grid;
 use crate::real::Real;
 use crate::segregation::MassFluxes;
+use core::ops::Range;
 
 /// Tangential condition of a solid wall (model.md 2).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -396,11 +397,14 @@ pub struct FlowCounters<R, const D: usize> {
 #[derive(Clone, Debug)]
 pub struct Flow<R: Real, const D: usize, const N: usize> {
     grid: Grid<R, D>,
-    /// The box whose extent bounds a rotating frame's centrifugal acceleration: the grid,
-    /// or on a slab the whole grid it is cut from ([`slab::load_slab`]).
-    frame_box: Grid<R, D>,
-    /// Rows of `frame_box` below the grid's first row (0 but on a slab).
-    frame_rows: usize,
+    /// The whole grid: the grid itself, or on a slab the grid it is cut from
+    /// ([`slab::load_slab`]). Positions are taken on it, so that a slab places its faces
+    /// where the whole grid does to the bit (`origin + k h`, never `(origin + k0 h) + k h`):
+    /// a rotating frame's body force and the bound of its centrifugal acceleration, the
+    /// openings of the walls (the cut-cell walls keep their own, `Walls::center`).
+    home: Grid<R, D>,
+    /// Rows of `home` below the grid's first row (0 but on a slab).
+    home_rows: usize,
     bc: FlowBoundaries<R, D>,
     cfg: FlowConfig<R, D>,
     /// Volume fraction.
@@ -541,8 +545,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let zd = [[R::ZERO; N]; D];
         Self {
             grid: Grid::unit(),
-            frame_box: Grid::unit(),
-            frame_rows: 0,
+            home: Grid::unit(),
+            home_rows: 0,
             bc: [[side; 2]; D],
             cfg: FlowConfig {
                 material: Material {
@@ -691,8 +695,8 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             }
         }
         self.grid = grid;
-        self.frame_box = grid;
-        self.frame_rows = 0;
+        self.home = grid;
+        self.home_rows = 0;
         self.bc = bc;
         self.cfg = cfg;
         let n = grid.len();
@@ -862,7 +866,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             let mut b = self.g_now[a].abs();
             if let Frame::Rotating(rot) = &self.cfg.frame {
                 if rot.in_plane(a) {
-                    let (lo, cells) = (self.frame_box.origin()[a], self.frame_box.cells()[a]);
+                    let (lo, cells) = (self.home.origin()[a], self.home.cells()[a]);
                     let hi = lo + h[a] * R::from_usize(cells);
                     b += rot
                         .centrifugal(a, lo)
@@ -905,7 +909,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             R::MAX
         };
         // the smallest outlet step of all (a minimum: the largest negation, exact)
-        dt.min(-reach.max(-self.outlet_dt()))
+        dt.min(-reach.max(-self.outlet_dt(reach.owned(self.grid.len()))))
     }
 
     /// The step at which an outlet face's exit speed keeps the Courant limit (model.md 5.4,
@@ -917,10 +921,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// whose push emptied the orifice cells in one step and left a slow, self-sustaining
     /// branch (a 4-cell orifice at 0.35 of the explicit rate, docs/implicit-pressure.md). Only
     /// sides with openings are visited: other scenes do not pay for it.
-    fn outlet_dt(&self) -> R {
+    fn outlet_dt(&self, owned: Range<usize>) -> R {
         let h = self.grid.spacing();
         let mut dt = R::MAX;
-        self.each_outlet_cell(|a, u, acc| {
+        self.each_outlet_cell(owned, |a, u, acc| {
             let ch = self.cfg.courant * h[a];
             let root = (u * u + R::from_f64(4.0) * acc * ch).sqrt();
             if u + root > R::ZERO {
@@ -937,14 +941,16 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     pub fn outlet_courant(&self, dt: R) -> R {
         let h = self.grid.spacing();
         let mut nu = R::ZERO;
-        self.each_outlet_cell(|a, u, acc| nu = nu.max((u + acc * dt) * dt / h[a]));
+        let all = 0..self.grid.len();
+        self.each_outlet_cell(all, |a, u, acc| nu = nu.max((u + acc * dt) * dt / h[a]));
         nu
     }
 
     /// Calls `f(axis, |u_i|, |a_i|)` for every cell with grains behind an open face: its
     /// velocity along the face normal and, under the implicit pressure, the acceleration its
     /// exit speed gains per unit step (`F_open / (2 c_i) + s_i`; 0 under the explicit one).
-    fn each_outlet_cell(&self, mut f: impl FnMut(usize, R, R)) {
+    /// Only the cells `owned` (a slab's halo rows are its neighbours' to count).
+    fn each_outlet_cell(&self, owned: Range<usize>, mut f: impl FnMut(usize, R, R)) {
         let implicit = self.cfg.pressure == PressureMode::Implicit;
         for a in 0..D {
             for high in [false, true] {
@@ -954,7 +960,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
                 self.grid.for_each_boundary_cell(a, high, |i, _| {
                     let ci = self.c[i];
-                    if ci <= self.cfg.vacuum || self.open_fraction(a, high, i) == R::ZERO {
+                    if !owned.contains(&i)
+                        || ci <= self.cfg.vacuum
+                        || self.open_fraction(a, high, i) == R::ZERO
+                    {
                         return;
                     }
                     let mut acc = R::ZERO;
@@ -984,7 +993,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 }
             }
             Frame::Rotating(rot) => {
-                let fb = &self.frame_box;
+                let fb = &self.home;
                 let (lo, h, cells) = (fb.origin(), fb.spacing(), fb.cells());
                 let mut plane_g2 = R::ZERO;
                 for a in 0..D {
@@ -1157,6 +1166,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         MassFluxes {
             faces: &self.flux,
             low: &self.flux_low,
+            open: core::array::from_fn(|a| {
+                core::array::from_fn(|s| step::moves_mass(&self.bc[a][s]))
+            }),
         }
     }
     /// Grain volume (volume fraction times cell volume, summed) that left through each side
@@ -1176,7 +1188,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if side.kind != Boundary::Wall || side.openings.is_empty() {
             return R::ZERO;
         }
-        side.openings.fraction(&self.grid, a, i)
+        // on the whole grid (`home`): a slab's rows lie `home_rows` rows up
+        let plane = self.grid.len() / self.grid.cells()[D - 1];
+        side.openings
+            .fraction(&self.home, a, i + self.home_rows * plane)
     }
     /// Steps taken.
     pub fn steps(&self) -> u64 {

@@ -34,7 +34,7 @@
 
 use super::cg::{Preconditioner, Stencil, Stop};
 use super::reach::Reach;
-use super::step::open_low;
+use super::step::moves_mass;
 use super::{Flow, FlowSide, OutletPressure};
 use crate::boundary::Boundary;
 use crate::closure;
@@ -137,7 +137,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 self.rhs[last] -= lam * f;
                 self.diag[last] += kk * k;
             });
-            if open_low(&lo) {
+            if moves_mass(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
                     let ap = if emb {
                         self.walls.ap_lo[a][first]

@@ -12,27 +12,21 @@
 use super::cg::{self, Scratch, Solve, Stencil, Stop};
 use crate::fork::Fork;
 use crate::real::Real;
+use crate::sum::InOrder;
 use core::ops::Range;
 
 /// The flow step's view past its own cells. Every method is collective on a cut grid: every
 /// subdomain calls it at the same point of the step, in the same order.
-pub trait Reach<R: Real, const D: usize, const N: usize> {
-    /// Whether the grid is whole (nothing cut): then the step may also take the paths that
-    /// split the work between threads.
-    fn whole(&self) -> bool;
-
+/// Its sums in cell order ([`InOrder`]) are the ones the segregation's carried transport
+/// asks for too; on the whole grid ([`InOrder::whole`]) the step may also take the paths that
+/// split the work between threads.
+pub trait Reach<R: Real, const D: usize, const N: usize>: InOrder<R> {
     /// The cells this subdomain owns, of the `n` local ones: sums and maxima run over them.
     fn owned(&self, n: usize) -> Range<usize>;
 
     /// Overwrites the halo rows of `field` (a per-cell array of the local grid) with the
     /// values their owners hold.
     fn refresh(&mut self, field: &mut [R]);
-
-    /// A sum over all cells in cell order, starting from `start` (the same value on every
-    /// subdomain: a running counter that all of them hold): `part(s)` continues the serial
-    /// running sum `s` over the owned cells and returns it; the result is the serial sum's
-    /// bits.
-    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R;
 
     /// The largest of every subdomain's `x` (exact: a maximum does not round).
     fn max(&mut self, x: R) -> R;
@@ -52,16 +46,11 @@ pub trait Reach<R: Real, const D: usize, const N: usize> {
     ) -> Solve<R>;
 }
 
-/// The grid alone: nothing is cut, every answer comes from the grid itself.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Whole;
+/// The grid alone: nothing is cut, every answer comes from the grid itself (its sums in
+/// order are the serial loops: [`crate::sum::Whole`]).
+pub use crate::sum::Whole;
 
 impl<R: Real, const D: usize, const N: usize> Reach<R, D, N> for Whole {
-    #[inline(always)]
-    fn whole(&self) -> bool {
-        true
-    }
-
     #[inline(always)]
     fn owned(&self, n: usize) -> Range<usize> {
         0..n
@@ -69,11 +58,6 @@ impl<R: Real, const D: usize, const N: usize> Reach<R, D, N> for Whole {
 
     #[inline(always)]
     fn refresh(&mut self, _field: &mut [R]) {}
-
-    #[inline(always)]
-    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
-        part(start)
-    }
 
     #[inline(always)]
     fn max(&mut self, x: R) -> R {

@@ -6,26 +6,26 @@
 //! steps with [`Flow::step_reaching`] and a [`Slab`] as its [`Reach`]:
 //! - at the start of a step every state array's halo rows are refreshed from their owners;
 //! - sums run in cell order, the running total handed from slab to slab
-//!   ([`Reach::sum_in_order`]), and maxima are exact;
+//!   ([`InOrder::sum_in_order`]), and maxima are exact;
 //! - the implicit solves are [`cg_slab::solve`] on the slab's rows, with the serial
 //!   iterations and bits, the solution's halo rows refreshed after each.
 //!
 //! Embedded walls run on slabs: each slab holds the rows of the whole flow's cut-cell
 //! geometry (`Walls::load_rows`) and a deeper halo where merge groups span rows
-//! ([`halo_rows`]). Not yet on slabs ([`load_slab`] refuses them): sides along the cut that
-//! move mass (inflow, outflow, openings), whose books would need sums over the owned
-//! boundary cells.
+//! ([`halo_rows`]). So do sides along the cut that move mass (inflow, outflow, openings):
+//! their discharge is a sum over the owned boundary cells continued from slab to slab
+//! (`Flow::discharge_along`), their openings placed on the whole grid (`Flow::open_fraction`).
 
 use super::cg::{Scratch, Solve, Stencil, Stop};
 use super::cg_slab;
 use super::cycle_slab::{Fine, Links, Plan, PlanError};
 use super::reach::Reach;
 use super::{Flow, FlowError, FlowSide, Slip};
-use crate::boundary::Boundary;
 use crate::fork::Fork;
 use crate::geometry::GeometryError;
 use crate::real::Real;
 use crate::segregation::SetupError;
+use crate::sum::InOrder;
 use core::ops::Range;
 
 /// Halo rows of a flow slab. Within one step the values of a halo row go wrong from the
@@ -141,16 +141,6 @@ pub fn load_slab<R: Real, const D: usize, const M: usize, const N: usize>(
     if !global.prepared {
         return Err(SlabError::Unprepared);
     }
-    let moves_mass = |s: &FlowSide<R, D>| s.kind == Boundary::Inflow || s.kind == Boundary::Outflow;
-    if global.bc[..D - 1]
-        .iter()
-        .flatten()
-        .any(|s| moves_mass(s) || !s.openings.is_empty())
-    {
-        return Err(SlabError::NotYet(
-            "inflow, outflow or openings on a side along the cut",
-        ));
-    }
     let grid = *global.grid();
     let cells = grid.cells();
     let plan =
@@ -204,8 +194,8 @@ pub fn load_slab<R: Real, const D: usize, const M: usize, const N: usize>(
         local.walls.load_rows(&global.walls, span.clone());
     }
     // a rotating frame's bounds are the box's, not the slab's
-    local.frame_box = grid;
-    local.frame_rows = first;
+    local.home = grid;
+    local.home_rows = first;
     local.restore_counters(global.counters());
     local.prepared = true;
     Ok(SlabPlan {
@@ -284,21 +274,23 @@ impl<'a, R: Real, L: Links<R>, const D: usize> Slab<'a, R, L, D> {
     }
 }
 
-impl<R: Real, L: Links<R>, const D: usize, const N: usize> Reach<R, D, N> for Slab<'_, R, L, D> {
+impl<R: Real, L: Links<R>, const D: usize> InOrder<R> for Slab<'_, R, L, D> {
     fn whole(&self) -> bool {
         false
     }
 
+    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
+        self.chain(start, part)
+    }
+}
+
+impl<R: Real, L: Links<R>, const D: usize, const N: usize> Reach<R, D, N> for Slab<'_, R, L, D> {
     fn owned(&self, _n: usize) -> Range<usize> {
         self.plan.owned_cells()
     }
 
     fn refresh(&mut self, field: &mut [R]) {
         self.swap_halos(field);
-    }
-
-    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
-        self.chain(start, part)
     }
 
     fn max(&mut self, x: R) -> R {

@@ -228,7 +228,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     self.diag[last] += lam * f;
                 }
             });
-            if open_low(&lo) {
+            if moves_mass(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
                     let mut f = self.low_flux(a, first, &lo, dt);
                     if emb {
@@ -301,9 +301,11 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                     self.add_flux(last, -df, hi.velocity, hi.t);
                 }
                 self.flux[a][last] = df;
-                self.discharge_step[a][1] += df * vol;
+                if a == D - 1 {
+                    self.discharge_step[a][1] += df * vol;
+                }
             });
-            if open_low(&lo) {
+            if moves_mass(&lo) {
                 grid.for_each_boundary_cell(a, false, |first, _| {
                     let f = self.flux_low[a][first];
                     let mut df = R::ZERO;
@@ -318,10 +320,13 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                         self.add_flux(first, df, u, t);
                     }
                     self.flux_low[a][first] = df;
-                    self.discharge_step[a][0] -= df * vol;
+                    if a == D - 1 {
+                        self.discharge_step[a][0] -= df * vol;
+                    }
                 });
             }
         }
+        self.discharge_along(reach);
         for a in 0..D {
             for side in 0..2 {
                 self.discharged[a][side] += self.discharge_step[a][side];
@@ -329,6 +334,43 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         }
         if emb {
             self.embedded_end_update();
+        }
+    }
+
+    /// The step's discharge through the open sides along the last axis (the sides across it
+    /// are booked face by face in the transport): the applied amounts of the owned boundary
+    /// cells in cell order, as sums continued across subdomains (`reach`), so that every slab
+    /// of rows holds the serial discharge of the whole side. A closed side's stays zero and
+    /// takes part in no sum: a closed scene pays nothing.
+    fn discharge_along<Re: Reach<R, D, N>>(&mut self, reach: &mut Re) {
+        let grid = self.grid;
+        let vol = grid.cell_volume();
+        let own = reach.owned(grid.len());
+        for a in 0..D - 1 {
+            for side in 0..2 {
+                if !moves_mass(&self.bc[a][side]) {
+                    continue;
+                }
+                let high = side == 1;
+                let applied = if high {
+                    &self.flux[a]
+                } else {
+                    &self.flux_low[a]
+                };
+                self.discharge_step[a][side] = reach.sum_in_order(R::ZERO, |mut sum| {
+                    grid.for_each_boundary_cell(a, high, |i, _| {
+                        if own.contains(&i) {
+                            // out of the box is positive on either side
+                            if high {
+                                sum += applied[i] * vol;
+                            } else {
+                                sum -= applied[i] * vol;
+                            }
+                        }
+                    });
+                    sum
+                });
+            }
         }
     }
 
@@ -433,9 +475,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
                 // whole grid's do to the bit (`origin + k h`, never `(origin + k0 h) + k h`)
                 let mut k = self.grid.coord(l, a) + 1;
                 if a == D - 1 {
-                    k += self.frame_rows;
+                    k += self.home_rows;
                 }
-                let b = &self.frame_box;
+                let b = &self.home;
                 let x = b.origin()[a] + R::from_usize(k) * b.spacing()[a];
                 self.g_now[a] + rot.centrifugal(a, x)
             }
@@ -1353,8 +1395,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     }
 }
 
-/// Whether the low side of an axis has boundary faces that move mass (inflow, outflow, or a
-/// wall with openings).
 /// What the donor limiter of the transport may hand out of a cell holding `c` (content
 /// units, or `c` itself on a plain grid): all but `SPARE_ULPS` machine epsilons of it.
 ///
@@ -1385,7 +1425,9 @@ const SPARE_ULPS: f64 = 64.0;
 /// `flow.courant` 0.4, the correction's scale when it was the step itself.
 const RHIE_CHOW_COURANT: f64 = 0.4;
 
-pub(super) fn open_low<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
+/// Whether a side has boundary faces that move mass (inflow, outflow, or a wall with
+/// openings).
+pub(super) fn moves_mass<R: Real, const D: usize>(side: &FlowSide<R, D>) -> bool {
     matches!(side.kind, Boundary::Inflow | Boundary::Outflow)
         || (side.kind == Boundary::Wall && !side.openings.is_empty())
 }

@@ -41,6 +41,7 @@ use crate::fork::Call;
 use crate::geometry::CutCells;
 use crate::hot::{Baseline, Isa};
 use crate::real::Real;
+use crate::sum::{InOrder, Whole};
 
 /// The face mass fluxes one flow step applied (time-integrated, in content units: the change
 /// of `c` they make in a cell), as the flow stores them ([`crate::flow::Flow::mass_fluxes`]).
@@ -54,6 +55,12 @@ pub struct MassFluxes<'a, R, const D: usize, const N: usize> {
     /// Per axis, at the first cell of each line: the amount through the low boundary face,
     /// positive = into the box (0 on periodic axes and closed walls).
     pub low: &'a [[R; N]; D],
+    /// Per axis `[low, high]`: whether the side's faces may move mass (the flow's inflow,
+    /// outflow and wall openings). The amounts through a closed side must be zero. A closed
+    /// side of an axis other than the last (a side that a cut into rows crosses) is not
+    /// booked (`Segregation::book_sides_along`): the slabs of rows take part in no sum
+    /// for it.
+    pub open: [[bool; 2]; D],
 }
 
 /// What left the box through each side `[axis][low, high]` in one carried transport
@@ -144,21 +151,21 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// [`Self::carry_mass_fluxes`] with its passes over the cells run by `I` (the same bits
     /// for every `I`).
     pub fn carry_mass_fluxes_on<I: Isa>(&mut self, fx: MassFluxes<'_, R, D, N>) -> Discharge<R, D> {
-        self.carry_mass_fluxes_summing::<I>(fx, serial_guard_sum)
+        self.carry_mass_fluxes_summing::<I>(fx, &mut Whole)
     }
 
-    /// [`Self::carry_mass_fluxes_on`] with the guard's sum left to `guard_sum(moved, any)`:
-    /// `moved` holds what the guard moved in each counted cell (all of them, or a
-    /// subdomain's owned ones: [`Self::prepare_owned_with`]), in cell order, `any` whether
-    /// any local cell moved. The serial sum adds the nonzero ones from 0 (`add_nonzero`); a
-    /// slab continues the sum of the slabs below ([`crate::flow::reach::Reach::sum_in_order`]).
+    /// [`Self::carry_mass_fluxes_on`] with its sums in cell order left to `sums`: the
+    /// guard's sum over the counted cells (all of them, or a subdomain's owned ones:
+    /// [`Self::prepare_owned_with`]) and the books of the open sides along the last axis
+    /// (`Self::book_sides_along`). On the whole grid ([`Whole`]) they are the serial
+    /// loops; a slab continues the sums of the slabs below (`crate::flow::slab::Slab`).
     pub fn carry_mass_fluxes_summing<I: Isa>(
         &mut self,
         fx: MassFluxes<'_, R, D, N>,
-        guard_sum: impl FnOnce(&[R], bool) -> R,
+        sums: &mut impl InOrder<R>,
     ) -> Discharge<R, D> {
         if self.transport == Transport::Limited {
-            return self.carry_limited(fx, None, guard_sum);
+            return self.carry_limited(fx, None, sums);
         }
         let n = self.grid.len();
         let grid = self.grid;
@@ -184,9 +191,10 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             },
         ));
         let counted = self.tally.0.min(n)..self.tally.1.min(n);
-        out.guarded = guard_sum(&self.rhs[counted], any) * vol;
+        out.guarded = guard_total(sums, &self.rhs[counted], any) * vol;
         // Pass C: what each cell receives, in the same face order.
         self.receive_faces(fx, &mut out, |i| i);
+        self.book_sides_along(fx, &mut out, sums);
         // Pass D: c = tracked + untracked.
         for i in 0..n {
             self.c[i] = self.q[i] + self.k[0][i];
@@ -197,8 +205,8 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
 
     /// Pass C of the carried transport: every receiving cell gets, face by face in a fixed
     /// order, `F qhat_donor` and `F (1 - qhat_donor)` (at `to(cell)`: the cell itself in a
-    /// box, its merge group's master on cut cells); what crosses the box's open sides is
-    /// booked into `out`.
+    /// box, its merge group's master on cut cells); what crosses the box's open sides across
+    /// the last axis is booked into `out` (the sides along it: [`Self::book_sides_along`]).
     fn receive_faces(
         &mut self,
         fx: MassFluxes<'_, R, D, N>,
@@ -223,6 +231,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                     }
                 }
             }
+            let books = a == D - 1;
             grid.for_each_boundary_cell(a, true, |last, first| {
                 let f = fx.faces[a][last];
                 if periodic {
@@ -231,29 +240,99 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                     } else if f < R::ZERO {
                         self.receive(to(last), -f, self.flux[first]);
                     }
-                } else if f > R::ZERO {
-                    out.small[a][1] += small_part(small, f, self.flux[last]) * vol;
-                    out.total[a][1] += f * vol;
-                } else if f < R::ZERO {
-                    let qhat = self.inflow_fraction(last);
-                    self.receive(to(last), -f, qhat);
-                    out.small[a][1] -= small_part(small, -f, qhat) * vol;
-                    out.total[a][1] += f * vol;
+                    return;
+                }
+                if f < R::ZERO {
+                    self.receive(to(last), -f, self.inflow_fraction(last));
+                }
+                if books {
+                    self.book_face(
+                        small,
+                        last,
+                        f,
+                        vol,
+                        &mut out.small[a][1],
+                        &mut out.total[a][1],
+                    );
                 }
             });
             if !periodic {
                 grid.for_each_boundary_cell(a, false, |first, _| {
                     let g = fx.low[a][first];
-                    if g < R::ZERO {
-                        out.small[a][0] += small_part(small, -g, self.flux[first]) * vol;
-                        out.total[a][0] -= g * vol;
-                    } else if g > R::ZERO {
-                        let qhat = self.inflow_fraction(first);
-                        self.receive(to(first), g, qhat);
-                        out.small[a][0] -= small_part(small, g, qhat) * vol;
-                        out.total[a][0] -= g * vol;
+                    if g > R::ZERO {
+                        self.receive(to(first), g, self.inflow_fraction(first));
+                    }
+                    if books {
+                        self.book_face(
+                            small,
+                            first,
+                            -g,
+                            vol,
+                            &mut out.small[a][0],
+                            &mut out.total[a][0],
+                        );
                     }
                 });
+            }
+        }
+    }
+
+    /// Books the amount `f` that leaves the box (negative: enters) through a boundary face of
+    /// cell `i` into the running sums of its side: all grains `f`, the small phase at the
+    /// donor's fraction (the cell's `qhat`, or the inflow's for an amount that enters). Read
+    /// before pass D (`c` and `qhat` still the step's own). A zero amount books nothing.
+    #[inline(always)]
+    pub(super) fn book_face(&self, small: bool, i: usize, f: R, vol: R, s: &mut R, t: &mut R) {
+        if f > R::ZERO {
+            *s += small_part(small, f, self.flux[i]) * vol;
+            *t += f * vol;
+        } else if f < R::ZERO {
+            *s -= small_part(small, -f, self.inflow_fraction(i)) * vol;
+            *t += f * vol;
+        }
+    }
+
+    /// The books of the open sides along the last axis (`fx.open`; the sides across it are
+    /// booked face by face in pass C): for each, the small phase and all grains through the
+    /// faces of the counted cells, in cell order, as sums continued across subdomains
+    /// (`sums`), so that every slab of rows holds the serial books of the whole side. Only
+    /// open sides take part: a closed scene pays nothing.
+    pub(super) fn book_sides_along(
+        &self,
+        fx: MassFluxes<'_, R, D, N>,
+        out: &mut Discharge<R, D>,
+        sums: &mut impl InOrder<R>,
+    ) {
+        let grid = self.grid;
+        let n = grid.len();
+        let small = self.cfg.phase == Phase::Small;
+        let vol = grid.cell_volume();
+        let counted = self.tally.0.min(n)..self.tally.1.min(n);
+        for a in 0..D - 1 {
+            for side in 0..2 {
+                if !fx.open[a][side] || self.bc[a][side] == Boundary::Periodic {
+                    continue;
+                }
+                // the amount leaving through cell i's face on this side
+                let leaving = |i: usize| {
+                    if side == 1 {
+                        fx.faces[a][i]
+                    } else {
+                        -fx.low[a][i]
+                    }
+                };
+                let book = |which: usize, start: R| {
+                    let mut sums = [start; 2];
+                    grid.for_each_boundary_cell(a, side == 1, |i, _| {
+                        if counted.contains(&i) {
+                            let [s, t] = &mut sums;
+                            self.book_face(small, i, leaving(i), vol, s, t);
+                        }
+                    });
+                    sums[which]
+                };
+                out.small[a][side] = sums.sum_in_order(R::ZERO, |s| book(0, s));
+                out.total[a][side] = sums.sum_in_order(R::ZERO, |t| book(1, t));
             }
         }
     }
@@ -291,19 +370,22 @@ pub(super) fn guard<R: Real>(q: R, c: R) -> (R, R) {
     }
 }
 
-/// The guard's sum of one carried transport on the whole grid: the nonzero amounts moved, in
-/// cell order, from 0 (none if `any` is false).
-pub(crate) fn serial_guard_sum<R: Real>(moved: &[R], any: bool) -> R {
-    let mut sum = R::ZERO;
-    if any {
-        add_nonzero(&mut sum, moved);
+/// The guard's sum of one carried transport: the nonzero amounts moved in the counted cells
+/// (`moved`), in cell order, from 0. On the whole grid none if `any` is false (no cell
+/// moved); a subdomain takes part in the sum across the others whatever it moved.
+pub(super) fn guard_total<R: Real>(sums: &mut impl InOrder<R>, moved: &[R], any: bool) -> R {
+    if sums.whole() && !any {
+        return R::ZERO;
     }
-    sum
+    sums.sum_in_order(R::ZERO, |mut sum| {
+        add_nonzero(&mut sum, moved);
+        sum
+    })
 }
 
 /// Adds the nonzero values of `moved` to `sum`, in order: the guard's sum of the carried
 /// transport (a zero adds nothing, so a subdomain may continue the sum of others).
-pub(crate) fn add_nonzero<R: Real>(sum: &mut R, moved: &[R]) {
+fn add_nonzero<R: Real>(sum: &mut R, moved: &[R]) {
     for &m in moved {
         if m != R::ZERO {
             *sum += m;
@@ -377,21 +459,20 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         fx: MassFluxes<'_, R, D, N>,
         geo: &CutCells<R, D, N>,
     ) -> Discharge<R, D> {
-        self.carry_mass_fluxes_embedded_summing(fx, geo, serial_guard_sum)
+        self.carry_mass_fluxes_embedded_summing(fx, geo, &mut Whole)
     }
 
-    /// [`Self::carry_mass_fluxes_embedded`] with the guard's sum left to `guard_sum(moved,
-    /// any)`, as [`Self::carry_mass_fluxes_summing`] does it in a box: `moved` holds what
-    /// the guard moved in each counted cell, in cell order (a slab continues the sum of the
-    /// slabs below).
+    /// [`Self::carry_mass_fluxes_embedded`] with its sums in cell order left to `sums`, as
+    /// [`Self::carry_mass_fluxes_summing`] does it in a box (a slab continues the sums of
+    /// the slabs below).
     pub fn carry_mass_fluxes_embedded_summing(
         &mut self,
         fx: MassFluxes<'_, R, D, N>,
         geo: &CutCells<R, D, N>,
-        guard_sum: impl FnOnce(&[R], bool) -> R,
+        sums: &mut impl InOrder<R>,
     ) -> Discharge<R, D> {
         if self.transport == Transport::Limited {
-            return self.carry_limited(fx, Some(geo), guard_sum);
+            return self.carry_limited(fx, Some(geo), sums);
         }
         let n = self.grid.len();
         let grid = self.grid;
@@ -431,8 +512,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             self.rhs[i] = moved;
         }
         let counted = self.tally.0.min(n)..self.tally.1.min(n);
-        out.guarded = guard_sum(&self.rhs[counted], any) * vol;
+        out.guarded = guard_total(sums, &self.rhs[counted], any) * vol;
         self.receive_faces(fx, &mut out, |i| geo.master(i));
+        self.book_sides_along(fx, &mut out, sums);
         self.spread_group_content(geo);
         for i in 0..n {
             self.c[i] = self.q[i] + self.k[0][i];

@@ -47,11 +47,12 @@
 //! is used. So the solver's size is unchanged (the firmware's soft sensor does not use this
 //! path: its own-velocity transport stays the donor rule).
 
-use super::carried::{guard, small_part, Discharge, MassFluxes};
+use super::carried::{guard, guard_total, Discharge, MassFluxes};
 use super::Segregation;
 use crate::boundary::Boundary;
 use crate::geometry::CutCells;
 use crate::real::Real;
+use crate::sum::InOrder;
 use serde::{Deserialize, Serialize};
 
 /// The face value of phihat in the carried transport of a coupled run.
@@ -229,7 +230,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
         &mut self,
         fx: MassFluxes<'_, R, D, N>,
         geo: Option<&CutCells<R, D, N>>,
-        guard_sum: impl FnOnce(&[R], bool) -> R,
+        sums: &mut impl InOrder<R>,
     ) -> Discharge<R, D> {
         let n = self.grid.len();
         let grid = self.grid;
@@ -274,7 +275,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
             };
         }
         let counted = self.tally.0.min(n)..self.tally.1.min(n);
-        out.guarded = guard_sum(&self.carry[counted], any) * vol;
+        out.guarded = guard_total(sums, &self.carry[counted], any) * vol;
         // Pass S: van Leer slopes of qhat, axis 0 into `carry`, axis a into `k[a]`.
         for a in 0..D {
             for i in 0..n {
@@ -349,6 +350,7 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                     }
                 }
             }
+            let books = a == D - 1;
             for (last, first) in boundary_pairs(&grid, a) {
                 let f = fx.faces[a][last];
                 if periodic {
@@ -359,32 +361,30 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                         let qf = self.face_value(&ctx, first, a, false, self.rhs[first]);
                         self.receive_limited(master(last), -f, qf);
                     }
-                } else if f > R::ZERO {
-                    out.small[a][1] += small_part(small, f, self.flux[last]) * vol;
-                    out.total[a][1] += f * vol;
-                } else if f < R::ZERO {
-                    let qhat = self.inflow_fraction(last);
-                    self.receive_limited(master(last), -f, qhat);
-                    out.small[a][1] -= small_part(small, -f, qhat) * vol;
-                    out.total[a][1] += f * vol;
+                    continue;
+                }
+                if f < R::ZERO {
+                    self.receive_limited(master(last), -f, self.inflow_fraction(last));
+                }
+                if books {
+                    let (s, t) = (&mut out.small[a][1], &mut out.total[a][1]);
+                    self.book_face(small, last, f, vol, s, t);
                 }
             }
             if !periodic {
-                for (last, first) in boundary_pairs(&grid, a) {
-                    let _ = last;
+                for (_, first) in boundary_pairs(&grid, a) {
                     let g = fx.low[a][first];
-                    if g < R::ZERO {
-                        out.small[a][0] += small_part(small, -g, self.flux[first]) * vol;
-                        out.total[a][0] -= g * vol;
-                    } else if g > R::ZERO {
-                        let qhat = self.inflow_fraction(first);
-                        self.receive_limited(master(first), g, qhat);
-                        out.small[a][0] -= small_part(small, g, qhat) * vol;
-                        out.total[a][0] -= g * vol;
+                    if g > R::ZERO {
+                        self.receive_limited(master(first), g, self.inflow_fraction(first));
+                    }
+                    if books {
+                        let (s, t) = (&mut out.small[a][0], &mut out.total[a][0]);
+                        self.book_face(small, first, -g, vol, s, t);
                     }
                 }
             }
         }
+        self.book_sides_along(fx, &mut out, sums);
         // Pass D: content -> fractions at the masters (cut cells), members copy them;
         // c = tracked + untracked; the slope scratch in `carry` back to zero.
         if let Some(g) = geo {

@@ -16,7 +16,6 @@ mod limited;
 mod step;
 
 pub use crate::hot::{Baseline, HotLoop, Isa};
-pub(crate) use carried::{add_nonzero, serial_guard_sum};
 pub use carried::{Discharge, MassFluxes};
 pub use flux::Scheme;
 pub use limited::Transport;
