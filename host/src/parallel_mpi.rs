@@ -381,8 +381,7 @@ fn send_stop(code: i32) {
 // Scope
 
 /// Why a scene cannot run under mpirun, before anything is built (every rank finds the
-/// same): cut-cell scenes periodic along their last axis, and coupled scenes periodic along
-/// their last axis or with an inflow, outflow or opening on a side along the cut (decision:
+/// same): cut-cell scenes and coupled scenes periodic along their last axis (decision:
 /// refused, exit 2, rather than run on rank 0 while the other ranks wait), and more ranks
 /// than the rows allow (cut cells: halos [`decomp::GROUP_REACH`] rows wider; coupled
 /// scenes: slabs of [`sieve_core::flow::slab::HALO`] rows at least, starting on even rows;
@@ -398,23 +397,10 @@ pub fn check_scope(scene: &Scene) -> Result<()> {
         .last()
         .is_some_and(|b| b[0] == sieve_core::Boundary::Periodic);
     let coupled = is_coupled(scene);
-    let side_moves_mass = scene.flow.as_ref().is_some_and(|f| {
-        f.walls[..scene.dim - 1]
-            .iter()
-            .flatten()
-            .any(|w| w.outlet.is_some())
-    }) || scene.boundaries[..scene.dim - 1].iter().flatten().any(|b| {
-        matches!(
-            b,
-            sieve_core::Boundary::Inflow | sieve_core::Boundary::Outflow
-        )
-    });
     let why = if scene.geometry.is_some() && wraps {
         Some("cut-cell (geometry) scenes periodic along their last axis")
     } else if coupled && wraps {
         Some("coupled-flow scenes periodic along their last axis")
-    } else if coupled && side_moves_mass {
-        Some("coupled-flow scenes with an outlet, inflow or outflow on a side wall")
     } else {
         None
     };
