@@ -401,10 +401,12 @@ pub struct Flow<R: Real, const D: usize, const N: usize> {
     /// ([`slab::load_slab`]). Positions are taken on it, so that a slab places its faces
     /// where the whole grid does to the bit (`origin + k h`, never `(origin + k0 h) + k h`):
     /// a rotating frame's body force and the bound of its centrifugal acceleration, the
-    /// openings of the walls (the cut-cell walls keep their own, `Walls::center`).
+    /// openings of the walls and the cut wall's rigid motion ([`Self::home_center`]).
     home: Grid<R, D>,
     /// Rows of `home` below the grid's first row (0 but on a slab).
     home_rows: usize,
+    /// Cells of `home` before the grid's first cell (`home_rows` rows).
+    home_first: usize,
     bc: FlowBoundaries<R, D>,
     cfg: FlowConfig<R, D>,
     /// Volume fraction.
@@ -547,6 +549,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             grid: Grid::unit(),
             home: Grid::unit(),
             home_rows: 0,
+            home_first: 0,
             bc: [[side; 2]; D],
             cfg: FlowConfig {
                 material: Material {
@@ -697,6 +700,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         self.grid = grid;
         self.home = grid;
         self.home_rows = 0;
+        self.home_first = 0;
         self.bc = bc;
         self.cfg = cfg;
         let n = grid.len();
@@ -1180,6 +1184,12 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     pub fn last_discharge(&self) -> [[R; 2]; D] {
         self.discharge_step
     }
+    /// The centre of cell `i` as the whole grid places it (`home`): what the cut wall's rigid
+    /// motion is evaluated at.
+    #[inline(always)]
+    pub(super) fn home_center(&self, i: usize) -> [R; D] {
+        self.home.center(self.home_first + i)
+    }
     /// Open fraction of the boundary face of cell `i` on side `high` of axis `a` (0 unless
     /// the side is a wall with openings).
     #[inline]
@@ -1188,10 +1198,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         if side.kind != Boundary::Wall || side.openings.is_empty() {
             return R::ZERO;
         }
-        // on the whole grid (`home`): a slab's rows lie `home_rows` rows up
-        let plane = self.grid.len() / self.grid.cells()[D - 1];
-        side.openings
-            .fraction(&self.home, a, i + self.home_rows * plane)
+        side.openings.fraction(&self.home, a, self.home_first + i)
     }
     /// Steps taken.
     pub fn steps(&self) -> u64 {

@@ -196,6 +196,7 @@ pub fn load_slab<R: Real, const D: usize, const M: usize, const N: usize>(
     // a rotating frame's bounds are the box's, not the slab's
     local.home = grid;
     local.home_rows = first;
+    local.home_first = first * plane;
     local.restore_counters(global.counters());
     local.prepared = true;
     Ok(SlabPlan {

@@ -1015,7 +1015,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     fn rigid_rhs(&mut self, comp: usize) {
         let n = self.grid.len();
         for i in 0..n {
-            self.solve.p[i] = self.walls.rigid_velocity(i)[comp];
+            self.solve.p[i] = self.walls.rigid_velocity(self.home_center(i))[comp];
         }
         let st = Stencil {
             grid: &self.grid,
@@ -1037,7 +1037,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let vac = self.cfg.vacuum;
         for i in 0..n {
             if self.c[i] > vac {
-                let ur = self.walls.rigid_velocity(i)[comp];
+                let ur = self.walls.rigid_velocity(self.home_center(i))[comp];
                 let u = &mut self.u[comp][i];
                 *u = if add { *u + ur } else { *u - ur };
             }

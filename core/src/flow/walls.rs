@@ -167,12 +167,6 @@ pub(super) struct Walls<R: Real, const D: usize, const N: usize> {
     /// [`MergedWalls::Master`]; 0 where the cell is no member with a fragment, or its master
     /// lies no farther from the plane than the member's `d` (then the member keeps its term).
     pub master_d: [R; N],
-    /// The grid the geometry was built on, and the number of its cells before this grid's
-    /// first: cell centres (the wall's rigid motion) are taken there, so that a slab's
-    /// ([`Self::load_rows`]) are the whole grid's to the bit (`origin + (k0 + k + 1/2) h`,
-    /// never `(origin + k0 h) + (k + 1/2) h`).
-    home: Grid<R, D>,
-    home_offset: usize,
     /// Rows a merge group spans along the last axis beyond its first (0, 1 or 2: a master
     /// with members below and above), of the whole grid: what deepens a slab's halo
     /// ([`super::slab::halo_rows`]).
@@ -200,8 +194,6 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
             wall_d: z,
             master_d: z,
             normal: [z; D],
-            home: Grid::unit(),
-            home_offset: 0,
             rows_spanned: 0,
         }
     }
@@ -307,8 +299,6 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
         self.on = global.on;
         self.merged = global.merged;
         self.wall = global.wall;
-        self.home = global.home;
-        self.home_offset = global.home_offset + span.start;
         self.rows_spanned = global.rows_spanned;
         let off = span.start;
         for (i, g) in span.clone().enumerate() {
@@ -361,18 +351,11 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
         most
     }
 
-    /// The centre of cell `i` as the whole grid places it.
-    #[inline(always)]
-    fn center(&self, i: usize) -> [R; D] {
-        self.home.center(self.home_offset + i)
-    }
-
-    /// Wall velocity at the Dirichlet point `x_c + d n` of cell `i`.
-    pub fn wall_velocity(&self, i: usize) -> [R; D] {
-        if !self.turns() {
-            return [R::ZERO; D];
-        }
-        let mut x = self.center(i);
+    /// Wall velocity at the Dirichlet point `x_c + d n` of cell `i`, whose centre is `x`
+    /// (as the whole grid places it: [`Flow::home_center`], so that a slab's are the whole
+    /// grid's to the bit).
+    fn wall_velocity(&self, x: [R; D], i: usize) -> [R; D] {
+        let mut x = x;
         let d = self.wall_d[i];
         for (a, xa) in x.iter_mut().enumerate() {
             *xa += d * self.normal[a][i];
@@ -405,20 +388,18 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
         self.merged && self.turns()
     }
 
-    /// The wall's rigid motion `u_R = omega x (x - center)` at the centre of cell `i` (0 for a
+    /// The wall's rigid motion `u_R = omega x (x - center)` at a cell centre `x` (0 for a
     /// resting wall).
-    pub fn rigid_velocity(&self, i: usize) -> [R; D] {
+    pub fn rigid_velocity(&self, x: [R; D]) -> [R; D] {
         if !self.turns() {
             return [R::ZERO; D];
         }
-        let x = self.center(i);
         self.turn(core::array::from_fn(|k| x[k] - self.wall.center[k]))
     }
 
     /// `u_R(x_j) - u_R(x_i)` of the wall's rigid motion `u_R = omega x (x - center)` between
-    /// the centres of cells `j` and `i` (0 off the rotation plane).
-    pub fn rigid_offset(&self, j: usize, i: usize) -> [R; D] {
-        let (xj, xi) = (self.center(j), self.center(i));
+    /// two cell centres (0 off the rotation plane).
+    pub fn rigid_offset(&self, xj: [R; D], xi: [R; D]) -> [R; D] {
         self.turn(core::array::from_fn(|k| xj[k] - xi[k]))
     }
 }
@@ -478,8 +459,6 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         let w = &mut self.walls;
         w.wall = wall;
         w.merged = false;
-        w.home = grid;
-        w.home_offset = 0;
         let open = |v: R| v >= R::HALF;
         for i in 0..n {
             let v = cut.volume(i);
@@ -634,7 +613,10 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
 
     /// The velocity of the cut wall at the Dirichlet point of cell `i`.
     pub fn wall_velocity(&self, i: usize) -> [R; D] {
-        self.walls.wall_velocity(i)
+        if !self.walls.turns() {
+            return [R::ZERO; D];
+        }
+        self.walls.wall_velocity(self.home_center(i), i)
     }
 
     /// The wall law of the cut wall fragment of cell `i` (model.md 2) as the Dirichlet-type term
@@ -691,7 +673,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
     /// [`Self::wall_law`] of cell `i`'s fragment acting on cell `row` at distance `d`.
     fn wall_law_on(&self, i: usize, row: usize, d: R) -> ([R; D], R) {
         let w = &self.walls;
-        let uw = w.wall_velocity(i);
+        let uw = self.wall_velocity(i);
         let eta = self.eta[row];
         if w.wall.slip == Slip::NoSlip {
             return (uw, eta);
@@ -750,7 +732,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             for i in 0..n {
                 let m = self.walls.master[i] as usize;
                 if m != i {
-                    let off = self.walls.rigid_offset(i, m);
+                    let off = self
+                        .walls
+                        .rigid_offset(self.home_center(i), self.home_center(m));
                     for a in 0..D {
                         self.m[a][i] -= self.c[i] * off[a];
                     }
@@ -783,7 +767,9 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
         for i in 0..n {
             let m = self.walls.master[i] as usize;
             if m != i {
-                let off = self.walls.rigid_offset(i, m);
+                let off = self
+                    .walls
+                    .rigid_offset(self.home_center(i), self.home_center(m));
                 let c = self.c[i];
                 for a in 0..D {
                     self.m[a][i] = self.m[a][m] + c * off[a];
@@ -907,7 +893,7 @@ impl<R: Real, const D: usize, const N: usize> Flow<R, D, N> {
             if !(k > R::ZERO && c > self.cfg.vacuum) {
                 continue;
             }
-            let uw = self.walls.wall_velocity(i);
+            let uw = self.wall_velocity(i);
             let mut rel = [R::ZERO; D];
             let mut into = R::ZERO;
             // inner neighbour: one cell against the dominant component of the normal
