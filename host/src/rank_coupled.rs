@@ -20,8 +20,9 @@
 //!   `.pvti` (`crate::parallel_mpi::write_snapshot`);
 //! - *stop* with rank 0's exit code.
 //!
-//! A rank whose slab's step fails names the cell in its slab's numbering; rank 0 scans its
-//! gathered whole run first, so a non-finite value is named as the serial run names it.
+//! A rank whose slab's step fails names the cell in the whole grid's numbering (as the serial
+//! run does); rank 0 scans its gathered whole run first, so a non-finite value is named as
+//! the serial run names it too.
 
 use crate::coupled_steps::{
     plan_step, record_from_words, record_words, slab_starts, too_many_ranks, CoupledSteps,
@@ -134,6 +135,8 @@ struct Stepper<'x, 'c, R: Real, const D: usize, const N: usize> {
     slab: Slab<'x, R, RankLinks<'c, SimpleCommunicator>, D>,
     /// The owned cells in the slab's numbering.
     own: Range<usize>,
+    /// The whole grid's number of the slab's first cell (its first halo row's).
+    first: usize,
     level: crate::isa::Level,
     /// The last step's failure, in words (none when another slab failed).
     error: Option<String>,
@@ -166,7 +169,7 @@ impl<R: Real, const D: usize, const N: usize> Stepper<'_, '_, R, D, N> {
         match stepped {
             Err(e) => {
                 if e != CouplingError::OtherSlab {
-                    self.error = Some(e.to_string());
+                    self.error = Some(e.offset_cell(self.first).to_string());
                 }
                 (stable, Stepped::Failed)
             }
@@ -416,6 +419,7 @@ pub fn lead<R: Real, const D: usize, const N: usize, T>(
         cpl,
         slab,
         own: plan.owned_cells(),
+        first: plan.global_cells().start - plan.owned_cells().start,
         level: crate::isa::level(),
         error: None,
         not_finite: false,
@@ -451,6 +455,7 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
         cut,
     } = &mut mine;
     let (own, cells) = (plan.owned_cells(), plan.global_cells());
+    let first = cells.start - own.start;
     let mut slab = Slab::new(plan, &mut links, memory);
     let start = global.slab_start();
     let Ok(cpl) = Coupled::on_slab(flow, seg, start, cut.as_deref(), &mut slab) else {
@@ -465,6 +470,7 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
         cpl,
         slab,
         own,
+        first,
         level: crate::isa::level(),
         error: None,
         not_finite: false,

@@ -707,28 +707,38 @@ fn the_slabs_records_make_the_whole_run_whole_again_and_it_steps_on_with_the_ser
     assert!(whole.seg.flushed_tracked() != 0.0, "nothing flushed");
 }
 
+/// One coupled step of the 20 x 24 mixed collapse on 4 slabs (rows cut at 0, 6, 12, 18; on
+/// threads), with a non-finite phi in the cell `cell` of the whole grid: each slab's error,
+/// its cell counted in the whole grid (`CouplingError::offset_cell`), as a rank reports it.
+fn one_step_with_a_nan(cell: usize) -> Vec<Option<CouplingError>> {
+    let mut start = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
+    let start = start.driver();
+    on_threads(4, |k, mut links| {
+        let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
+        let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
+        let plan =
+            load_coupled_slab(&start, &[0, 6, 12, 18], k, &mut flow, &mut seg, None).unwrap();
+        let first = plan.global_cells().start - plan.owned_cells().start;
+        let mut memory = vec![0.0; plan.memory_len()];
+        let mut slab = Slab::new(&plan, &mut links, &mut memory);
+        let mut cpl =
+            Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), None, &mut slab).unwrap();
+        if plan.global_cells().contains(&cell) {
+            cpl.seg.set_phi(cell - first, f64::NAN);
+        }
+        let dt = cpl.stable_dt_reaching(&mut slab);
+        cpl.step_with_reaching(dt, &Serial, &mut slab)
+            .err()
+            .map(|e| e.offset_cell(first))
+    })
+}
+
 #[test]
 fn a_slab_that_fails_stops_every_slab_without_a_hang() {
     // a non-finite fraction in the first slab's floor row: after the step that slab's
     // segregation refuses its fields (its neighbour's too if the NaN reached its halo), and
     // the last slab says that another slab stopped, at the same point of the step
-    let mut start = collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
-    let start = start.driver();
-    let outcomes = on_threads(4, |k, mut links| {
-        let mut flow: Box<Flow<f64, 2, N>> = Box::new(Flow::zeroed());
-        let mut seg: Box<Segregation<f64, 2, N>> = Box::new(Segregation::zeroed());
-        let plan =
-            load_coupled_slab(&start, &[0, 6, 12, 18], k, &mut flow, &mut seg, None).unwrap();
-        let mut memory = vec![0.0; plan.memory_len()];
-        let mut slab = Slab::new(&plan, &mut links, &mut memory);
-        let mut cpl =
-            Coupled::on_slab(&mut flow, &mut seg, start.slab_start(), None, &mut slab).unwrap();
-        if k == 0 {
-            cpl.seg.set_phi(2, f64::NAN);
-        }
-        let dt = cpl.stable_dt_reaching(&mut slab);
-        cpl.step_with_reaching(dt, &Serial, &mut slab).err()
-    });
+    let outcomes = one_step_with_a_nan(2);
     assert!(
         matches!(outcomes[0], Some(CouplingError::Segregation(_))),
         "{outcomes:?}"
@@ -737,6 +747,47 @@ fn a_slab_that_fails_stops_every_slab_without_a_hang() {
     assert_eq!(
         CouplingError::OtherSlab.to_string(),
         "another slab of the run stopped"
+    );
+}
+
+#[test]
+fn a_failing_slab_names_the_cell_the_serial_run_names() {
+    // A non-finite fraction in the top owned row of the third slab (rows 12..18 of 24; row
+    // 17, column 2): the slab's refusal, its cell counted from the whole grid's first
+    // (`CouplingError::offset_cell`, what a rank of an MPI run reports), is the serial run's.
+    let make = || collapse([20, 24], [0.1, 0.12], [0.05, 0.09], PressureMode::Explicit);
+    let cell = 17 * 20 + 2;
+    let mut serial = make();
+    let mut whole = serial.driver();
+    whole.seg.set_phi(cell, f64::NAN);
+    let dt = whole.stable_dt();
+    let expected = whole.step_with(dt).err();
+    assert!(
+        matches!(expected, Some(CouplingError::Segregation(_))),
+        "{expected:?}"
+    );
+    let outcomes = one_step_with_a_nan(cell);
+    // the first slab that failed for a reason of its own, as rank 0 reports it
+    let named = outcomes
+        .iter()
+        .flatten()
+        .find(|e| **e != CouplingError::OtherSlab);
+    assert_eq!(named, expected.as_ref(), "{outcomes:?}");
+    // and the offset reaches the cell only
+    let e = CouplingError::Flow(sieve_core::flow::FlowError::Field {
+        field: "c",
+        cell: 3,
+    });
+    assert_eq!(
+        e.offset_cell(40),
+        CouplingError::Flow(sieve_core::flow::FlowError::Field {
+            field: "c",
+            cell: 43
+        })
+    );
+    assert_eq!(
+        CouplingError::OtherSlab.offset_cell(40),
+        CouplingError::OtherSlab
     );
 }
 

@@ -112,6 +112,19 @@ pub enum CouplingError {
     GeometryMismatch,
 }
 
+impl CouplingError {
+    /// The same error with the cell it names counted `offset` cells later: a slab's cell in
+    /// the whole grid's numbering (`SlabPlan::global_cells` minus `owned_cells`), as the
+    /// serial run names it.
+    pub fn offset_cell(self, offset: usize) -> Self {
+        match self {
+            CouplingError::Flow(e) => CouplingError::Flow(e.offset_cell(offset)),
+            CouplingError::Segregation(e) => CouplingError::Segregation(e.offset_cell(offset)),
+            other => other,
+        }
+    }
+}
+
 /// A residual as f64 (keeps [`CouplingError`] non-generic).
 pub type R64 = f64;
 

@@ -343,6 +343,20 @@ pub enum FlowError {
     },
 }
 
+impl FlowError {
+    /// The same error with its cell counted `offset` cells later: a slab's cell in the whole
+    /// grid's numbering, as the serial run names it.
+    pub fn offset_cell(self, offset: usize) -> Self {
+        match self {
+            FlowError::Field { field, cell } => FlowError::Field {
+                field,
+                cell: cell + offset,
+            },
+            other => other,
+        }
+    }
+}
+
 /// Diagnostics of the flow (issue 3: max c/c_rcp, min T, kinetic energy, residual).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FlowDiagnostics<R> {

@@ -186,6 +186,33 @@ pub enum SetupError {
     },
 }
 
+impl SetupError {
+    /// The same error with its cell counted `offset` cells later: a slab's cell in the whole
+    /// grid's numbering, as the serial run names it.
+    pub fn offset_cell(self, offset: usize) -> Self {
+        use SetupError::*;
+        match self {
+            NonFinite { field, cell } => NonFinite {
+                field,
+                cell: cell + offset,
+            },
+            NegativeVolumeFraction { cell } => NegativeVolumeFraction {
+                cell: cell + offset,
+            },
+            NegativeTemperature { cell } => NegativeTemperature {
+                cell: cell + offset,
+            },
+            PhiOutOfRange { cell } => PhiOutOfRange {
+                cell: cell + offset,
+            },
+            InflowOutOfRange { cell } => InflowOutOfRange {
+                cell: cell + offset,
+            },
+            other => other,
+        }
+    }
+}
+
 /// The segregation solver: phase fraction, static coefficients and scratch, for up to `N`
 /// cells of a `D`-dimensional grid.
 #[derive(Clone, Debug)]
