@@ -265,10 +265,22 @@ pub trait InOrder<R> {
     /// empty, which a subdomain may not (every subdomain takes part in every sum).
     fn whole(&self) -> bool;
 
-    /// A sum over all cells in cell order, starting from `start` (the same value on every
-    /// subdomain): `part(s)` continues the serial running sum `s` over the cells this
-    /// subdomain counts and returns it; the result is the serial sum's bits.
-    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R;
+    /// Sums over all cells in cell order, starting from `start` (the same values on every
+    /// subdomain): `part(s)` continues the serial running sums `s` over the cells this
+    /// subdomain counts and returns them; the result is the serial sums' bits. `K` sums
+    /// walked together travel together: one message per neighbour, not `K`.
+    fn sums_in_order<const K: usize>(
+        &mut self,
+        start: [R; K],
+        part: impl FnOnce([R; K]) -> [R; K],
+    ) -> [R; K];
+
+    /// One sum in cell order ([`Self::sums_in_order`] of one value).
+    #[inline(always)]
+    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
+        let [total] = self.sums_in_order([start], |[s]| [part(s)]);
+        total
+    }
 }
 
 /// The whole grid, nothing cut: every sum in order is the serial loop (and the flow's
@@ -283,7 +295,11 @@ impl<R> InOrder<R> for Whole {
     }
 
     #[inline(always)]
-    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
+    fn sums_in_order<const K: usize>(
+        &mut self,
+        start: [R; K],
+        part: impl FnOnce([R; K]) -> [R; K],
+    ) -> [R; K] {
         part(start)
     }
 }

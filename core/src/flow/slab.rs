@@ -227,15 +227,20 @@ impl<'a, R: Real, L: Links<R>, const D: usize> Slab<'a, R, L, D> {
         }
     }
 
-    /// Hands a running value from the first slab to the last, each continuing it with
-    /// `part`, then the last slab's result back down to every slab.
-    fn chain(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
+    /// Hands running values from the first slab to the last, each continuing them with
+    /// `part`, then the last slab's result back down to every slab: one message each way
+    /// per neighbour, however many values.
+    fn chain<const K: usize>(
+        &mut self,
+        start: [R; K],
+        part: impl FnOnce([R; K]) -> [R; K],
+    ) -> [R; K] {
         let [below, above] = self.plan.halo.map(|h| h > 0);
-        let mut v = [start];
+        let mut v = start;
         if below {
             self.links.receive_below(&mut v);
         }
-        let mut total = [part(v[0])];
+        let mut total = part(v);
         if above {
             self.links.send_up(&total);
             self.links.receive_above(&mut total);
@@ -243,7 +248,7 @@ impl<'a, R: Real, L: Links<R>, const D: usize> Slab<'a, R, L, D> {
         if below {
             self.links.send_down(&total);
         }
-        total[0]
+        total
     }
 
     /// Overwrites the halo rows of a local array with the neighbours' own rows.
@@ -280,7 +285,11 @@ impl<R: Real, L: Links<R>, const D: usize> InOrder<R> for Slab<'_, R, L, D> {
         false
     }
 
-    fn sum_in_order(&mut self, start: R, part: impl FnOnce(R) -> R) -> R {
+    fn sums_in_order<const K: usize>(
+        &mut self,
+        start: [R; K],
+        part: impl FnOnce([R; K]) -> [R; K],
+    ) -> [R; K] {
         self.chain(start, part)
     }
 }
@@ -295,7 +304,8 @@ impl<R: Real, L: Links<R>, const D: usize, const N: usize> Reach<R, D, N> for Sl
     }
 
     fn max(&mut self, x: R) -> R {
-        self.chain(x, |m| m.max(x))
+        let [m] = self.chain([x], |[m]| [m.max(x)]);
+        m
     }
 
     fn solve<F: Fork>(

@@ -295,8 +295,9 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
     /// The books of the open sides along the last axis (`fx.open`; the sides across it are
     /// booked face by face in pass C): for each, the small phase and all grains through the
     /// faces of the counted cells, in cell order, as sums continued across subdomains
-    /// (`sums`), so that every slab of rows holds the serial books of the whole side. Only
-    /// open sides take part: a closed scene pays nothing.
+    /// (`sums`, one chain of both numbers per side), so that every slab of rows holds the
+    /// serial books of the whole side. Only open sides take part: a closed scene pays
+    /// nothing.
     pub(super) fn book_sides_along(
         &self,
         fx: MassFluxes<'_, R, D, N>,
@@ -321,18 +322,16 @@ impl<R: Real, const D: usize, const N: usize> Segregation<R, D, N> {
                         -fx.low[a][i]
                     }
                 };
-                let book = |which: usize, start: R| {
-                    let mut sums = [start; 2];
+                let [s, t] = sums.sums_in_order([R::ZERO; 2], |[mut s, mut t]| {
                     grid.for_each_boundary_cell(a, side == 1, |i, _| {
                         if counted.contains(&i) {
-                            let [s, t] = &mut sums;
-                            self.book_face(small, i, leaving(i), vol, s, t);
+                            self.book_face(small, i, leaving(i), vol, &mut s, &mut t);
                         }
                     });
-                    sums[which]
-                };
-                out.small[a][side] = sums.sum_in_order(R::ZERO, |s| book(0, s));
-                out.total[a][side] = sums.sum_in_order(R::ZERO, |t| book(1, t));
+                    [s, t]
+                });
+                out.small[a][side] = s;
+                out.total[a][side] = t;
             }
         }
     }
