@@ -104,10 +104,85 @@ pub fn diagnose_fields<R: Real>(
     vacuum: R,
     cell_volume: R,
 ) -> Diagnostics<R> {
-    tally_fields(phi, c, volume, vacuum, |phi, c| {
-        mixing_entropy_density(phi / c) * c
-    })
-    .finish(cell_volume)
+    tally_fields(Tally::new(vacuum), phi, c, volume, value_term).finish(cell_volume)
+}
+
+/// Which Psi the continued sums of [`add_psi_sums`] add up: the evaluated one
+/// ([`diagnose_fields`]) or the floor under it ([`psi_floor`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PsiOf {
+    /// Psi itself: two `libm` logarithms per cell.
+    Value,
+    /// The floor under Psi: a few multiplications per cell.
+    Floor,
+}
+
+/// How many values [`add_psi_sums`] carries from one piece of the fields to the next.
+pub const PSI_SUMS: usize = 7;
+
+/// The running sums of Psi before the first cell (for [`add_psi_sums`]).
+pub fn psi_sums_start<R: Real>() -> [R; PSI_SUMS] {
+    Tally::new(R::ZERO).words()
+}
+
+/// Continues the running sums `sums` of Psi (or of its floor, `of`) over the next piece of
+/// the fields in cell order (`phi`, `c`, `volume`, `vacuum` as [`diagnose_fields`] takes
+/// them). A grid cut into subdomains continues the sums of the subdomains before it over its
+/// own cells and hands them on (`crate::sum::InOrder::sums_in_order`, one message of
+/// [`PSI_SUMS`] values): [`psi_of_sums`] of the last piece's sums has the bits of
+/// [`diagnose_fields`]' / [`psi_floor`]'s Psi of the whole grid, which are these same sums
+/// over one piece. What a driver of many ranks sends instead of the fields themselves.
+pub fn add_psi_sums<R: Real>(
+    sums: [R; PSI_SUMS],
+    of: PsiOf,
+    phi: &[R],
+    c: &[R],
+    volume: Option<&[R]>,
+    vacuum: R,
+) -> [R; PSI_SUMS] {
+    let tally = Tally::from_words(vacuum, sums);
+    // one loop per term, each as simple as the serial one
+    match of {
+        PsiOf::Value => tally_fields(tally, phi, c, volume, value_term),
+        PsiOf::Floor => tally_fields(tally, phi, c, volume, floor_term),
+    }
+    .words()
+}
+
+/// Psi (or its floor, `of`) of the running sums over all `cells` cells of the grid
+/// ([`add_psi_sums`]); `cell_volume` of the grid.
+pub fn psi_of_sums<R: Real>(sums: [R; PSI_SUMS], of: PsiOf, cells: usize, cell_volume: R) -> R {
+    let psi = Tally::from_words(R::ZERO, sums).finish(cell_volume).psi;
+    match of {
+        PsiOf::Value => psi,
+        PsiOf::Floor => lowered(psi, cells),
+    }
+}
+
+/// The entropy term of a cell of Psi (called where `c > vacuum`).
+#[inline(always)]
+fn value_term<R: Real>(phi: R, c: R) -> R {
+    mixing_entropy_density(phi / c) * c
+}
+
+/// The entropy term of a cell of the floor under Psi (called where `c > vacuum`).
+#[inline(always)]
+fn floor_term<R: Real>(phi: R, c: R) -> R {
+    // 4 ln 2 = 2.7725887..., rounded down
+    let k = R::from_f64(2.772588);
+    let x = (phi / c).max(R::ZERO).min(R::ONE);
+    k * (x * (R::ONE - x)) * c
+}
+
+/// The floor's sum `lb` over `n` cells lowered by its round-off bound ([`psi_floor`]).
+fn lowered<R: Real>(lb: R, n: usize) -> R {
+    let n = R::from_usize(n);
+    let margin = R::from_f64(4.0) * (n + R::from_f64(16.0)) * R::EPSILON;
+    if margin < R::ONE {
+        lb - lb * margin
+    } else {
+        R::ZERO
+    }
 }
 
 /// A floor under the mixing index Psi that [`diagnose_fields`] returns for the same
@@ -115,8 +190,10 @@ pub fn diagnose_fields<R: Real>(
 /// entropy in bits is at least `4 x (1 - x)`), summed in the same cell order with the same
 /// masses, then lowered by `4 (n + 16) eps` of itself, more than the round-off of the two
 /// sums of `n` positive terms and of the per-cell terms (one `libm` log is within an ulp).
-/// So `psi_floor >= threshold` proves that the evaluated Psi is `>= threshold` too; a NaN
-/// anywhere gives NaN, which proves nothing. A floor of a well-mixed state is ~0.9 of Psi,
+/// So `psi_floor >= threshold` proves that the evaluated Psi is `>= threshold` too. A NaN in
+/// `phi` or `c` makes a mass NaN and both Psi and the floor 0 (the clamps of
+/// [`mixing_entropy_density`] take NaN to 0): a driver scans for non-finite values before it
+/// samples (the run loops do). A floor of a well-mixed state is ~0.9 of Psi,
 /// far above a segregation threshold of 0.05; it costs a few multiplications per cell
 /// where Psi costs two `libm` logarithms.
 pub fn psi_floor<R: Real>(
@@ -126,33 +203,19 @@ pub fn psi_floor<R: Real>(
     vacuum: R,
     cell_volume: R,
 ) -> R {
-    // 4 ln 2 = 2.7725887..., rounded down
-    let k = R::from_f64(2.772588);
-    let lb = tally_fields(phi, c, volume, vacuum, |phi, c| {
-        let x = (phi / c).max(R::ZERO).min(R::ONE);
-        k * (x * (R::ONE - x)) * c
-    })
-    .finish(cell_volume)
-    .psi;
-    let n = R::from_usize(phi.len().min(c.len()));
-    let margin = R::from_f64(4.0) * (n + R::from_f64(16.0)) * R::EPSILON;
-    if margin < R::ONE {
-        lb - lb * margin
-    } else {
-        R::ZERO
-    }
+    let sums = add_psi_sums(psi_sums_start(), PsiOf::Floor, phi, c, volume, vacuum);
+    psi_of_sums(sums, PsiOf::Floor, phi.len().min(c.len()), cell_volume)
 }
 
-/// The tally of [`diagnose_fields`] with the entropy term `term(phi, c)` of a cell (called
+/// `tally` continued over the fields with the entropy term `term(phi, c)` of a cell (called
 /// where `c > vacuum` only).
 fn tally_fields<R: Real>(
+    mut tally: Tally<R>,
     phi: &[R],
     c: &[R],
     volume: Option<&[R]>,
-    vacuum: R,
     term: impl Fn(R, R) -> R,
 ) -> Tally<R> {
-    let mut tally = Tally::new(vacuum);
     let n = phi.len().min(c.len());
     let (phi, c) = (&phi[..n], &c[..n]);
     match volume {
@@ -196,6 +259,34 @@ impl<R: Real> Tally<R> {
             entropy: R::ZERO,
             phihat_min: R::ONE,
             phihat_max: R::ZERO,
+        }
+    }
+
+    /// The running sums as values, in a fixed order (what a subdomain hands on).
+    fn words(&self) -> [R; PSI_SUMS] {
+        [
+            self.mass_small,
+            self.mass_total,
+            self.overshoot,
+            self.undershoot,
+            self.entropy,
+            self.phihat_min,
+            self.phihat_max,
+        ]
+    }
+
+    /// The tally of `words` ([`Self::words`]) with the empty-cell threshold `vacuum`.
+    fn from_words(vacuum: R, w: [R; PSI_SUMS]) -> Self {
+        let [mass_small, mass_total, overshoot, undershoot, entropy, phihat_min, phihat_max] = w;
+        Self {
+            vacuum,
+            mass_small,
+            mass_total,
+            overshoot,
+            undershoot,
+            entropy,
+            phihat_min,
+            phihat_max,
         }
     }
 

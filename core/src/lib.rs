@@ -32,8 +32,9 @@ pub mod sum;
 
 pub use boundary::{Boundaries, Boundary};
 pub use diagnostics::{
-    diagnose, diagnose_embedded, diagnose_fields, diagnose_with_terms, entropy_term, psi_floor,
-    state_hash, Diagnostics, SegregationClock,
+    add_psi_sums, diagnose, diagnose_embedded, diagnose_fields, diagnose_with_terms, entropy_term,
+    psi_floor, psi_of_sums, psi_sums_start, state_hash, Diagnostics, PsiOf, SegregationClock,
+    PSI_SUMS,
 };
 pub use grid::Grid;
 pub use real::Real;

@@ -7,11 +7,12 @@
 
 use crate::error::{Error, Result};
 use crate::interrupt::Reason;
+use crate::step_psi::{Sample, StepPsi};
 use sieve_core::flow::coupled::{Coupled, CoupledTotals};
 use sieve_core::flow::coupled_slab::SlabRecord;
 use sieve_core::flow::FlowCounters;
 use sieve_core::fork::Serial;
-use sieve_core::sum::FixedSum;
+use sieve_core::sum::{FixedSum, Whole};
 use sieve_core::Real;
 
 /// What the coupled run loop asks of its stepper. `cpl` is the run of record: the state the
@@ -19,13 +20,15 @@ use sieve_core::Real;
 pub trait CoupledSteps<R: Real, const D: usize, const N: usize> {
     /// One step toward `target` ([`plan_step`] with the run's first stable step `first`):
     /// the stable step, and `Err` with the reason the run stops if it was not taken or
-    /// failed. With `sample`, [`Self::fields`] then holds the new `phi` and `c`.
+    /// failed. With `sample` (the segregation timer's threshold), a step that was taken is
+    /// sampled ([`Self::sampled`]) before anything else happens, so that on an MPI run
+    /// every rank takes part in its sums.
     fn step_toward(
         &mut self,
         cpl: &mut Coupled<'_, R, D, N>,
         target: R,
         first: f64,
-        sample: bool,
+        sample: Option<f64>,
     ) -> (R, std::result::Result<(), Reason>);
 
     /// The run's clock (the stepped state's, which may be ahead of `cpl` until a sync).
@@ -35,8 +38,8 @@ pub trait CoupledSteps<R: Real, const D: usize, const N: usize> {
     /// in the serial order of the scan).
     fn scan(&mut self, cpl: &mut Coupled<'_, R, D, N>) -> Result<Option<Reason>>;
 
-    /// `[phi, c]` of every cell after the last step taken with `sample`.
-    fn fields(&mut self, cpl: &Coupled<'_, R, D, N>, out: &mut [Vec<R>; 2]);
+    /// The sample of the last step if it was taken with `sample` (`crate::step_psi`).
+    fn sampled(&self) -> Option<Sample>;
 
     /// Brings `cpl` up to the stepped state (before outputs, checkpoints and the end).
     fn sync(&mut self, cpl: &mut Coupled<'_, R, D, N>) -> Result<()>;
@@ -80,20 +83,24 @@ pub fn plan_step<R: Real>(
 /// The whole grid in this process: the serial step, its hot loops at the widest vector unit
 /// (docs/simd.md) and, with `--threads`, its solves on a pool (the same bits,
 /// docs/parallel.md).
-pub struct WholeSteps {
+pub struct WholeSteps<R> {
     /// The pool of `--threads` (none: one thread).
     pub pool: Option<crate::pool::Pool>,
     /// The vector unit the hot loops run at.
     pub level: crate::isa::Level,
+    /// The segregation timer's samples of every cell.
+    pub psi: StepPsi<R>,
+    /// The last step's sample.
+    pub sampled: Option<Sample>,
 }
 
-impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for WholeSteps {
+impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for WholeSteps<R> {
     fn step_toward(
         &mut self,
         cpl: &mut Coupled<'_, R, D, N>,
         target: R,
         first: f64,
-        _sample: bool,
+        sample: Option<f64>,
     ) -> (R, std::result::Result<(), Reason>) {
         let stable = cpl.stable_dt();
         let dt = match plan_step(stable, target, cpl.seg.time(), first) {
@@ -112,6 +119,10 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for WholeSte
                 .or_else(|| crate::interrupt::scan_flow(cpl.flow))
                 .unwrap_or(Reason::Core(e.to_string()))
         });
+        self.sampled = match (sample, &stepped) {
+            (Some(threshold), Ok(())) => Some(self.psi.sample(cpl.seg, threshold, &mut Whole)),
+            _ => None,
+        };
         (stable, stepped)
     }
 
@@ -124,13 +135,8 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for WholeSte
             .or_else(|| crate::interrupt::scan_flow(cpl.flow)))
     }
 
-    fn fields(&mut self, cpl: &Coupled<'_, R, D, N>, out: &mut [Vec<R>; 2]) {
-        let n = cpl.seg.len();
-        let [phi, c] = out;
-        phi.clear();
-        phi.extend((0..n).map(|i| cpl.seg.phi(i)));
-        c.clear();
-        c.extend((0..n).map(|i| cpl.seg.c(i)));
+    fn sampled(&self) -> Option<Sample> {
+        self.sampled
     }
 
     fn sync(&mut self, _cpl: &mut Coupled<'_, R, D, N>) -> Result<()> {

@@ -22,6 +22,7 @@ use crate::scene::{
     solver_errors, Equations, Fields, Fill, FrameKind, MergedWallsKind, PressureKind, Scene,
     SpinUp, StressKind,
 };
+use crate::step_psi::{Sample, StepPsi};
 use sieve_core::closure::Packing;
 use sieve_core::flow::coupled::{Coupled, CouplingConfig, Mode};
 use sieve_core::flow::{
@@ -544,10 +545,13 @@ pub fn coupled_loop_with<R: Real, const D: usize, const N: usize>(
             looped.run(cpl, steps, on_output)
         });
     }
+    let n = cpl.seg.len();
     let mut steps = WholeSteps {
         // `--threads`: the flow's linear solves on a pool (the same bits, docs/parallel.md)
         pool: crate::parallel::flow_pool(scene),
         level: crate::isa::level(),
+        psi: StepPsi::new(cpl.seg, 0..n, n, geo.map(|g| g.volumes())),
+        sampled: None,
     };
     looped.run(&mut cpl, &mut steps, on_output)
 }
@@ -602,14 +606,17 @@ impl<R: Real, const D: usize, const N: usize> Loop<'_, '_, R, D, N> {
             Some(rows) => crate::silo::DischargeSeries::from_rows(rows),
             None => crate::silo::DischargeSeries::default(),
         });
-        let mut timer = StepTimer::start(scene.psi_threshold, &stats, cpl.seg, geo, resumed);
+        let threshold = scene.psi_threshold;
+        let mut timer = StepTimer::start(threshold, &stats, cpl.seg, geo, resumed);
         let mut checked = false;
         'outputs: for (k, &t) in times.iter().enumerate().skip(first) {
             let target = R::from_f64(t);
             let start = Instant::now();
             while steps.time(cpl) < target {
                 let t0 = Instant::now();
-                let sample = timer.time().is_none();
+                // Psi after every step until it crosses: the segregation time resolved to
+                // the step, not to the output samples (evaluated only where it can cross)
+                let sample = timer.time().is_none().then_some(threshold);
                 let (stable, stepped) =
                     steps.step_toward(cpl, target, stats.dt.min(scene.t_end), sample);
                 if stepped.is_ok() {
@@ -646,11 +653,9 @@ impl<R: Real, const D: usize, const N: usize> Loop<'_, '_, R, D, N> {
                         t0.elapsed().as_secs_f64(),
                     )?;
                 }
-                if sample {
-                    // Psi after every step until it crosses: the segregation time resolved to
-                    // the step, not to the output samples (evaluated only where it can cross).
-                    steps.fields(cpl, &mut timer.fields);
-                    timer.sample_step(steps.time(cpl).to_f64());
+                if let Some(s) = steps.sampled() {
+                    let t = steps.time(cpl).to_f64();
+                    timer.sample_step(t, s);
                 }
                 if let Some(ck) = ckpt.as_deref_mut().filter(|c| c.due()) {
                     steps.sync(cpl)?;
@@ -687,7 +692,8 @@ impl<R: Real, const D: usize, const N: usize> Loop<'_, '_, R, D, N> {
                 overshoot_max: d.overshoot.to_f64(),
                 undershoot_max: d.undershoot.to_f64(),
             };
-            timer.sample(t, row.psi);
+            // a held sample is the last step's, whose state this row's Psi is
+            timer.sample(t, row.psi, Some(row.psi));
             stats.series.push(row);
             on_output(k, t, cpl.seg, cpl.flow)?;
             if let Some(d) = discharge.as_mut() {
@@ -712,35 +718,28 @@ impl<R: Real, const D: usize, const N: usize> Loop<'_, '_, R, D, N> {
 
 /// The segregation timer of a coupled run, sampled after every step (the segregation time
 /// resolved to the step) without evaluating Psi (two `libm` logarithms per cell, 5 % of
-/// the silo's run time) at steps where it cannot cross. A step's `phi` and `c` are copied
-/// and a floor under its Psi taken ([`sieve_core::psi_floor`], a few multiplications per
-/// cell); at or above the threshold that sample cannot cross, and all the timer keeps of such
-/// a sample is that it arms the timer and is the `last` one the crossing interpolates from.
-/// So it is held, fields and all, and evaluated ([`sieve_core::diagnose_fields`], the bits of
-/// `diagnose`) only if the next sample may cross; a later sample that cannot cross replaces
-/// it. The timer sees the same samples with the same Psi wherever it matters: the same
-/// segregation time to the bit (docs/implicit-pressure.md, "Where the time goes").
-struct StepTimer<R> {
+/// the silo's run time) at steps where it cannot cross. The stepper takes a floor under a
+/// step's Psi ([`sieve_core::psi_floor`], a few multiplications per cell); at or above the
+/// threshold that sample cannot cross, and all the timer keeps of such a sample is that it
+/// arms the timer and is the `last` one the crossing interpolates from. So the stepper holds
+/// its fields ([`Sample::Held`], `crate::step_psi`), evaluated (the bits of `diagnose`) only
+/// if the next sample may cross; a later sample that cannot cross replaces it. The timer sees
+/// the same samples with the same Psi wherever it matters: the same segregation time to the
+/// bit (docs/implicit-pressure.md, "Where the time goes").
+struct StepTimer {
     timer: SegregationTimer,
     threshold: f64,
-    /// The time of the held sample, whose fields are in `held`.
+    /// The time of the held sample (held by the stepper).
     pending: Option<f64>,
-    /// `[phi, c]` of the latest step, and of the held sample.
-    fields: [Vec<R>; 2],
-    held: [Vec<R>; 2],
-    /// The open volume fractions of cut cells (`None`: a box).
-    volume: Option<Vec<R>>,
-    vacuum: R,
-    cell_volume: R,
 }
 
-impl<R: Real> StepTimer<R> {
+impl StepTimer {
     /// The timer a run starts with: `stats` holds a resumed run's output rows and, when it
     /// had crossed, the step-resolved time its checkpoint kept. Resumed before the crossing,
     /// the restored state is sampled as the step it is: the uninterrupted run's last sample
     /// was that step, not the last output row, and a crossing in the first step after the
     /// resume interpolates from it (docs/resume.md).
-    fn start<const D: usize, const N: usize>(
+    fn start<R: Real, const D: usize, const N: usize>(
         threshold: f64,
         stats: &LoopStats,
         seg: &Segregation<R, D, N>,
@@ -755,68 +754,42 @@ impl<R: Real> StepTimer<R> {
             // resumed after the crossing: the step-resolved time the checkpoint kept
             timer = SegregationTimer::crossed(threshold, t);
         }
-        let mut timer = Self {
+        if resumed && timer.time().is_none() {
+            // evaluated at once: a held sample would have been evaluated before it mattered
+            let psi = match geo {
+                Some(g) => sieve_core::diagnose_embedded(seg, g),
+                None => sieve_core::diagnose(seg),
+            };
+            timer.sample(seg.time().to_f64(), psi.psi.to_f64());
+        }
+        Self {
             timer,
             threshold,
             pending: None,
-            fields: [Vec::new(), Vec::new()],
-            held: [Vec::new(), Vec::new()],
-            volume: geo.map(|g| g.volumes().to_vec()),
-            vacuum: seg.config().vacuum,
-            cell_volume: seg.grid().cell_volume(),
-        };
-        if resumed && timer.time().is_none() {
-            timer.sample_of(seg.time().to_f64(), seg);
         }
-        timer
     }
 
     fn time(&self) -> Option<f64> {
         self.timer.time()
     }
 
-    /// Psi of the fields `[phi, c]`, as `diagnose` / `diagnose_embedded` gives it.
-    fn psi(&self, f: &[Vec<R>; 2]) -> f64 {
-        let vol = self.volume.as_deref();
-        sieve_core::diagnose_fields(&f[0], &f[1], vol, self.vacuum, self.cell_volume)
-            .psi
-            .to_f64()
-    }
-
-    /// A sample whose Psi is evaluated.
-    fn sample(&mut self, t: f64, psi: f64) {
+    /// A sample whose Psi is evaluated; `held`: the held sample's Psi, evaluated where this
+    /// one may cross.
+    fn sample(&mut self, t: f64, psi: f64, held: Option<f64>) {
         if let Some(tp) = self.pending.take() {
-            if !(psi >= self.threshold) {
+            if let (false, Some(h)) = (psi >= self.threshold, held) {
                 // this one may cross (or is NaN): the held sample first, as it came
-                let p = self.psi(&self.held);
-                self.timer.sample(tp, p);
+                self.timer.sample(tp, h);
             }
         }
         self.timer.sample(t, psi);
     }
 
-    /// The sample of `seg`'s state at time `t`.
-    fn sample_of<const D: usize, const N: usize>(&mut self, t: f64, seg: &Segregation<R, D, N>) {
-        let n = seg.len();
-        let [phi, c] = &mut self.fields;
-        phi.clear();
-        phi.extend((0..n).map(|i| seg.phi(i)));
-        c.clear();
-        c.extend((0..n).map(|i| seg.c(i)));
-        self.sample_step(t);
-    }
-
-    /// The sample after a step at time `t`, whose `[phi, c]` are in `fields`.
-    fn sample_step(&mut self, t: f64) {
-        let [phi, c] = &self.fields;
-        let vol = self.volume.as_deref();
-        let floor = sieve_core::psi_floor(phi, c, vol, self.vacuum, self.cell_volume).to_f64();
-        if floor >= self.threshold {
-            core::mem::swap(&mut self.fields, &mut self.held);
-            self.pending = Some(t);
-        } else {
-            let psi = self.psi(&self.fields);
-            self.sample(t, psi);
+    /// The sample of a step at time `t` (the stepper's [`Sample`]).
+    fn sample_step(&mut self, t: f64, sample: Sample) {
+        match sample {
+            Sample::Held => self.pending = Some(t),
+            Sample::Psi { psi, held } => self.sample(t, psi, held),
         }
     }
 }
@@ -888,7 +861,23 @@ mod tests {
     use super::StepTimer;
     use crate::coupled_steps::collapsed_step;
     use crate::data::{LoopStats, SeriesRow};
+    use crate::step_psi::StepPsi;
+    use sieve_core::sum::Whole;
     use sieve_core::{Boundary, Grid, Segregation, SegregationConfig};
+
+    /// A timer and the samples of its steps.
+    type Run = (StepTimer, StepPsi<f64>);
+
+    fn start(stats: &LoopStats, seg: &Segregation<f64, 1, 8>, resumed: bool) -> Run {
+        let timer = StepTimer::start(0.5, stats, seg, None, resumed);
+        (timer, StepPsi::new(seg, 0..8, 8, None))
+    }
+
+    /// The sample of the step to `seg` at `t`, as the run loop takes it.
+    fn sample_of((timer, psi): &mut Run, t: f64, seg: &Segregation<f64, 1, 8>) {
+        let s = psi.sample(seg, timer.threshold, &mut Whole);
+        timer.sample_step(t, s);
+    }
 
     /// A 1D bed of 8 cells at time `t`, a fraction `s` of the way from mixed (phi = c/2
     /// everywhere) to fully segregated (the fines all in the lower half).
@@ -920,19 +909,23 @@ mod tests {
             overshoot_max: 0.0,
             undershoot_max: 0.0,
         });
-        let mut run = StepTimer::start(threshold, &stats, &*mixed, None, false);
-        run.sample_of(0.3, &*step);
-        run.sample_of(0.4, &*crossed);
-        let t = run.time().expect("crossed");
+        let mut run = start(&stats, &mixed, false);
+        sample_of(&mut run, 0.3, &step);
+        sample_of(&mut run, 0.4, &crossed);
+        let t = run.0.time().expect("crossed");
         assert!(t > 0.3 && t < 0.4, "{t}");
         // killed after the step at t = 0.3 (its checkpoint), resumed: the same time, bit for bit
-        let mut resumed = StepTimer::start(threshold, &stats, &*step, None, true);
-        resumed.sample_of(0.4, &*crossed);
-        assert_eq!(resumed.time().map(f64::to_bits), Some(t.to_bits()));
+        let mut resumed = start(&stats, &step, true);
+        sample_of(&mut resumed, 0.4, &crossed);
+        assert_eq!(resumed.0.time().map(f64::to_bits), Some(t.to_bits()));
         // from the output row alone (the timer before the fix) the crossing moves
-        let mut rows_only = StepTimer::start(threshold, &stats, &*step, None, false);
-        rows_only.sample_of(0.4, &*crossed);
-        assert!(rows_only.time().unwrap() < 0.3, "{:?}", rows_only.time());
+        let mut rows_only = start(&stats, &step, false);
+        sample_of(&mut rows_only, 0.4, &crossed);
+        assert!(
+            rows_only.0.time().unwrap() < 0.3,
+            "{:?}",
+            rows_only.0.time()
+        );
     }
 
     #[test]

@@ -47,6 +47,7 @@ pub mod scene;
 pub mod silo;
 pub mod soft_sensor;
 pub mod stdout;
+pub mod step_psi;
 pub mod sweep;
 pub mod text;
 

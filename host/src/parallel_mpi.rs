@@ -288,7 +288,7 @@ pub(crate) enum Command {
     /// Write the piece of output `k` into the directory.
     Output { k: u64, dir: String },
     /// One coupled step toward `target` (`first`: the run's first stable step; `sample`:
-    /// send `phi` and `c` after it): `crate::rank_coupled`.
+    /// sample it for the segregation timer): `crate::rank_coupled`.
     CoupledStep {
         target: f64,
         first: f64,

@@ -11,7 +11,8 @@
 //! - *coupled step* toward a target: every rank takes the same decision whether the step
 //!   may be taken ([`plan_step`]: the stable step is the smallest of the slabs', the same on
 //!   every rank), steps its slab, and the ranks take the largest of their "not finite" flags;
-//!   while the segregation timer runs, `phi` and `c` of the owned rows go to rank 0;
+//!   while the segregation timer runs, every rank samples its owned cells
+//!   ([`crate::step_psi`]: Psi's sums continued from slab to slab, seven values a message);
 //! - *gather* (before outputs, checkpoints and the end, and when a step failed or a value
 //!   is not finite): the owned rows of every state array and the slab's record
 //!   ([`sieve_core::flow::coupled_slab::SlabRecord`]) go to rank 0, which makes its whole run the record of the slabs
@@ -35,6 +36,7 @@ use crate::parallel_mpi::{
 };
 use crate::rank_links::RankLinks;
 use crate::scene::Scene;
+use crate::step_psi::{Sample, StepPsi};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use sieve_core::flow::coupled::{Coupled, CouplingError};
@@ -50,7 +52,6 @@ use std::path::Path;
 
 /// Tags of the coupled run's messages (apart from the run's 40-45, the sums' 46-47, the
 /// line pipelines' 48-49 and the links' 50-51).
-const TAG_FIELDS: i32 = 52;
 const TAG_RECORD: i32 = 53;
 const TAG_ROWS: i32 = 54;
 const TAG_ERROR: i32 = 55;
@@ -131,6 +132,9 @@ fn join<R: Real, const D: usize, const N: usize>(
 
 /// What one rank steps: its slab's driver and reach.
 struct Stepper<'x, 'c, R: Real, const D: usize, const N: usize> {
+    /// The segregation timer's samples of the owned cells, and the last step's.
+    psi: StepPsi<R>,
+    sampled: Option<Sample>,
     cpl: Coupled<'x, R, D, N>,
     slab: Slab<'x, R, RankLinks<'c, SimpleCommunicator>, D>,
     /// The owned cells in the slab's numbering.
@@ -155,8 +159,10 @@ enum Stepped {
 
 impl<R: Real, const D: usize, const N: usize> Stepper<'_, '_, R, D, N> {
     /// One step toward `target`, as every rank takes it: the stable step across the
-    /// slabs, the same decision, the step, and the largest of the ranks' "not finite".
-    fn step(&mut self, target: R, first: f64) -> (R, Stepped) {
+    /// slabs, the same decision, the step, the largest of the ranks' "not finite", and with
+    /// `sample` (the timer's threshold) the sample of a step taken with finite values.
+    fn step(&mut self, target: R, first: f64, sample: Option<f64>) -> (R, Stepped) {
+        self.sampled = None;
         let Self { cpl, slab, .. } = self;
         let stable = cpl.stable_dt_reaching(slab);
         let dt = match plan_step(stable, target, cpl.seg.time(), first) {
@@ -179,19 +185,12 @@ impl<R: Real, const D: usize, const N: usize> Stepper<'_, '_, R, D, N> {
                     .is_some();
                 let flag = if mine { R::ONE } else { R::ZERO };
                 self.not_finite = Reach::<R, D, N>::max(slab, flag) > R::ZERO;
+                if let (Some(threshold), false) = (sample, self.not_finite) {
+                    self.sampled = Some(self.psi.sample(self.cpl.seg, threshold, &mut self.slab));
+                }
                 (stable, Stepped::Taken)
             }
         }
-    }
-
-    /// The owned values of `phi` and `c`, widened.
-    fn owned_fields(&self) -> Vec<f64> {
-        let s = &*self.cpl.seg;
-        let own = self.own.clone();
-        own.clone()
-            .map(|i| s.phi(i).to_f64())
-            .chain(own.map(|i| s.c(i).to_f64()))
-            .collect()
     }
 
     /// The owned rows of every state array of the flow, then of the segregation, widened.
@@ -206,6 +205,17 @@ impl<R: Real, const D: usize, const N: usize> Stepper<'_, '_, R, D, N> {
             .for_each_state_array(|_, a| out.extend(widen(&a[own.clone()])));
         out
     }
+}
+
+/// The timer's samples of this rank's owned cells `part` (the whole grid's numbering) of
+/// `global`, stepped on the slab of `plan`.
+fn step_psi<R: Real, const D: usize, const N: usize>(
+    global: &Coupled<'_, R, D, N>,
+    plan: &SlabPlan<D>,
+    part: &Range<usize>,
+) -> StepPsi<R> {
+    let volume = global.geometry().map(|g| &g.volumes()[part.clone()]);
+    StepPsi::new(global.seg, plan.owned_cells(), global.seg.len(), volume)
 }
 
 /// Writes `values` (as [`Stepper::owned_rows`] sends them) into the cells `cells` of
@@ -238,8 +248,6 @@ pub struct RankSteps<'x, 'c, R: Real, const D: usize, const N: usize> {
     me: Stepper<'x, 'c, R, D, N>,
     /// Every rank's owned cells (global numbering).
     parts: Vec<Range<usize>>,
-    /// The gathered `[phi, c]` of the last sampled step.
-    fields: [Vec<R>; 2],
     /// The whole run is the record of the slabs' current state.
     synced: bool,
     /// The words of the first rank whose step failed, as of the last gather.
@@ -252,51 +260,16 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for RankStep
         cpl: &mut Coupled<'_, R, D, N>,
         target: R,
         first: f64,
-        sample: bool,
+        sample: Option<f64>,
     ) -> (R, std::result::Result<(), Reason>) {
         busy(true);
         broadcast(&Command::CoupledStep {
             target: target.to_f64(),
             first,
-            sample,
+            sample: sample.is_some(),
         });
-        let (stable, stepped) = self.me.step(target, first);
+        let (stable, stepped) = self.me.step(target, first, sample);
         self.synced = false;
-        if matches!(stepped, Stepped::Taken) && sample {
-            let world = comm();
-            let n = cpl.seg.len();
-            for f in &mut self.fields {
-                f.resize(n, R::ZERO);
-            }
-            let mine = self.me.owned_fields();
-            let mut bad = None;
-            for (r, part) in self.parts.iter().enumerate() {
-                let theirs;
-                let values = if r == 0 {
-                    &mine
-                } else {
-                    (theirs, _) = world
-                        .process_at_rank(r as i32)
-                        .receive_vec_with_tag::<f64>(TAG_FIELDS);
-                    &theirs
-                };
-                if values.len() != 2 * part.len() {
-                    bad.get_or_insert(format!(
-                        "rank {r} sent {} values of phi and c for {} cells",
-                        values.len(),
-                        part.len()
-                    ));
-                    continue;
-                }
-                let (phi, c) = values.split_at(part.len());
-                narrow(phi, &mut self.fields[0][part.clone()]);
-                narrow(c, &mut self.fields[1][part.clone()]);
-            }
-            if let Some(why) = bad {
-                busy(false);
-                return (stable, Err(Reason::Core(why)));
-            }
-        }
         busy(false);
         let stepped = match stepped {
             Stepped::Taken => Ok(()),
@@ -333,11 +306,8 @@ impl<R: Real, const D: usize, const N: usize> CoupledSteps<R, D, N> for RankStep
             .or(gathered))
     }
 
-    fn fields(&mut self, _cpl: &Coupled<'_, R, D, N>, out: &mut [Vec<R>; 2]) {
-        for (o, f) in out.iter_mut().zip(&self.fields) {
-            o.clear();
-            o.extend_from_slice(f);
-        }
+    fn sampled(&self) -> Option<Sample> {
+        self.me.sampled
     }
 
     fn sync(&mut self, cpl: &mut Coupled<'_, R, D, N>) -> Result<()> {
@@ -416,6 +386,8 @@ pub fn lead<R: Real, const D: usize, const N: usize, T>(
     let cpl = Coupled::on_slab(flow, seg, global.slab_start(), cut.as_deref(), &mut slab)
         .map_err(|e| Error::failure(format!("the coupled run's slabs: {e}")))?;
     let me = Stepper {
+        psi: step_psi(global, plan, &parts[0]),
+        sampled: None,
         cpl,
         slab,
         own: plan.owned_cells(),
@@ -427,7 +399,6 @@ pub fn lead<R: Real, const D: usize, const N: usize, T>(
     let mut steps = RankSteps {
         me,
         parts,
-        fields: [Vec::new(), Vec::new()],
         synced: true,
         failure: None,
     };
@@ -446,7 +417,7 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
     let (mut mine, parts) = join(global, &scene.label)?;
     let world = comm();
     let root = world.process_at_rank(0);
-    let mut links = RankLinks::new(&world, parts);
+    let mut links = RankLinks::new(&world, parts.clone());
     let Parts {
         flow,
         seg,
@@ -467,6 +438,8 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
         }
     };
     let mut me = Stepper {
+        psi: step_psi(global, plan, &parts[rank]),
+        sampled: None,
         cpl,
         slab,
         own,
@@ -483,10 +456,12 @@ pub fn serve<R: Real, const D: usize, const N: usize>(
                 first,
                 sample,
             } => {
-                let (_, stepped) = me.step(R::from_f64(target), first);
-                if sample && matches!(stepped, Stepped::Taken) {
-                    root.send_with_tag(&me.owned_fields()[..], TAG_FIELDS);
-                }
+                // the run's threshold, as rank 0's run loop passes it
+                me.step(
+                    R::from_f64(target),
+                    first,
+                    sample.then_some(scene.psi_threshold),
+                );
             }
             Command::Gather => {
                 let words = record_words(&me.cpl.slab_record());

@@ -22,7 +22,10 @@ use sieve_core::fork::Serial;
 use sieve_core::frame::{Frame, Rotation};
 use sieve_core::geometry::CutCells;
 use sieve_core::segregation::{DirectionMode, Segregation, SegregationConfig, Transport};
-use sieve_core::{Grid, Real};
+use sieve_core::sum::InOrder;
+use sieve_core::{
+    add_psi_sums, diagnose_fields, psi_floor, psi_of_sums, psi_sums_start, Grid, PsiOf, Real,
+};
 use std::ops::Range;
 
 const N: usize = 1024;
@@ -59,7 +62,30 @@ struct After {
     excess: [f64; 2],
     /// small grains and all grains out through `[axis][side]`
     out: Vec<[[f64; 2]; 2]>,
+    /// The segregation timer's Psi and the floor under it (`psi_of`).
+    psi: [f64; 2],
     arrays: Vec<(String, Vec<f64>)>,
+}
+
+/// Psi and the floor under it of the cells `own` of `cpl` (their open volume fractions in
+/// `volume`) as the segregation timer of a run on slabs takes them: sums continued across
+/// the slabs in cell order (`sums`), over a grid of `cells` cells.
+fn psi_of<R: Real, const D: usize>(
+    cpl: &Coupled<'_, R, D, N>,
+    own: Range<usize>,
+    volume: Option<&[R]>,
+    cells: usize,
+    sums: &mut impl InOrder<R>,
+) -> [f64; 2] {
+    let phi: Vec<R> = own.clone().map(|i| cpl.seg.phi(i)).collect();
+    let c: Vec<R> = own.map(|i| cpl.seg.c(i)).collect();
+    let vacuum = cpl.seg.config().vacuum;
+    [PsiOf::Value, PsiOf::Floor].map(|of| {
+        let total = sums.sums_in_order(psi_sums_start(), |s| {
+            add_psi_sums(s, of, &phi, &c, volume, vacuum)
+        });
+        psi_of_sums(total, of, cells, cpl.seg.grid().cell_volume()).to_f64()
+    })
 }
 
 fn after<R: Real, const D: usize>(cpl: &Coupled<'_, R, D, N>, dt: R, cells: Range<usize>) -> After {
@@ -78,6 +104,7 @@ fn after<R: Real, const D: usize>(cpl: &Coupled<'_, R, D, N>, dt: R, cells: Rang
         guarded: cpl.guarded_mass().to_f64(),
         excess: sides(cpl.seg.tracked_excess()),
         out: (0..D).map(|a| [sides(small[a]), sides(total[a])]).collect(),
+        psi: [f64::NAN; 2],
         arrays,
     }
 }
@@ -90,7 +117,16 @@ fn serial<R: Real, const D: usize>(mut scene: Scene<R, D>, steps: usize) -> Vec<
         .map(|_| {
             let dt = cpl.stable_dt();
             cpl.step_with(dt).unwrap();
-            after(&cpl, dt, 0..n)
+            let mut a = after(&cpl, dt, 0..n);
+            // the serial timer's: the whole fields at once
+            let (phi, c): (Vec<R>, Vec<R>) = (0..n).map(|i| (cpl.seg.phi(i), cpl.seg.c(i))).unzip();
+            let vol = cpl.geometry().map(|g| g.volumes());
+            let (vac, cv) = (cpl.seg.config().vacuum, cpl.seg.grid().cell_volume());
+            a.psi = [
+                diagnose_fields(&phi, &c, vol, vac, cv).psi.to_f64(),
+                psi_floor(&phi, &c, vol, vac, cv).to_f64(),
+            ];
+            a
         })
         .collect()
 }
@@ -118,7 +154,10 @@ fn on_slabs<R: Real, const D: usize>(
             .map(|_| {
                 let dt = cpl.stable_dt_reaching(&mut slab);
                 cpl.step_with_reaching(dt, &Serial, &mut slab).unwrap();
-                after(&cpl, dt, own.clone())
+                let mut a = after(&cpl, dt, own.clone());
+                let vol = geo.map(|g| &g.volumes()[own.clone()]);
+                a.psi = psi_of(&cpl, own.clone(), vol, start.flow.len(), &mut slab);
+                a
             })
             .collect();
         (plan.global_cells(), history)
@@ -156,6 +195,13 @@ fn check<R: Real, const D: usize>(
                     assert_serial_rows(&at, name, mine, all, cells.start, plane);
                 }
                 assert_eq!(got.cg, expected.cg, "{at}: CG iterations");
+                for (k, what) in ["Psi", "floor under Psi"].iter().enumerate() {
+                    assert_eq!(
+                        got.psi[k].to_bits(),
+                        expected.psi[k].to_bits(),
+                        "{at}: the timer's {what}"
+                    );
+                }
                 assert_eq!(
                     got.flushed.to_bits(),
                     expected.flushed.to_bits(),

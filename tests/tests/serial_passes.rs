@@ -8,8 +8,9 @@ use crate::common::{boxed, config, Lcg};
 use sieve_core::geometry::{CutCells, Region, DEFAULT_SMALL};
 use sieve_core::segregation::direction::{segregation_normal, velocity_gradient};
 use sieve_core::{
-    diagnose, diagnose_embedded, diagnose_fields, psi_floor, Boundaries, Boundary, DirectionMode,
-    Grid, Phase, Scheme, Segregation, SegregationConfig,
+    add_psi_sums, diagnose, diagnose_embedded, diagnose_fields, psi_floor, psi_of_sums,
+    psi_sums_start, Boundaries, Boundary, DirectionMode, Grid, Phase, PsiOf, Scheme, Segregation,
+    SegregationConfig,
 };
 
 const N: usize = 256;
@@ -230,9 +231,11 @@ fn psi_floor_is_below_psi_and_diagnose_fields_has_its_bits() {
     assert!(ratios[5].is_nan(), "{ratios:?}");
 }
 
-#[test]
-fn diagnose_fields_has_the_cut_cell_bits() {
-    const M: usize = 576;
+/// The cells of the cut-cell tests below.
+const M: usize = 576;
+
+/// A 24 x 24 grid and the cut cells of a disc of radius 0.05 in it, touching four grid lines.
+fn disc() -> (Grid<f64, 2>, Box<CutCells<f64, 2, M>>) {
     let grid = Grid::new([24, 24], [-0.06; 2], [0.12; 2], M).unwrap();
     let mut geo: Box<CutCells<f64, 2, M>> = Box::new(CutCells::zeroed());
     geo.build(
@@ -242,6 +245,12 @@ fn diagnose_fields_has_the_cut_cell_bits() {
         DEFAULT_SMALL,
     )
     .unwrap();
+    (grid, geo)
+}
+
+#[test]
+fn diagnose_fields_has_the_cut_cell_bits() {
+    let (grid, geo) = disc();
     let cfg = settling();
     let mut s = boxed::<f64, 2, M>();
     s.setup(grid, [[Boundary::Wall; 2]; 2], cfg).unwrap();
@@ -270,5 +279,80 @@ fn diagnose_fields_has_the_cut_cell_bits() {
         floor <= d.psi && floor > 0.92 * d.psi,
         "floor {floor}, psi {}",
         d.psi
+    );
+}
+
+/// Psi and its floor from sums continued piece by piece in cell order (`add_psi_sums`, what
+/// the slabs of an MPI run hand on instead of their fields): the bits of the whole grid's,
+/// wherever the cuts fall (empty pieces and single cells included), in a box and with cut
+/// cells; a NaN too.
+#[test]
+fn psi_sums_cut_anywhere_have_the_whole_grids_bits() {
+    let (grid, geo) = disc();
+    let mut s = boxed::<f64, 2, M>();
+    s.setup(grid, [[Boundary::Wall; 2]; 2], settling()).unwrap();
+    let mut rng = Lcg(7);
+    for i in 0..grid.len() {
+        let c = if rng.next() < 0.1 {
+            0.0
+        } else {
+            0.6 * rng.next()
+        };
+        s.set_cell(i, c, 1.0, [0.0; 2], c * rng.next());
+    }
+    let (mut phi, c) = fields(&s);
+    let (vac, cv, n) = (s.config().vacuum, grid.cell_volume(), grid.len());
+    let pieces = |phi: &[f64], vol: Option<&[f64]>, of: PsiOf, cuts: &[usize]| {
+        let mut sums = psi_sums_start();
+        for w in cuts.windows(2) {
+            let r = w[0]..w[1];
+            let v = vol.map(|v| &v[r.clone()]);
+            sums = add_psi_sums(sums, of, &phi[r.clone()], &c[r], v, vac);
+        }
+        psi_of_sums(sums, of, n, cv)
+    };
+    let mut cut_sets = vec![vec![0, n], vec![0, 0, 1, 2, 300, 300, 301, n, n]];
+    for _ in 0..20 {
+        let mut cuts: Vec<usize> = (0..1 + (rng.next() * 6.0) as usize)
+            .map(|_| (rng.next() * n as f64) as usize)
+            .collect();
+        cuts.extend([0, n]);
+        cuts.sort();
+        cut_sets.push(cuts);
+    }
+    let mut seen = 0;
+    for vol in [None, Some(geo.volumes())] {
+        let value = diagnose_fields(&phi, &c, vol, vac, cv).psi;
+        let floor = psi_floor(&phi, &c, vol, vac, cv);
+        // a mixed random state: Psi well inside (0, 1), the floor below it
+        assert!(value > 0.5 && value < 1.0 && floor < value && floor > 0.8 * value);
+        for cuts in &cut_sets {
+            assert_eq!(
+                pieces(&phi, vol, PsiOf::Value, cuts).to_bits(),
+                value.to_bits(),
+                "{cuts:?}"
+            );
+            assert_eq!(
+                pieces(&phi, vol, PsiOf::Floor, cuts).to_bits(),
+                floor.to_bits(),
+                "{cuts:?}"
+            );
+            seen += 1;
+        }
+    }
+    assert_eq!(seen, 44);
+    // a NaN makes a mass NaN and Psi 0 (the entropy's clamps), serially and in pieces alike
+    phi[400] = f64::NAN;
+    let value = diagnose_fields(&phi, &c, None, vac, cv).psi;
+    let floor = psi_floor(&phi, &c, None, vac, cv);
+    assert_eq!((value, floor), (0.0, 0.0));
+    let cuts = [0, 400, 401, n];
+    assert_eq!(
+        pieces(&phi, None, PsiOf::Value, &cuts).to_bits(),
+        value.to_bits()
+    );
+    assert_eq!(
+        pieces(&phi, None, PsiOf::Floor, &cuts).to_bits(),
+        floor.to_bits()
     );
 }
