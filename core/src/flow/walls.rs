@@ -353,7 +353,9 @@ impl<R: Real, const D: usize, const N: usize> Walls<R, D, N> {
 
     /// Wall velocity at the Dirichlet point `x_c + d n` of cell `i`, whose centre is `x`
     /// (as the whole grid places it: [`Flow::home_center`], so that a slab's are the whole
-    /// grid's to the bit).
+    /// grid's to the bit). The caller checks [`Self::turns`] first (`Flow::wall_velocity`
+    /// does): a wall at rest moves at `[0; D]` exactly, not at the signed zeros that
+    /// `omega = 0` gives here.
     fn wall_velocity(&self, x: [R; D], i: usize) -> [R; D] {
         let mut x = x;
         let d = self.wall_d[i];
