@@ -96,11 +96,6 @@ pub fn coupled_threads(scene: &Scene) -> (usize, Option<String>) {
     let Some(n) = requested_threads().filter(|&n| n > 1) else {
         return (1, None);
     };
-    #[cfg(feature = "mpi")]
-    if crate::parallel_mpi::world().is_some() {
-        // under mpirun each rank steps its rows on one thread; the CLI's note says so once
-        return (1, None);
-    }
     if scene.len() >= AUTO_MIN_CELLS {
         return (n, None);
     }

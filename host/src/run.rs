@@ -735,7 +735,15 @@ impl FlowJob for RunJob<'_> {
         let equations = scene.flow.as_ref().map(|m| m.equations);
         let mut discharge = None;
         let (stats, summary, p_final) = if equations == Some(Equations::Coupled) {
-            if let (Some(note), false) = (crate::parallel::coupled_threads(scene).1, self.quiet) {
+            // under mpirun the ranks step on one thread each, which the CLI's note says
+            #[cfg(feature = "mpi")]
+            let ranks = crate::parallel_mpi::world().is_some();
+            #[cfg(not(feature = "mpi"))]
+            let ranks = false;
+            if let (Some(note), false) = (
+                crate::parallel::coupled_threads(scene).1,
+                self.quiet || ranks,
+            ) {
                 eprintln!("{note}");
             }
             let cs = crate::flow::coupled_loop_with(
